@@ -1,0 +1,444 @@
+//! Launch files: a TOML graph of nodes placed on hosts, and the checks that run before anything
+//! starts. Every error names the file, the line and what is wrong.
+//!
+//! ```toml
+//! [graph]
+//! name = "demo"              # also the bus namespace unless `namespace` is given
+//!
+//! [hosts.local]              # optional for one-host graphs
+//! address = "127.0.0.1"      # where this host's zenoh endpoints listen
+//! zenoh_port = 0             # first port for this host's nodes; 0 = pick free ports
+//!
+//! [topics]                   # transport per topic; default iceoryx2 (same host)
+//! "bench/bodies" = "zenoh"
+//!
+//! [[nodes]]
+//! name = "source"
+//! binary = "dc-bench-bus"
+//! host = "local"             # optional for one-host graphs
+//! daemon = false             # daemons run until the other nodes are done, then are stopped
+//! params = { role = "source", count = 100 }
+//! ```
+
+use runtime::Transport;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use toml::Spanned;
+
+/// Host used when a launch file names none.
+pub const DEFAULT_HOST: &str = "local";
+
+/// A problem in a launch file, located by line.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Problem {
+    pub line: usize,
+    pub message: String,
+}
+
+/// Why a launch file was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum GraphError {
+    #[error("{file}: cannot read: {source}")]
+    Read { file: String, source: std::io::Error },
+    #[error("{}", render_problems(file, problems))]
+    Invalid { file: String, problems: Vec<Problem> },
+}
+
+fn render_problems(file: &str, problems: &[Problem]) -> String {
+    problems
+        .iter()
+        .map(|p| format!("{file}:{}: {}", p.line, p.message))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFile {
+    #[serde(default)]
+    graph: RawGraph,
+    #[serde(default)]
+    hosts: BTreeMap<String, Spanned<RawHost>>,
+    #[serde(default)]
+    topics: BTreeMap<Spanned<String>, Spanned<String>>,
+    #[serde(default)]
+    nodes: Vec<Spanned<RawNode>>,
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawGraph {
+    name: Option<String>,
+    namespace: Option<String>,
+    /// Queue depth per subscriber.
+    queue_depth: Option<usize>,
+}
+
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+struct RawHost {
+    #[serde(default = "default_address")]
+    address: String,
+    #[serde(default)]
+    zenoh_port: u16,
+    /// Extra zenoh endpoints to connect to (e.g. a router).
+    #[serde(default)]
+    zenoh_connect: Vec<String>,
+}
+
+fn default_address() -> String {
+    "127.0.0.1".to_string()
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawNode {
+    name: Option<Spanned<String>>,
+    binary: Option<Spanned<String>>,
+    host: Option<Spanned<String>>,
+    #[serde(default)]
+    daemon: bool,
+    #[serde(default)]
+    params: toml::Table,
+    #[serde(default)]
+    env: BTreeMap<String, String>,
+}
+
+/// One host of a graph.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Host {
+    pub name: String,
+    pub address: String,
+    pub zenoh_port: u16,
+    pub zenoh_connect: Vec<String>,
+}
+
+/// One node of a graph, checked.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeSpec {
+    pub name: String,
+    /// The binary as written in the file.
+    pub binary: String,
+    /// The binary found on disk.
+    pub program: PathBuf,
+    pub host: String,
+    pub daemon: bool,
+    /// Command-line arguments built from the parameters.
+    pub args: Vec<String>,
+    pub env: BTreeMap<String, String>,
+    pub line: usize,
+}
+
+/// A checked graph.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Graph {
+    pub file: String,
+    pub name: String,
+    pub namespace: String,
+    pub queue_depth: usize,
+    pub hosts: BTreeMap<String, Host>,
+    pub topics: BTreeMap<String, Transport>,
+    pub nodes: Vec<NodeSpec>,
+}
+
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+/// Turns a parameter table into `--key=value` arguments (`true` -> `--key`, `false` -> nothing,
+/// arrays -> the flag repeated).
+pub fn params_to_args(params: &toml::Table) -> Result<Vec<String>, String> {
+    let mut args = Vec::new();
+    for (key, value) in params {
+        let mut push = |v: &toml::Value| -> Result<(), String> {
+            match v {
+                toml::Value::Boolean(true) => args.push(format!("--{key}")),
+                toml::Value::Boolean(false) => {}
+                toml::Value::String(s) => args.push(format!("--{key}={s}")),
+                toml::Value::Integer(i) => args.push(format!("--{key}={i}")),
+                toml::Value::Float(f) => args.push(format!("--{key}={f}")),
+                other => return Err(format!("parameter `{key}`: unsupported value {other}")),
+            }
+            Ok(())
+        };
+        match value {
+            toml::Value::Array(items) => items.iter().try_for_each(&mut push)?,
+            v => push(v)?,
+        }
+    }
+    Ok(args)
+}
+
+/// Finds a node binary: next to the running `dc` first (a cargo target dir), then on `PATH`.
+pub fn find_binary(name: &str) -> Option<PathBuf> {
+    let direct = Path::new(name);
+    if direct.components().count() > 1 {
+        return direct.is_file().then(|| direct.to_path_buf());
+    }
+    let beside = std::env::current_exe().ok().and_then(|exe| exe.parent().map(|d| d.join(name)));
+    if let Some(p) = beside.filter(|p| p.is_file()) {
+        return Some(p);
+    }
+    std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths).map(|d| d.join(name)).find(|p| p.is_file())
+    })
+}
+
+impl Graph {
+    /// Reads and checks a launch file. Parameter checks that need the node binaries run in
+    /// [`Graph::check_params`].
+    pub fn load(path: &Path) -> Result<Graph, GraphError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| GraphError::Read { file: file.clone(), source })?;
+        Graph::parse(&file, &text)
+    }
+
+    /// Parses and checks launch-file text; `file` names it in errors.
+    pub fn parse(file: &str, text: &str) -> Result<Graph, GraphError> {
+        let invalid = |problems| GraphError::Invalid { file: file.to_string(), problems };
+        let raw: RawFile = toml::from_str(text).map_err(|e| {
+            let line = e.span().map(|s| line_of(text, s.start)).unwrap_or(1);
+            invalid(vec![Problem { line, message: e.message().trim().to_string() }])
+        })?;
+        let mut problems = Vec::new();
+        let mut problem = |offset: usize, message: String| problems.push(Problem { line: line_of(text, offset), message });
+
+        let name = raw
+            .graph
+            .name
+            .clone()
+            .unwrap_or_else(|| Path::new(file).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
+        let namespace = raw.graph.namespace.clone().unwrap_or_else(|| name.clone());
+
+        let mut hosts = BTreeMap::new();
+        for (host_name, spanned) in &raw.hosts {
+            let h = spanned.get_ref();
+            hosts.insert(
+                host_name.clone(),
+                Host {
+                    name: host_name.clone(),
+                    address: h.address.clone(),
+                    zenoh_port: h.zenoh_port,
+                    zenoh_connect: h.zenoh_connect.clone(),
+                },
+            );
+        }
+        if hosts.is_empty() {
+            hosts.insert(
+                DEFAULT_HOST.to_string(),
+                Host { name: DEFAULT_HOST.into(), address: default_address(), zenoh_port: 0, zenoh_connect: vec![] },
+            );
+        }
+
+        let mut topics = BTreeMap::new();
+        for (topic, transport) in &raw.topics {
+            if !msgs::topics::ALL.contains(&topic.get_ref().as_str()) {
+                problem(topic.span().start, format!("unknown topic `{}` (known: {})", topic.get_ref(), msgs::topics::ALL.join(", ")));
+            }
+            match transport.get_ref().as_str() {
+                "iceoryx2" => topics.insert(topic.get_ref().clone(), Transport::Iceoryx2),
+                "zenoh" => topics.insert(topic.get_ref().clone(), Transport::Zenoh),
+                "both" => topics.insert(topic.get_ref().clone(), Transport::Both),
+                other => {
+                    problem(transport.span().start, format!("topic `{}`: unknown transport `{other}` (iceoryx2, zenoh or both)", topic.get_ref()));
+                    None
+                }
+            };
+        }
+
+        let mut nodes: Vec<NodeSpec> = Vec::new();
+        let mut seen: BTreeMap<String, usize> = BTreeMap::new();
+        if raw.nodes.is_empty() {
+            problem(0, "the graph has no nodes ([[nodes]] tables)".into());
+        }
+        for spanned in &raw.nodes {
+            let start = spanned.span().start;
+            let line = line_of(text, start);
+            let node = spanned.get_ref();
+            let Some(node_name) = &node.name else {
+                problem(start, "node without a `name`".into());
+                continue;
+            };
+            let label = node_name.get_ref().clone();
+            if label.is_empty() || !label.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+                problem(node_name.span().start, format!("node name `{label}` must be non-empty letters, digits, `-` or `_`"));
+            }
+            if let Some(first) = seen.insert(label.clone(), line) {
+                problem(node_name.span().start, format!("duplicate node name `{label}` (first defined on line {first})"));
+            }
+            let host = match &node.host {
+                Some(h) if hosts.contains_key(h.get_ref()) => h.get_ref().clone(),
+                Some(h) => {
+                    problem(h.span().start, format!("node `{label}`: unknown host `{}` (hosts: {})", h.get_ref(), hosts.keys().cloned().collect::<Vec<_>>().join(", ")));
+                    continue;
+                }
+                None if hosts.len() == 1 => hosts.keys().next().cloned().unwrap_or_default(),
+                None => {
+                    problem(start, format!("node `{label}`: `host` is required when the graph has several hosts"));
+                    continue;
+                }
+            };
+            let Some(binary) = &node.binary else {
+                problem(start, format!("node `{label}`: missing `binary`"));
+                continue;
+            };
+            let program = match find_binary(binary.get_ref()) {
+                Some(p) => p,
+                None => {
+                    problem(binary.span().start, format!("node `{label}`: unknown node binary `{}` (not beside dc nor on PATH; was it built?)", binary.get_ref()));
+                    continue;
+                }
+            };
+            let args = match params_to_args(&node.params) {
+                Ok(a) => a,
+                Err(e) => {
+                    problem(start, format!("node `{label}`: {e}"));
+                    continue;
+                }
+            };
+            nodes.push(NodeSpec {
+                name: label,
+                binary: binary.get_ref().clone(),
+                program,
+                host,
+                daemon: node.daemon,
+                args,
+                env: node.env.clone(),
+                line,
+            });
+        }
+        if !problems.is_empty() {
+            problems.sort_by_key(|p| p.line);
+            return Err(invalid(problems));
+        }
+        Ok(Graph {
+            file: file.to_string(),
+            name,
+            namespace,
+            queue_depth: raw.graph.queue_depth.unwrap_or(16),
+            hosts,
+            topics,
+            nodes,
+        })
+    }
+
+    /// Asks each node binary whether it accepts its parameters (`DC_VALIDATE=1`), so that a
+    /// missing, unknown or ill-typed parameter fails before anything starts.
+    pub fn check_params(&self) -> Result<(), GraphError> {
+        let mut problems = Vec::new();
+        for node in &self.nodes {
+            let out = std::process::Command::new(&node.program)
+                .args(&node.args)
+                .env("DC_VALIDATE", "1")
+                .stdin(std::process::Stdio::null())
+                .output();
+            match out {
+                Ok(o) if o.status.success() => {}
+                Ok(o) => {
+                    // clap's message without its usage and help footer, on one line.
+                    let stderr = String::from_utf8_lossy(&o.stderr);
+                    let msg = stderr
+                        .lines()
+                        .take_while(|l| !l.starts_with("Usage:") && !l.starts_with("For more information"))
+                        .map(str::trim)
+                        .filter(|l| !l.is_empty())
+                        .collect::<Vec<_>>()
+                        .join(" ");
+                    let msg = msg.trim_start_matches("error: ");
+                    problems.push(Problem {
+                        line: node.line,
+                        message: format!("node `{}` ({}): bad parameters: {msg}", node.name, node.binary),
+                    });
+                }
+                Err(e) => problems.push(Problem {
+                    line: node.line,
+                    message: format!("node `{}`: cannot run `{}`: {e}", node.name, node.program.display()),
+                }),
+            }
+        }
+        if problems.is_empty() {
+            Ok(())
+        } else {
+            Err(GraphError::Invalid { file: self.file.clone(), problems })
+        }
+    }
+
+    /// Nodes placed on `host`.
+    pub fn nodes_on<'a>(&'a self, host: &'a str) -> impl Iterator<Item = &'a NodeSpec> + 'a {
+        self.nodes.iter().filter(move |n| n.host == host)
+    }
+
+    /// Whether any topic travels over zenoh (then every node gets a zenoh endpoint).
+    pub fn uses_zenoh(&self) -> bool {
+        self.hosts.len() > 1 || self.topics.values().any(|t| t.uses_zenoh())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn problems(text: &str) -> Vec<Problem> {
+        match Graph::parse("g.toml", text) {
+            Err(GraphError::Invalid { problems, .. }) => problems,
+            other => panic!("expected problems, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn params_become_flags() {
+        let t: toml::Table = toml::from_str("a = 1\nb = true\nc = false\nd = 'x'\ne = [1, 2]\nf = 0.5").unwrap();
+        assert_eq!(params_to_args(&t).unwrap(), ["--a=1", "--b", "--d=x", "--e=1", "--e=2", "--f=0.5"]);
+    }
+
+    #[test]
+    fn syntax_error_names_the_line() {
+        let p = problems("[graph]\nname = \"x\"\n[[nodes]]\nname = = 3\n");
+        assert_eq!(p[0].line, 4, "{p:?}");
+    }
+
+    #[test]
+    fn unknown_binary_host_and_duplicate_names_are_reported_with_lines() {
+        let text = r#"
+[hosts.a]
+[hosts.b]
+
+[[nodes]]
+name = "x"
+binary = "dc-no-such-binary"
+host = "a"
+
+[[nodes]]
+name = "x"
+binary = "dc-no-such-binary"
+host = "c"
+"#;
+        let p = problems(text);
+        let messages: Vec<_> = p.iter().map(|p| (p.line, p.message.as_str())).collect();
+        assert!(messages.iter().any(|(l, m)| *l == 7 && m.contains("unknown node binary `dc-no-such-binary`")), "{messages:?}");
+        assert!(messages.iter().any(|(l, m)| *l == 11 && m.contains("duplicate node name `x`")), "{messages:?}");
+        assert!(messages.iter().any(|(l, m)| *l == 13 && m.contains("unknown host `c`")), "{messages:?}");
+    }
+
+    #[test]
+    fn unknown_topic_and_transport_are_reported() {
+        let p = problems("[topics]\n\"bodies\" = \"carrier-pigeon\"\n\"nope\" = \"zenoh\"\n[[nodes]]\nname='a'\nbinary='sh'\n");
+        assert!(p.iter().any(|p| p.line == 2 && p.message.contains("unknown transport")), "{p:?}");
+        assert!(p.iter().any(|p| p.line == 3 && p.message.contains("unknown topic `nope`")), "{p:?}");
+    }
+
+    #[test]
+    fn unknown_keys_are_refused() {
+        let p = problems("[[nodes]]\nname='a'\nbinary='sh'\nparmas = {}\n");
+        assert!(p[0].message.contains("parmas"), "{p:?}");
+    }
+
+    #[test]
+    fn a_valid_graph_parses() {
+        let g = Graph::parse("g.toml", "[[nodes]]\nname='a'\nbinary='sh'\nparams={c='true'}\n").unwrap();
+        assert_eq!(g.nodes[0].host, DEFAULT_HOST);
+        assert_eq!(g.nodes[0].args, ["--c=true"]);
+        assert_eq!(g.namespace, "g");
+    }
+}

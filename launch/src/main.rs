@@ -1,0 +1,226 @@
+//! `dc`: the Deep Contact command — launch node graphs, run single nodes, inspect graphs, bench.
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use launch::graph::{find_binary, Graph, NodeSpec, DEFAULT_HOST};
+use launch::supervisor::{self, Output, RunError};
+use runtime::Transport;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+#[derive(Parser)]
+#[command(name = "dc", about = "Deep Contact: learning warm starts for rigid-body contact solvers")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Start this host's nodes of a launch file and supervise them.
+    Launch {
+        file: PathBuf,
+        /// Which host of the file this machine is (default: the only host, or `local`).
+        #[arg(long)]
+        host: Option<String>,
+        /// Bus namespace (default: the file's); separates graphs running side by side.
+        #[arg(long)]
+        namespace: Option<String>,
+        /// Show what would start where and over which transport, then exit.
+        #[arg(long)]
+        dry_run: bool,
+    },
+    /// Start one node by hand: `dc run sim --steps 10` runs `dc-sim --steps 10`.
+    Run {
+        node: String,
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
+    /// Print the graph of a launch file.
+    List { file: PathBuf },
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        what: BenchWhat,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchWhat {
+    /// One-way latency and throughput of iceoryx2, zenoh and an in-process channel.
+    Bus {
+        /// Frames in the throughput phase.
+        #[arg(long, default_value_t = 300)]
+        count: u32,
+        /// Frames in the latency phase.
+        #[arg(long, default_value_t = 300)]
+        latency_count: u32,
+    },
+}
+
+fn main() {
+    runtime::init_logging();
+    let cli = Cli::parse();
+    let code = match real_main(cli) {
+        Ok(()) => 0,
+        Err(e) => {
+            eprintln!("dc: error: {e:#}");
+            if e.downcast_ref::<RunError>().is_some_and(|r| matches!(r, RunError::Interrupted)) {
+                130
+            } else {
+                1
+            }
+        }
+    };
+    std::process::exit(code);
+}
+
+fn interrupt_flag() -> Arc<AtomicBool> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let f = flag.clone();
+    let _ = ctrlc::set_handler(move || f.store(true, Ordering::SeqCst));
+    flag
+}
+
+fn real_main(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Launch { file, host, namespace, dry_run } => {
+            let mut graph = Graph::load(&file)?;
+            if let Some(ns) = namespace {
+                graph.namespace = ns;
+            }
+            let host = pick_host(&graph, host)?;
+            graph.check_params()?;
+            if dry_run {
+                print_graph(&graph, Some(&host));
+                return Ok(());
+            }
+            let flag = interrupt_flag();
+            supervisor::run(&graph, &host, Output::Forward, &flag)?;
+            Ok(())
+        }
+        Command::Run { node, args } => {
+            let program = [format!("dc-{node}"), node.clone()]
+                .iter()
+                .find_map(|n| find_binary(n))
+                .with_context(|| format!("no node binary `dc-{node}` or `{node}` beside dc or on PATH"))?;
+            use std::os::unix::process::CommandExt;
+            let err = std::process::Command::new(&program).args(&args).exec();
+            bail!("cannot run {}: {err}", program.display())
+        }
+        Command::List { file } => {
+            let graph = Graph::load(&file)?;
+            print_graph(&graph, None);
+            Ok(())
+        }
+        Command::Bench { what: BenchWhat::Bus { count, latency_count } } => bench_bus(count, latency_count),
+    }
+}
+
+fn pick_host(graph: &Graph, host: Option<String>) -> Result<String> {
+    match host {
+        Some(h) if graph.hosts.contains_key(&h) => Ok(h),
+        Some(h) => bail!(
+            "{}: unknown host `{h}` (hosts: {})",
+            graph.file,
+            graph.hosts.keys().cloned().collect::<Vec<_>>().join(", ")
+        ),
+        None if graph.hosts.len() == 1 => Ok(graph.hosts.keys().next().cloned().unwrap_or_default()),
+        None => bail!("{}: the graph has several hosts; say which this is with --host", graph.file),
+    }
+}
+
+fn print_graph(graph: &Graph, only: Option<&str>) {
+    println!("graph `{}` ({}), bus namespace `{}`", graph.name, graph.file, graph.namespace);
+    for (name, host) in &graph.hosts {
+        if only.is_some_and(|h| h != name) {
+            continue;
+        }
+        let port = if host.zenoh_port == 0 { "auto".to_string() } else { host.zenoh_port.to_string() };
+        println!("host `{name}` (address {}, zenoh ports from {port})", host.address);
+        for n in graph.nodes_on(name) {
+            let daemon = if n.daemon { " [daemon]" } else { "" };
+            println!("  {}{daemon}: {} {}", n.name, n.program.display(), n.args.join(" "));
+        }
+    }
+    println!("topics (others: iceoryx2 within a host):");
+    for (topic, t) in &graph.topics {
+        let how = match t {
+            Transport::Iceoryx2 => "iceoryx2 (shared memory, this host)",
+            Transport::Zenoh => "zenoh (CBOR, across hosts)",
+            Transport::Both => "iceoryx2 + zenoh",
+        };
+        println!("  {topic}: {how}");
+    }
+}
+
+fn bench_bus(count: u32, latency_count: u32) -> Result<()> {
+    let program = find_binary("dc-bench-bus").context("dc-bench-bus not built (cargo build --workspace)")?;
+    let payloads: [(&str, Vec<String>); 3] = [
+        ("100 bodies", vec!["--kind=bodies".into(), "--n=100".into()]),
+        ("10,000 bodies", vec!["--kind=bodies".into(), "--n=10000".into()]),
+        ("grid 7x128x128", vec!["--kind=grid".into()]),
+    ];
+    let common = vec![format!("--count={count}"), format!("--latency-count={latency_count}")];
+    let flag = interrupt_flag();
+    println!("{:<16} {:<10} {:>10} {:>10} {:>12} {:>10}", "payload", "transport", "p50 us", "p99 us", "frames/s", "MB/s");
+    for (label, kind_args) in &payloads {
+        let mut results = Vec::new();
+        for transport in ["inproc", "iceoryx2", "zenoh"] {
+            let mut args = kind_args.clone();
+            args.extend(common.iter().cloned());
+            args.push(format!("--label={transport}"));
+            let line = if transport == "inproc" {
+                let out = std::process::Command::new(&program).arg("--role=inproc").args(&args).output()?;
+                if !out.status.success() {
+                    bail!("in-process bench failed: {}", String::from_utf8_lossy(&out.stderr));
+                }
+                String::from_utf8_lossy(&out.stdout).lines().last().unwrap_or_default().to_string()
+            } else {
+                let graph = bench_graph(&program, &args, transport == "zenoh");
+                let report = supervisor::run(&graph, DEFAULT_HOST, Output::Capture, &flag)?;
+                report.stdout.get("sink").and_then(|l| l.last().cloned()).context("sink printed no result")?
+            };
+            let r: bench_bus::BenchResult = serde_json::from_str(&line).with_context(|| format!("bad result line `{line}`"))?;
+            println!(
+                "{:<16} {:<10} {:>10.1} {:>10.1} {:>12.0} {:>10.1}",
+                label, transport, r.p50_us, r.p99_us, r.frames_per_s, r.mb_per_s
+            );
+            results.push(r);
+        }
+        println!(
+            "{:<16} ratios vs in-process: p50 iceoryx2 {:.2}x, zenoh {:.2}x; throughput iceoryx2 {:.2}x, zenoh {:.2}x",
+            "",
+            results[1].p50_us / results[0].p50_us,
+            results[2].p50_us / results[0].p50_us,
+            results[1].frames_per_s / results[0].frames_per_s,
+            results[2].frames_per_s / results[0].frames_per_s,
+        );
+    }
+    Ok(())
+}
+
+/// A two-node graph (source -> sink) over one transport, in its own namespace.
+fn bench_graph(program: &std::path::Path, args: &[String], zenoh: bool) -> Graph {
+    let node = |name: &str, role: &str| NodeSpec {
+        name: name.into(),
+        binary: "dc-bench-bus".into(),
+        program: program.to_path_buf(),
+        host: DEFAULT_HOST.into(),
+        daemon: false,
+        args: std::iter::once(format!("--role={role}")).chain(args.iter().cloned()).collect(),
+        env: [("RUST_LOG".to_string(), "warn,zenoh::net::runtime::orchestrator=error".to_string())].into(),
+        line: 0,
+    };
+    let mut graph = Graph::parse("<bench>", "[[nodes]]\nname = 'x'\nbinary = 'sh'\n").expect("built-in graph parses");
+    graph.name = "bench-bus".into();
+    graph.namespace = format!("bench-{}", std::process::id());
+    graph.nodes = vec![node("sink", "sink"), node("source", "source")];
+    if zenoh {
+        for t in [msgs::topics::BENCH_BODIES.name, msgs::topics::BENCH_GRID.name] {
+            graph.topics.insert(t.into(), Transport::Zenoh);
+        }
+    }
+    graph
+}

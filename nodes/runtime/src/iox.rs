@@ -1,0 +1,212 @@
+//! iceoryx2 transport: each topic is a publish-subscribe service of `[T]` slices with user header
+//! `H`, paired with an event service so a waiting subscriber sleeps on a file descriptor instead of
+//! spinning (iceoryx2 pub/sub has no blocking receive).
+//!
+//! Settings chosen against iceoryx2 0.10 defaults:
+//! - `enable_safe_overflow(false)` + `RetryUntilDelivered`: a full subscriber queue holds the
+//!   publisher back instead of silently overwriting unread samples;
+//! - `AllocationStrategy::PowerOfTwo`: slices may grow (contacts 0 -> 30,000) past the initial size;
+//! - limits raised above the defaults (2 publishers, buffer 2, 20 nodes), too small for our graphs.
+
+use crate::{BusConfig, Error, Result};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::prelude::*;
+use std::time::Duration;
+
+type PubSubFactory<H, T> = iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [T], H>;
+
+pub(crate) struct IoxNode {
+    node: Node<ipc::Service>,
+}
+
+fn err(topic: &str, what: impl std::fmt::Display) -> Error {
+    Error::Iceoryx2 { topic: topic.to_string(), what: what.to_string() }
+}
+
+fn service_name(bus: &BusConfig, topic: &str, suffix: &str) -> Result<ServiceName> {
+    let name = format!("{}{suffix}", bus.key(topic));
+    ServiceName::new(&name).map_err(|e| err(topic, format!("invalid service name `{name}`: {e:?}")))
+}
+
+impl IoxNode {
+    pub(crate) fn new(name: &str) -> Result<IoxNode> {
+        quiet_iceoryx2_logs();
+        let node_name = NodeName::new(name).map_err(|e| Error::Node(format!("invalid node name `{name}`: {e:?}")))?;
+        let node = NodeBuilder::new()
+            .name(&node_name)
+            // Signals are ours (ctrlc): the node's shutdown flag drives every loop.
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| Error::Node(format!("{e:?}")))?;
+        Ok(IoxNode { node })
+    }
+
+    fn pubsub<H: msgs::FrameHeader, T: msgs::FrameItem>(
+        &self,
+        bus: &BusConfig,
+        topic: &str,
+    ) -> Result<PubSubFactory<H, T>> {
+        self.node
+            .service_builder(&service_name(bus, topic, "")?)
+            .publish_subscribe::<[T]>()
+            .user_header::<H>()
+            .enable_safe_overflow(false)
+            .subscriber_max_buffer_size(bus.queue_depth.max(1))
+            .history_size(0)
+            .max_publishers(8)
+            .max_subscribers(32)
+            .max_nodes(64)
+            .open_or_create()
+            .map_err(|e| err(topic, format!("open publish-subscribe service: {e:?}")))
+    }
+
+    fn event(&self, bus: &BusConfig, topic: &str) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>> {
+        self.node
+            .service_builder(&service_name(bus, topic, "/@event")?)
+            .event()
+            .max_notifiers(8)
+            .max_listeners(32)
+            .max_nodes(64)
+            .open_or_create()
+            .map_err(|e| err(topic, format!("open event service: {e:?}")))
+    }
+
+    pub(crate) fn publisher<H: msgs::FrameHeader, T: msgs::FrameItem>(
+        &self,
+        bus: &BusConfig,
+        topic: &str,
+    ) -> Result<IoxPublisher<H, T>> {
+        let service = self.pubsub::<H, T>(bus, topic)?;
+        let publisher = service
+            .publisher_builder()
+            .initial_max_slice_len(1024)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+            .create()
+            .map_err(|e| err(topic, format!("create publisher: {e:?}")))?;
+        let notifier = self
+            .event(bus, topic)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| err(topic, format!("create notifier: {e:?}")))?;
+        Ok(IoxPublisher { topic: topic.to_string(), publisher, notifier })
+    }
+
+    pub(crate) fn subscriber<H: msgs::FrameHeader, T: msgs::FrameItem>(
+        &self,
+        bus: &BusConfig,
+        topic: &str,
+    ) -> Result<IoxSubscriber<H, T>> {
+        let service = self.pubsub::<H, T>(bus, topic)?;
+        let subscriber = service
+            .subscriber_builder()
+            .buffer_size(bus.queue_depth.max(1))
+            .create()
+            .map_err(|e| err(topic, format!("create subscriber: {e:?}")))?;
+        let listener = self
+            .event(bus, topic)?
+            .listener_builder()
+            .create()
+            .map_err(|e| err(topic, format!("create listener: {e:?}")))?;
+        Ok(IoxSubscriber { topic: topic.to_string(), subscriber, listener })
+    }
+}
+
+pub(crate) struct IoxPublisher<H: msgs::FrameHeader, T: msgs::FrameItem> {
+    topic: String,
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, [T], H>,
+    notifier: Notifier<ipc::Service>,
+}
+
+impl<H: msgs::FrameHeader, T: msgs::FrameItem> IoxPublisher<H, T> {
+    /// Loans `len` elements in shared memory, lets `fill` write header and items in place, hands
+    /// the frame (still in shared memory) to `after`, sends, and wakes the subscribers.
+    pub(crate) fn send_with(
+        &self,
+        len: usize,
+        fill: impl FnOnce(&mut H, &mut [T]),
+        after: impl FnOnce(&H, &[T]) -> Result<()>,
+    ) -> Result<()> {
+        let sample = self
+            .publisher
+            .loan_slice_uninit(len)
+            .map_err(|e| err(&self.topic, format!("loan {len} elements: {e:?}")))?;
+        let mut sample = sample.write_from_fn(|_| T::default());
+        let mut header = H::default();
+        fill(&mut header, sample.payload_mut());
+        *sample.user_header_mut() = header;
+        after(&header, sample.payload())?;
+        sample.send().map_err(|e| err(&self.topic, format!("send: {e:?}")))?;
+        self.notifier
+            .notify()
+            .map_err(|e| err(&self.topic, format!("notify: {e:?}")))?;
+        Ok(())
+    }
+
+    /// Copies `items` into a loaned slice and sends it.
+    pub(crate) fn send_slice(&self, header: &H, items: &[T]) -> Result<()> {
+        let mut sample = self
+            .publisher
+            .loan_slice_uninit(items.len())
+            .map_err(|e| err(&self.topic, format!("loan {} elements: {e:?}", items.len())))?;
+        *sample.user_header_mut() = *header;
+        let sample = sample.write_from_slice(items);
+        sample.send().map_err(|e| err(&self.topic, format!("send: {e:?}")))?;
+        self.notifier
+            .notify()
+            .map_err(|e| err(&self.topic, format!("notify: {e:?}")))?;
+        Ok(())
+    }
+}
+
+pub(crate) type IoxSample<H, T> = iceoryx2::sample::Sample<ipc::Service, [T], H>;
+
+pub(crate) struct IoxSubscriber<H: msgs::FrameHeader, T: msgs::FrameItem> {
+    topic: String,
+    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, [T], H>,
+    listener: Listener<ipc::Service>,
+}
+
+impl<H: msgs::FrameHeader, T: msgs::FrameItem> IoxSubscriber<H, T> {
+    pub(crate) fn try_recv(&self) -> Result<Option<IoxSample<H, T>>> {
+        self.subscriber
+            .receive()
+            .map_err(|e| err(&self.topic, format!("receive: {e:?}")))
+    }
+
+    /// Sleeps on the topic's event until a notification or `timeout`.
+    pub(crate) fn wait(&self, timeout: Duration) -> Result<()> {
+        self.listener
+            .timed_wait(|_| {}, timeout)
+            .map(|_| ())
+            .map_err(|e| err(&self.topic, format!("wait for event: {e:?}")))
+    }
+}
+
+/// iceoryx2 logs to stderr on its own (e.g. that no config file exists, which is our normal case);
+/// only its errors matter to a node's log unless `IOX2_LOG_LEVEL` says otherwise.
+fn quiet_iceoryx2_logs() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| set_log_level_from_env_or(LogLevel::Error));
+}
+
+pub(crate) fn cleanup_dead_nodes() -> Result<usize> {
+    quiet_iceoryx2_logs();
+    let mut cleaned = 0;
+    let mut failures = Vec::new();
+    Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::<ipc::Service>::Dead(view) = state {
+            match view.try_remove_stale_resources() {
+                Ok(()) => cleaned += 1,
+                Err(e) => failures.push(format!("{e:?}")),
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| Error::Node(format!("list nodes: {e:?}")))?;
+    for f in failures {
+        tracing::warn!("could not clean a dead iceoryx2 node: {f}");
+    }
+    Ok(cleaned)
+}

@@ -1,0 +1,380 @@
+//! What every Deep Contact node uses: a [`Node`] handle with its name, its bus configuration and a
+//! shutdown signal, and typed [`Publisher`]s / [`Subscriber`]s whose transport (iceoryx2 shared
+//! memory on one host, zenoh across hosts) is decided by the launch file, never by the node.
+//!
+//! A node binary is a few lines of wiring:
+//! ```no_run
+//! # fn main() -> anyhow::Result<()> {
+//! #[derive(clap::Parser)]
+//! struct Args { #[arg(long, default_value_t = 10)] count: u32 }
+//! let args: Args = runtime::parse_args();
+//! let node = runtime::Node::from_env("dc-example")?;
+//! let mut bodies = node.publisher(msgs::topics::BODIES)?;
+//! node.ready()?; // the launcher starts sources once every node's ports exist
+//! bodies.publish(&msgs::StepHeader::default(), &[msgs::Body::default()])?;
+//! # Ok(()) }
+//! ```
+//!
+//! Environment (set by `dc launch`; all optional for a node started by hand):
+//! - `DC_NODE_NAME`: the node's name in the graph;
+//! - `DC_BUS`: JSON [`BusConfig`] (namespace, per-topic transport, zenoh endpoints);
+//! - `DC_LAUNCHED=1`: the node reports readiness on stdout and waits for `start` on stdin;
+//! - `DC_VALIDATE=1`: [`parse_args`] only checks the parameters and exits.
+
+mod iox;
+mod pubsub;
+mod zen;
+
+pub use pubsub::{Publisher, Received, Subscriber};
+
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::io::{BufRead, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+
+/// Line a launched node prints on stdout once its ports exist.
+pub const READY_MARKER: &str = "\u{1e}dc-ready";
+/// Line the launcher writes to a node's stdin once every node of the graph is ready.
+pub const START_LINE: &str = "start";
+
+/// Errors of the runtime.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("topic `{topic}`: iceoryx2: {what}")]
+    Iceoryx2 { topic: String, what: String },
+    #[error("topic `{topic}`: zenoh: {what}")]
+    Zenoh { topic: String, what: String },
+    #[error("topic `{topic}`: {source}")]
+    Codec { topic: String, source: msgs::CodecError },
+    #[error("bad bus configuration in DC_BUS: {0}")]
+    Config(String),
+    #[error("iceoryx2 node: {0}")]
+    Node(String),
+    #[error("launcher pipe: {0}")]
+    Launcher(String),
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Which transport carries a topic.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Transport {
+    /// Zero-copy shared memory on this host.
+    #[default]
+    Iceoryx2,
+    /// CBOR over zenoh (across hosts).
+    Zenoh,
+    /// Published on both (a topic consumed locally and remotely); subscribers use iceoryx2.
+    Both,
+}
+
+impl Transport {
+    pub fn uses_iceoryx2(self) -> bool {
+        matches!(self, Transport::Iceoryx2 | Transport::Both)
+    }
+    pub fn uses_zenoh(self) -> bool {
+        matches!(self, Transport::Zenoh | Transport::Both)
+    }
+}
+
+/// Zenoh session settings of one node.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct ZenohConfig {
+    /// Endpoints this node listens on, e.g. `tcp/127.0.0.1:7447` (never every interface by default).
+    #[serde(default)]
+    pub listen: Vec<String>,
+    /// Endpoints this node connects to (other nodes, or a router).
+    #[serde(default)]
+    pub connect: Vec<String>,
+    /// `peer` (default) or `client` (through a router).
+    #[serde(default)]
+    pub mode: Option<String>,
+}
+
+/// How a node reaches the bus; written by the launcher, read by the runtime.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct BusConfig {
+    /// Separates graphs on one machine: iceoryx2 services are `dc/<namespace>/<topic>`, zenoh
+    /// keys `dc/<namespace>/<topic>` (`dc/<topic>` when empty).
+    #[serde(default)]
+    pub namespace: String,
+    /// Transport of topics not listed in `topics`.
+    #[serde(default)]
+    pub default_transport: Transport,
+    /// Per-topic transport.
+    #[serde(default)]
+    pub topics: BTreeMap<String, Transport>,
+    #[serde(default)]
+    pub zenoh: ZenohConfig,
+    /// Queue depth per subscriber; a full queue holds the publisher back (no loss).
+    #[serde(default = "default_queue_depth")]
+    pub queue_depth: usize,
+}
+
+fn default_queue_depth() -> usize {
+    16
+}
+
+impl BusConfig {
+    pub fn transport(&self, topic: &str) -> Transport {
+        self.topics.get(topic).copied().unwrap_or(self.default_transport)
+    }
+
+    /// The bus key of `topic`: `dc/<namespace>/<topic>`.
+    pub fn key(&self, topic: &str) -> String {
+        if self.namespace.is_empty() {
+            format!("dc/{topic}")
+        } else {
+            format!("dc/{}/{topic}", self.namespace)
+        }
+    }
+
+    fn from_env() -> Result<BusConfig> {
+        match std::env::var("DC_BUS") {
+            Ok(json) => serde_json::from_str(&json).map_err(|e| Error::Config(e.to_string())),
+            Err(_) => Ok(BusConfig { queue_depth: default_queue_depth(), ..Default::default() }),
+        }
+    }
+}
+
+/// A node's handle on the graph.
+pub struct Node {
+    name: String,
+    bus: BusConfig,
+    launched: bool,
+    shutdown: ShutdownSignal,
+    iox: OnceLock<iox::IoxNode>,
+    zenoh: OnceLock<zenoh::Session>,
+}
+
+impl Node {
+    /// Builds the node from its environment (see the crate docs); `default_name` is used when the
+    /// node was not started by a launcher. Installs the Ctrl-C / SIGTERM handler.
+    pub fn from_env(default_name: &str) -> Result<Node> {
+        let name = std::env::var("DC_NODE_NAME").unwrap_or_else(|_| default_name.to_string());
+        let bus = BusConfig::from_env()?;
+        let launched = std::env::var("DC_LAUNCHED").is_ok_and(|v| v == "1");
+        Ok(Node::new(name, bus, launched))
+    }
+
+    /// Builds a node with an explicit configuration (tests, in-process graphs).
+    pub fn new(name: impl Into<String>, bus: BusConfig, launched: bool) -> Node {
+        let shutdown = ShutdownSignal(Arc::new(AtomicBool::new(false)));
+        // One handler per process; every node of the process sees the signal.
+        static INSTALL: std::sync::Once = std::sync::Once::new();
+        INSTALL.call_once(|| {
+            if let Err(e) = ctrlc::set_handler(|| SIGNALLED.store(true, Ordering::SeqCst)) {
+                tracing::warn!("could not install the Ctrl-C handler: {e}");
+            }
+        });
+        Node {
+            name: name.into(),
+            bus,
+            launched,
+            shutdown,
+            iox: OnceLock::new(),
+            zenoh: OnceLock::new(),
+        }
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    pub fn bus(&self) -> &BusConfig {
+        &self.bus
+    }
+
+    /// True once Ctrl-C / SIGTERM arrived, a shutdown control message was seen, or
+    /// [`Node::request_shutdown`] was called.
+    pub fn is_shutdown(&self) -> bool {
+        self.shutdown.is_set()
+    }
+
+    pub fn request_shutdown(&self) {
+        self.shutdown.0.store(true, Ordering::SeqCst);
+    }
+
+    /// A clone of the shutdown signal, for threads of the node.
+    pub fn shutdown_signal(&self) -> ShutdownSignal {
+        self.shutdown.clone()
+    }
+
+    /// Applies a control message: a `Shutdown` sets the shutdown flag.
+    pub fn observe_control(&self, control: &msgs::Control) {
+        if control.kind() == Some(msgs::ControlKind::Shutdown) {
+            tracing::info!(node = %self.name, "shutdown requested by control message");
+            self.request_shutdown();
+        }
+    }
+
+    /// A publisher on `topic`, over the transport the bus configuration names for it.
+    pub fn publisher<H: msgs::FrameHeader, T: msgs::FrameItem>(
+        &self,
+        topic: msgs::topics::Topic<H, T>,
+    ) -> Result<Publisher<H, T>> {
+        self.publisher_named(topic.name)
+    }
+
+    /// A publisher on a topic given by name (remapped topics); the frame types must match the
+    /// topic's, which iceoryx2 checks through the type names.
+    pub fn publisher_named<H: msgs::FrameHeader, T: msgs::FrameItem>(
+        &self,
+        topic: &str,
+    ) -> Result<Publisher<H, T>> {
+        let transport = self.bus.transport(topic);
+        let iox = if transport.uses_iceoryx2() {
+            Some(self.iox()?.publisher::<H, T>(&self.bus, topic)?)
+        } else {
+            None
+        };
+        let zen = if transport.uses_zenoh() {
+            Some(zen::ZenPublisher::new(self.zenoh(topic)?, &self.bus.key(topic), topic)?)
+        } else {
+            None
+        };
+        Ok(Publisher::new(topic, iox, zen))
+    }
+
+    /// A subscriber on `topic`.
+    pub fn subscriber<H: msgs::FrameHeader, T: msgs::FrameItem>(
+        &self,
+        topic: msgs::topics::Topic<H, T>,
+    ) -> Result<Subscriber<H, T>> {
+        self.subscriber_named(topic.name)
+    }
+
+    /// A subscriber on a topic given by name.
+    pub fn subscriber_named<H: msgs::FrameHeader, T: msgs::FrameItem>(
+        &self,
+        topic: &str,
+    ) -> Result<Subscriber<H, T>> {
+        let transport = self.bus.transport(topic);
+        let inner = if transport.uses_iceoryx2() {
+            pubsub::SubInner::Iox(self.iox()?.subscriber::<H, T>(&self.bus, topic)?)
+        } else {
+            pubsub::SubInner::Zenoh(zen::ZenSubscriber::new(
+                self.zenoh(topic)?,
+                &self.bus.key(topic),
+                topic,
+                self.bus.queue_depth.max(1) * 16,
+            )?)
+        };
+        Ok(Subscriber::new(topic, inner, self.shutdown.clone()))
+    }
+
+    /// Tells the launcher that this node's ports exist and waits for the whole graph to be ready.
+    /// Without a launcher it returns at once. Returns false when the graph was stopped meanwhile.
+    pub fn ready(&self) -> Result<bool> {
+        if !self.launched {
+            return Ok(true);
+        }
+        {
+            let mut out = std::io::stdout().lock();
+            writeln!(out, "{READY_MARKER}").map_err(|e| Error::Launcher(e.to_string()))?;
+            out.flush().map_err(|e| Error::Launcher(e.to_string()))?;
+        }
+        let mut line = String::new();
+        loop {
+            line.clear();
+            let n = std::io::stdin()
+                .lock()
+                .read_line(&mut line)
+                .map_err(|e| Error::Launcher(e.to_string()))?;
+            if n == 0 {
+                // The launcher closed our stdin: the graph is going down.
+                self.request_shutdown();
+                return Ok(false);
+            }
+            if line.trim() == START_LINE {
+                return Ok(true);
+            }
+        }
+    }
+
+    fn iox(&self) -> Result<&iox::IoxNode> {
+        if let Some(n) = self.iox.get() {
+            return Ok(n);
+        }
+        let node = iox::IoxNode::new(&self.name)?;
+        Ok(self.iox.get_or_init(|| node))
+    }
+
+    fn zenoh(&self, topic: &str) -> Result<&zenoh::Session> {
+        if let Some(s) = self.zenoh.get() {
+            return Ok(s);
+        }
+        let session = zen::open_session(&self.bus.zenoh).map_err(|what| Error::Zenoh {
+            topic: topic.to_string(),
+            what,
+        })?;
+        Ok(self.zenoh.get_or_init(|| session))
+    }
+}
+
+/// Set by Ctrl-C / SIGTERM.
+static SIGNALLED: AtomicBool = AtomicBool::new(false);
+
+/// A node's shutdown signal: its own flag or a process-wide Ctrl-C / SIGTERM.
+#[derive(Clone, Debug, Default)]
+pub struct ShutdownSignal(Arc<AtomicBool>);
+
+impl ShutdownSignal {
+    pub fn is_set(&self) -> bool {
+        self.0.load(Ordering::SeqCst) || SIGNALLED.load(Ordering::SeqCst)
+    }
+    pub fn set(&self) {
+        self.0.store(true, Ordering::SeqCst);
+    }
+}
+
+/// Removes shared-memory resources left behind by iceoryx2 nodes whose processes died; returns
+/// how many dead nodes were cleaned. The launcher calls this when a graph starts.
+pub fn cleanup_stale_resources() -> Result<usize> {
+    iox::cleanup_dead_nodes()
+}
+
+/// Sets up `tracing` to stderr: `RUST_LOG` or `info`, no colours when not on a terminal (the
+/// launcher prefixes and forwards lines).
+pub fn init_logging() {
+    use std::io::IsTerminal;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        // zenoh's session chatter (ids, endpoints, start-up scouting) is not the node's news.
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh=warn,zenoh::net::runtime::orchestrator=error"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_target(false)
+        .try_init();
+}
+
+/// Parses a node's parameters with clap. Under `DC_VALIDATE=1` (the launcher checking a launch
+/// file) it only reports whether they parse: exit 0, or clap's message and exit 2.
+pub fn parse_args<A: clap::Parser>() -> A {
+    if std::env::var("DC_VALIDATE").is_ok_and(|v| v == "1") {
+        match A::try_parse() {
+            Ok(_) => std::process::exit(0),
+            Err(e) => {
+                eprintln!("{}", e.render());
+                std::process::exit(2);
+            }
+        }
+    }
+    A::parse()
+}
+
+/// Sleeps up to `total`, waking early on shutdown; returns false if shut down.
+pub fn sleep_unless_shutdown(node: &Node, total: Duration) -> bool {
+    let deadline = std::time::Instant::now() + total;
+    while std::time::Instant::now() < deadline {
+        if node.is_shutdown() {
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(10).min(total));
+    }
+    !node.is_shutdown()
+}

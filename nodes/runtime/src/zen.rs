@@ -1,0 +1,128 @@
+//! zenoh transport: CBOR frames on key `dc/<namespace>/<topic>`, reliable, with blocking congestion
+//! control (zenoh's default `Drop` loses data under load). Reliability is zenoh's default
+//! (`Reliable`; choosing it explicitly is an unstable API in 1.10). Sessions listen only on the endpoints
+//! the launch file names and never scout by multicast, so a test or a graph does not wander onto
+//! the host's other interfaces.
+
+use crate::{Error, Result, ZenohConfig};
+use std::time::{Duration, Instant};
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::qos::CongestionControl;
+use zenoh::sample::Sample;
+use zenoh::Wait;
+
+/// How long a publisher waits for a first matching subscriber before its first message. The
+/// launcher's ready barrier guarantees the subscriber exists; this covers the declaration's trip.
+const MATCH_TIMEOUT: Duration = Duration::from_secs(5);
+
+pub(crate) fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, String> {
+    let mut config = zenoh::Config::default();
+    let json = |v: &[String]| serde_json::to_string(v).expect("strings serialise");
+    let mode = cfg.mode.clone().unwrap_or_else(|| "peer".to_string());
+    // Never the zenoh default (every interface): loopback with an OS-chosen port unless told.
+    let listen = if cfg.listen.is_empty() { vec!["tcp/127.0.0.1:0".to_string()] } else { cfg.listen.clone() };
+    let settings = [
+        ("mode", format!("\"{mode}\"")),
+        ("listen/endpoints", json(&listen)),
+        ("connect/endpoints", json(&cfg.connect)),
+        ("scouting/multicast/enabled", "false".to_string()),
+    ];
+    for (key, value) in settings {
+        config
+            .insert_json5(key, &value)
+            .map_err(|e| format!("config {key} = {value}: {e}"))?;
+    }
+    zenoh::open(config).wait().map_err(|e| format!("open session: {e}"))
+}
+
+fn err(topic: &str, what: impl std::fmt::Display) -> Error {
+    Error::Zenoh { topic: topic.to_string(), what: what.to_string() }
+}
+
+pub(crate) struct ZenPublisher {
+    topic: String,
+    publisher: zenoh::pubsub::Publisher<'static>,
+    matched: bool,
+    buffer: Vec<u8>,
+}
+
+impl ZenPublisher {
+    pub(crate) fn new(session: &zenoh::Session, key: &str, topic: &str) -> Result<ZenPublisher> {
+        let publisher = session
+            .declare_publisher(key.to_string())
+            .congestion_control(CongestionControl::Block)
+            .encoding(zenoh::bytes::Encoding::APPLICATION_CBOR)
+            .wait()
+            .map_err(|e| err(topic, format!("declare publisher on `{key}`: {e}")))?;
+        Ok(ZenPublisher { topic: topic.to_string(), publisher, matched: false, buffer: Vec::new() })
+    }
+
+    pub(crate) fn send<H: msgs::FrameHeader, T: msgs::FrameItem>(&mut self, header: &H, items: &[T]) -> Result<()> {
+        if !self.matched {
+            self.wait_for_match();
+        }
+        msgs::encode_into(header, items, &mut self.buffer)
+            .map_err(|source| Error::Codec { topic: self.topic.clone(), source })?;
+        self.publisher
+            .put(self.buffer.as_slice())
+            .wait()
+            .map_err(|e| err(&self.topic, format!("put: {e}")))
+    }
+
+    /// Puts an already encoded payload as it is.
+    pub(crate) fn send_encoded(&mut self, bytes: &[u8]) -> Result<()> {
+        if !self.matched {
+            self.wait_for_match();
+        }
+        self.publisher
+            .put(bytes)
+            .wait()
+            .map_err(|e| err(&self.topic, format!("put: {e}")))
+    }
+
+    /// Waits (bounded) until some subscriber matches, so the first frames are not routed nowhere.
+    fn wait_for_match(&mut self) {
+        let start = Instant::now();
+        while start.elapsed() < MATCH_TIMEOUT {
+            match self.publisher.matching_status().wait() {
+                Ok(s) if s.matching() => break,
+                Ok(_) => std::thread::sleep(Duration::from_millis(5)),
+                Err(e) => {
+                    tracing::warn!(topic = %self.topic, "zenoh matching status: {e}");
+                    break;
+                }
+            }
+        }
+        self.matched = true;
+    }
+}
+
+pub(crate) struct ZenSubscriber {
+    topic: String,
+    subscriber: zenoh::pubsub::Subscriber<FifoChannelHandler<Sample>>,
+}
+
+impl ZenSubscriber {
+    /// A subscriber with a FIFO of `capacity`: when it is full zenoh blocks the link, which with the
+    /// publisher's blocking congestion control holds the publisher back instead of dropping.
+    pub(crate) fn new(session: &zenoh::Session, key: &str, topic: &str, capacity: usize) -> Result<ZenSubscriber> {
+        let subscriber = session
+            .declare_subscriber(key.to_string())
+            .with(zenoh::handlers::FifoChannel::new(capacity))
+            .wait()
+            .map_err(|e| err(topic, format!("declare subscriber on `{key}`: {e}")))?;
+        Ok(ZenSubscriber { topic: topic.to_string(), subscriber })
+    }
+
+    pub(crate) fn recv_timeout(&self, timeout: Duration) -> Result<Option<Sample>> {
+        self.subscriber
+            .recv_timeout(timeout)
+            .map_err(|e| err(&self.topic, format!("receive: {e}")))
+    }
+
+    pub(crate) fn try_recv(&self) -> Result<Option<Sample>> {
+        self.subscriber
+            .try_recv()
+            .map_err(|e| err(&self.topic, format!("receive: {e}")))
+    }
+}

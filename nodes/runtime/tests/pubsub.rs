@@ -1,0 +1,83 @@
+//! Publishers and subscribers within one process (the multi-process tests live in the
+//! workspace's `tests/`): slices that grow, and the zenoh CBOR path.
+
+use msgs::{topics, Contact, StepHeader};
+use runtime::{BusConfig, Node, Transport};
+use std::time::Duration;
+
+fn bus(test: &str, transport: Transport) -> BusConfig {
+    BusConfig {
+        namespace: format!("rt{}-{test}", std::process::id()),
+        default_transport: transport,
+        queue_depth: 16,
+        ..Default::default()
+    }
+}
+
+fn contacts(n: usize, seed: u32) -> Vec<Contact> {
+    (0..n)
+        .map(|i| Contact { body_a: i as u32, body_b: seed, normal_impulse: i as f32 * 0.5, ..Default::default() })
+        .collect()
+}
+
+fn round_trip(transport: Transport, test: &str, sizes: &[usize]) {
+    let bus = bus(test, transport);
+    // Two zenoh sessions: the receiver listens on a loopback port, the sender connects to it.
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let mut receiver_bus = bus.clone();
+    receiver_bus.zenoh.listen = vec![endpoint.clone()];
+    let mut sender_bus = bus;
+    sender_bus.zenoh.connect = vec![endpoint];
+    let sender = Node::new("sender", sender_bus, false);
+    let receiver = Node::new("receiver", receiver_bus, false);
+    let mut sub = receiver.subscriber(topics::CONTACTS).unwrap();
+    let mut publisher = sender.publisher(topics::CONTACTS).unwrap();
+    for (i, &n) in sizes.iter().enumerate() {
+        let header = StepHeader { run_id: 1, simulation: 0, step: i as u32 };
+        let items = contacts(n, i as u32);
+        publisher.publish(&header, &items).unwrap();
+        let got = sub.recv_timeout(Duration::from_secs(10)).unwrap().expect("frame arrives");
+        assert_eq!(*got.header(), header);
+        assert_eq!(got.items(), &items[..], "frame {i} with {n} contacts");
+    }
+    assert_eq!(sub.received(), sizes.len() as u64);
+    assert_eq!(sub.decode_errors(), 0);
+}
+
+#[test]
+fn iceoryx2_slices_grow_from_empty_to_30000_contacts() {
+    round_trip(Transport::Iceoryx2, "grow", &[0, 1, 1000, 30_000, 5, 30_000]);
+}
+
+#[test]
+fn zenoh_frames_round_trip_in_one_process() {
+    round_trip(Transport::Zenoh, "zenoh", &[0, 3, 10_000]);
+}
+
+#[test]
+fn zero_copy_publish_writes_in_place() {
+    let bus = bus("inplace", Transport::Iceoryx2);
+    let node = Node::new("both", bus, false);
+    let mut sub = node.subscriber(topics::CONTACTS).unwrap();
+    let mut publisher = node.publisher(topics::CONTACTS).unwrap();
+    publisher
+        .publish_with(4, |h, c| {
+            h.step = 9;
+            c.iter_mut().enumerate().for_each(|(i, c)| c.feature = i as u32 * 3)
+        })
+        .unwrap();
+    let got = sub.recv_timeout(Duration::from_secs(5)).unwrap().unwrap();
+    assert!(matches!(got, runtime::Received::Shared(_)), "iceoryx2 frames are read in place");
+    assert_eq!(got.items().iter().map(|c| c.feature).collect::<Vec<_>>(), [0, 3, 6, 9]);
+    assert_eq!(got.header().step, 9);
+}
+
+#[test]
+fn receive_times_out_without_a_publisher() {
+    let node = Node::new("lonely", bus("lonely", Transport::Iceoryx2), false);
+    let mut sub = node.subscriber(topics::BODIES).unwrap();
+    let start = std::time::Instant::now();
+    assert!(sub.recv_timeout(Duration::from_millis(200)).unwrap().is_none());
+    assert!(start.elapsed() >= Duration::from_millis(200));
+}

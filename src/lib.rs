@@ -1,0 +1,59 @@
+//! Support for the end-to-end tests in `tests/`: where the built binaries are, unique bus
+//! namespaces, and launch files written to temporary folders.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The cargo target folder holding the binaries (`target/debug`), found from the test executable.
+pub fn bin_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    // target/debug/deps/<test> -> target/debug
+    exe.parent().and_then(Path::parent).expect("target dir").to_path_buf()
+}
+
+/// Path of a workspace binary such as `dc` or `dc-sim`.
+pub fn bin(name: &str) -> PathBuf {
+    let p = bin_dir().join(name);
+    assert!(p.is_file(), "{} is not built (run `cargo test --workspace`)", p.display());
+    p
+}
+
+/// A namespace no other test (or test run) uses, so graphs can run side by side.
+pub fn unique_namespace(test: &str) -> String {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static N: AtomicU32 = AtomicU32::new(0);
+    format!("t{}-{}-{}", std::process::id(), N.fetch_add(1, Ordering::SeqCst), test)
+}
+
+/// A scratch folder under the target dir, removed and re-created.
+pub fn scratch_dir(test: &str) -> PathBuf {
+    let d = bin_dir().join("e2e-scratch").join(unique_namespace(test));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("create scratch dir");
+    d
+}
+
+/// Writes `text` as a launch file and runs `dc launch` on it (plus `extra` arguments).
+pub fn launch(test: &str, text: &str, extra: &[&str]) -> (PathBuf, Output) {
+    let dir = scratch_dir(test);
+    let file = dir.join("graph.toml");
+    std::fs::write(&file, text).expect("write launch file");
+    let out = Command::new(bin("dc"))
+        .arg("launch")
+        .arg(&file)
+        .args(["--namespace", &unique_namespace(test)])
+        .args(extra)
+        .output()
+        .expect("run dc");
+    (file, out)
+}
+
+/// stdout and stderr of a finished command, for assertion messages.
+pub fn text(out: &Output) -> String {
+    format!(
+        "status: {}\n--- stdout\n{}\n--- stderr\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}

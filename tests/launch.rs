@@ -1,0 +1,100 @@
+//! `dc launch` as users meet it: malformed launch files are refused before anything starts, with
+//! file, line and what is wrong; a node that fails stops the graph, and no process is left behind.
+
+use deep_contact::{launch, text};
+use std::time::{Duration, Instant};
+
+fn refused(test: &str, graph: &str) -> String {
+    let (file, out) = launch(test, graph, &[]);
+    assert!(!out.status.success(), "{}", text(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(stderr.contains(&file.display().to_string()), "error must name the file:\n{stderr}");
+    // Refused before start: no node output at all.
+    assert!(!String::from_utf8_lossy(&out.stdout).contains('['), "{}", text(&out));
+    stderr
+}
+
+#[test]
+fn syntax_error_is_reported_with_its_line() {
+    let err = refused("syntax", "[graph]\nname = \"x\"\n\n[[nodes]]\nname = \"a\"\nbinary = \n");
+    assert!(err.contains("graph.toml:6:"), "{err}");
+}
+
+#[test]
+fn unknown_node_binary_is_refused() {
+    let err = refused("binary", "[[nodes]]\nname = \"a\"\nbinary = \"dc-does-not-exist\"\n");
+    assert!(err.contains("graph.toml:3: node `a`: unknown node binary `dc-does-not-exist`"), "{err}");
+}
+
+#[test]
+fn unknown_host_is_refused() {
+    let err = refused(
+        "host",
+        "[hosts.a]\n[hosts.b]\n[[nodes]]\nname = \"x\"\nbinary = \"dc-bench-bus\"\nhost = \"c\"\nparams = { role = \"sink\" }\n",
+    );
+    assert!(err.contains("graph.toml:6: node `x`: unknown host `c`"), "{err}");
+}
+
+#[test]
+fn duplicate_node_name_is_refused() {
+    let node = "[[nodes]]\nname = \"x\"\nbinary = \"dc-bench-bus\"\nparams = { role = \"sink\" }\n";
+    let err = refused("duplicate", &format!("{node}{node}"));
+    assert!(err.contains("graph.toml:6: duplicate node name `x` (first defined on line 1)"), "{err}");
+}
+
+#[test]
+fn missing_and_unknown_parameters_are_refused() {
+    let err = refused(
+        "params",
+        "[[nodes]]\nname = \"no-role\"\nbinary = \"dc-bench-bus\"\n\n[[nodes]]\nname = \"typo\"\nbinary = \"dc-bench-bus\"\nparams = { role = \"sink\", cuont = 3 }\n",
+    );
+    assert!(err.contains("graph.toml:1: node `no-role` (dc-bench-bus): bad parameters"), "{err}");
+    assert!(err.contains("--role"), "{err}");
+    assert!(err.contains("graph.toml:5: node `typo` (dc-bench-bus): bad parameters"), "{err}");
+    assert!(err.contains("--cuont"), "{err}");
+}
+
+fn pids_with(marker: &str) -> Vec<String> {
+    let out = std::process::Command::new("pgrep").args(["-f", marker]).output().expect("pgrep");
+    String::from_utf8_lossy(&out.stdout).lines().map(str::to_string).collect()
+}
+
+#[test]
+fn a_failing_node_stops_the_graph_and_leaves_no_orphans() {
+    // `doomed` waits 1 s for frames that never come and fails; `bystander` would wait a minute.
+    let marker = format!("bystander-{}", std::process::id());
+    let graph = format!(
+        r#"
+[[nodes]]
+name = "bystander"
+binary = "dc-bench-bus"
+params = {{ role = "sink", timeout-s = 60, label = "{marker}" }}
+
+[[nodes]]
+name = "doomed"
+binary = "dc-bench-bus"
+params = {{ role = "sink", kind = "grid", timeout-s = 1 }}
+"#
+    );
+    let start = Instant::now();
+    let (_, out) = launch("failing", &graph, &[]);
+    let elapsed = start.elapsed();
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("node `doomed` exited with exit status 1"), "{stderr}");
+    assert!(stderr.contains("lost frames"), "the node's own error is forwarded:\n{stderr}");
+    assert!(elapsed < Duration::from_secs(30), "the bystander was not stopped ({elapsed:?})");
+    assert!(pids_with(&marker).is_empty(), "orphan processes remain: {:?}", pids_with(&marker));
+}
+
+#[test]
+fn dry_run_and_list_show_the_graph_without_starting_it() {
+    let graph = "[topics]\n\"bench/bodies\" = \"zenoh\"\n[[nodes]]\nname = \"s\"\nbinary = \"dc-bench-bus\"\nparams = { role = \"sink\" }\n";
+    let (file, out) = launch("dry", graph, &["--dry-run"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("s: ") && stdout.contains("--role=sink"), "{stdout}");
+    assert!(stdout.contains("bench/bodies: zenoh"), "{stdout}");
+    let list = std::process::Command::new(deep_contact::bin("dc")).arg("list").arg(&file).output().unwrap();
+    assert!(list.status.success(), "{}", text(&list));
+}
