@@ -1,0 +1,391 @@
+//! Per-step solver records and their aggregation per model, simulation and step.
+
+use msgs::{name16_str, SolveStatsHeader};
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// One step's solve, as the simulator reported it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StepRecord {
+    pub run_id: u64,
+    pub model: String,
+    pub used_model: String,
+    pub simulation: u32,
+    pub step: u32,
+    pub contacts: u32,
+    pub persisting_contacts: u32,
+    pub sweeps: u32,
+    pub converged: bool,
+    pub fallback: bool,
+    pub final_residual: f32,
+    pub warm_error_normal_mse: f32,
+    pub warm_error_normal_max: f32,
+    pub warm_error_tangent_mse: f32,
+    pub warm_error_tangent_max: f32,
+    pub solve_us: f32,
+    pub step_us: f32,
+    pub warm_start_us: f32,
+    /// Residual (largest impulse change) after each sweep.
+    #[serde(skip)]
+    pub residuals: Vec<f32>,
+}
+
+impl StepRecord {
+    pub fn from_msg(h: &SolveStatsHeader, residuals: &[f32]) -> StepRecord {
+        StepRecord {
+            run_id: h.step.run_id,
+            model: name16_str(&h.model).to_string(),
+            used_model: name16_str(&h.used_model).to_string(),
+            simulation: h.step.simulation,
+            step: h.step.step,
+            contacts: h.contacts,
+            persisting_contacts: h.persisting_contacts,
+            sweeps: h.sweeps,
+            converged: h.converged != 0,
+            fallback: h.fallback != 0,
+            final_residual: h.final_residual,
+            warm_error_normal_mse: h.warm_error_normal_mse,
+            warm_error_normal_max: h.warm_error_normal_max,
+            warm_error_tangent_mse: h.warm_error_tangent_mse,
+            warm_error_tangent_max: h.warm_error_tangent_max,
+            solve_us: h.solve_us,
+            step_us: h.step_us,
+            warm_start_us: h.warm_start_us,
+            residuals: residuals.to_vec(),
+        }
+    }
+}
+
+/// The `q` quantile (0..=1) with linear interpolation between order statistics (numpy's default),
+/// so the median of an even count is the mean of the two middle values. NaN for no values.
+pub fn quantile(values: &[f64], q: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(|a, b| a.total_cmp(b));
+    let pos = q.clamp(0.0, 1.0) * (v.len() - 1) as f64;
+    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+    v[lo] + (v[hi] - v[lo]) * (pos - lo as f64)
+}
+
+pub fn median(values: &[f64]) -> f64 {
+    quantile(values, 0.5)
+}
+
+/// Which part of a simulation a step belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Phase {
+    /// Bodies still falling / the pile still forming.
+    Falling,
+    /// The contact count has reached its final level and stays there.
+    Settled,
+}
+
+/// Index of the first step of the settled phase of one simulation: from there on the contact count
+/// stays within `tolerance` (relative) of the simulation's final contact count. A data-driven rule,
+/// so it works for every scene (the thesis saw the pile settle near step 150 of 250).
+pub fn settle_step(contacts_per_step: &[u32], tolerance: f64) -> usize {
+    let Some(&last) = contacts_per_step.last() else { return 0 };
+    let band = (last as f64 * tolerance).max(1.0);
+    let mut first = contacts_per_step.len();
+    for (i, &c) in contacts_per_step.iter().enumerate().rev() {
+        if (c as f64 - last as f64).abs() > band {
+            break;
+        }
+        first = i;
+    }
+    first
+}
+
+/// Totals over a set of steps.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Totals {
+    pub steps: usize,
+    pub total_sweeps: u64,
+    pub median_sweeps: f64,
+    pub mean_sweeps: f64,
+    /// Steps that hit the sweep cap (not converged).
+    pub cap_hits: usize,
+    pub fallbacks: usize,
+    pub median_solve_us: f64,
+    pub median_step_us: f64,
+    pub total_solve_ms: f64,
+}
+
+impl Totals {
+    pub fn of<'a>(steps: impl Iterator<Item = &'a StepRecord>) -> Totals {
+        let steps: Vec<&StepRecord> = steps.collect();
+        let sweeps: Vec<f64> = steps.iter().map(|s| s.sweeps as f64).collect();
+        let solve: Vec<f64> = steps.iter().map(|s| s.solve_us as f64).collect();
+        let step: Vec<f64> = steps.iter().map(|s| s.step_us as f64).collect();
+        let total: u64 = steps.iter().map(|s| s.sweeps as u64).sum();
+        Totals {
+            steps: steps.len(),
+            total_sweeps: total,
+            median_sweeps: median(&sweeps),
+            mean_sweeps: if steps.is_empty() { f64::NAN } else { total as f64 / steps.len() as f64 },
+            cap_hits: steps.iter().filter(|s| !s.converged).count(),
+            fallbacks: steps.iter().filter(|s| s.fallback).count(),
+            median_solve_us: median(&solve),
+            median_step_us: median(&step),
+            total_solve_ms: solve.iter().sum::<f64>() / 1e3,
+        }
+    }
+}
+
+/// One model's summary over every simulation it ran.
+#[derive(Debug, Clone, Serialize)]
+pub struct ModelSummary {
+    pub model: String,
+    pub simulations: usize,
+    pub all: Totals,
+    pub falling: Totals,
+    pub settled: Totals,
+    /// Total sweeps relative to the `builtin` model's (None without a builtin run).
+    pub ratio_to_builtin: Option<f64>,
+    /// Share of contacts that persisted from the previous step.
+    pub persisting_share: f64,
+    /// Median over steps of the warm start's normal / tangent MSE against the solution.
+    pub median_warm_error_normal_mse: f64,
+    pub median_warm_error_tangent_mse: f64,
+}
+
+/// Per-step statistic across simulations: median and the 10-90% band.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Band {
+    pub step: u32,
+    pub p10: f64,
+    pub median: f64,
+    pub p90: f64,
+}
+
+/// Everything received, grouped by model then simulation, steps in order.
+#[derive(Debug, Default)]
+pub struct Aggregate {
+    /// model -> simulation -> step -> record.
+    pub models: BTreeMap<String, BTreeMap<u32, BTreeMap<u32, StepRecord>>>,
+    /// Relative band of the settled-phase rule.
+    pub settle_tolerance: f64,
+}
+
+impl Aggregate {
+    pub fn new() -> Aggregate {
+        Aggregate { models: BTreeMap::new(), settle_tolerance: 0.05 }
+    }
+
+    /// Adds a record; a repeated (model, simulation, step) replaces the earlier one.
+    pub fn add(&mut self, r: StepRecord) {
+        self.models
+            .entry(r.model.clone())
+            .or_default()
+            .entry(r.simulation)
+            .or_default()
+            .insert(r.step, r);
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.models.is_empty()
+    }
+
+    /// Every record of a model, simulations then steps in order.
+    pub fn records<'a>(&'a self, model: &str) -> impl Iterator<Item = &'a StepRecord> + 'a {
+        self.models.get(model).into_iter().flat_map(|sims| sims.values().flat_map(|s| s.values()))
+    }
+
+    fn phase_of(&self, model: &str) -> BTreeMap<(u32, u32), Phase> {
+        let mut out = BTreeMap::new();
+        if let Some(sims) = self.models.get(model) {
+            for (&sim, steps) in sims {
+                let contacts: Vec<u32> = steps.values().map(|s| s.contacts).collect();
+                let settle = settle_step(&contacts, self.settle_tolerance);
+                for (i, &step) in steps.keys().enumerate() {
+                    out.insert((sim, step), if i >= settle { Phase::Settled } else { Phase::Falling });
+                }
+            }
+        }
+        out
+    }
+
+    /// Summaries of every model, with ratios to `builtin`.
+    pub fn summaries(&self) -> Vec<ModelSummary> {
+        let mut out: Vec<ModelSummary> = self
+            .models
+            .iter()
+            .map(|(model, sims)| {
+                let phases = self.phase_of(model);
+                let phases = &phases;
+                let in_phase = |p: Phase| self.records(model).filter(move |r| phases[&(r.simulation, r.step)] == p);
+                let contacts: u64 = self.records(model).map(|r| r.contacts as u64).sum();
+                let persisting: u64 = self.records(model).map(|r| r.persisting_contacts as u64).sum();
+                let with_contacts = || self.records(model).filter(|r| r.contacts > 0);
+                ModelSummary {
+                    model: model.clone(),
+                    simulations: sims.len(),
+                    all: Totals::of(self.records(model)),
+                    falling: Totals::of(in_phase(Phase::Falling)),
+                    settled: Totals::of(in_phase(Phase::Settled)),
+                    ratio_to_builtin: None,
+                    persisting_share: if contacts == 0 { f64::NAN } else { persisting as f64 / contacts as f64 },
+                    median_warm_error_normal_mse: median(&with_contacts().map(|r| r.warm_error_normal_mse as f64).collect::<Vec<_>>()),
+                    median_warm_error_tangent_mse: median(&with_contacts().map(|r| r.warm_error_tangent_mse as f64).collect::<Vec<_>>()),
+                }
+            })
+            .collect();
+        if let Some(builtin) = out.iter().find(|s| s.model == "builtin").map(|s| s.all.total_sweeps) {
+            for s in &mut out {
+                s.ratio_to_builtin = (builtin > 0).then(|| s.all.total_sweeps as f64 / builtin as f64);
+            }
+        }
+        out
+    }
+
+    /// Per step: the statistic `f` across the model's simulations (median and 10-90% band).
+    pub fn per_step(&self, model: &str, f: impl Fn(&StepRecord) -> f64) -> Vec<Band> {
+        let mut by_step: BTreeMap<u32, Vec<f64>> = BTreeMap::new();
+        for r in self.records(model) {
+            by_step.entry(r.step).or_default().push(f(r));
+        }
+        by_step
+            .into_iter()
+            .map(|(step, v)| Band { step, p10: quantile(&v, 0.1), median: median(&v), p90: quantile(&v, 0.9) })
+            .collect()
+    }
+
+    /// Share of the model's steps (with contacts) that converged within `n` sweeps, for n = 1..=max.
+    pub fn converged_within(&self, model: &str, max: u32) -> Vec<(u32, f64)> {
+        let sweeps: Vec<u32> = self
+            .records(model)
+            .filter(|r| r.contacts > 0)
+            .map(|r| if r.converged { r.sweeps } else { u32::MAX })
+            .collect();
+        if sweeps.is_empty() {
+            return Vec::new();
+        }
+        (1..=max)
+            .map(|n| (n, sweeps.iter().filter(|&&s| s <= n).count() as f64 / sweeps.len() as f64))
+            .collect()
+    }
+
+    /// Median over the model's solves (steps with contacts) of the residual after n sweeps, for
+    /// n = 1..=max; a solve that stopped earlier keeps its last residual.
+    pub fn convergence(&self, model: &str, max: usize) -> Vec<(usize, f64)> {
+        let solves: Vec<&Vec<f32>> = self.records(model).filter(|r| !r.residuals.is_empty()).map(|r| &r.residuals).collect();
+        if solves.is_empty() {
+            return Vec::new();
+        }
+        let longest = solves.iter().map(|r| r.len()).max().unwrap_or(0).min(max);
+        (1..=longest)
+            .map(|n| {
+                let at: Vec<f64> = solves.iter().map(|r| r[(n - 1).min(r.len() - 1)] as f64).collect();
+                (n, median(&at))
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) fn record(model: &str, simulation: u32, step: u32, contacts: u32, sweeps: u32) -> StepRecord {
+        StepRecord {
+            run_id: 1,
+            model: model.into(),
+            used_model: model.into(),
+            simulation,
+            step,
+            contacts,
+            persisting_contacts: contacts / 2,
+            sweeps,
+            converged: sweeps < 1000,
+            fallback: false,
+            final_residual: 0.0,
+            warm_error_normal_mse: sweeps as f32,
+            warm_error_normal_max: 0.0,
+            warm_error_tangent_mse: 0.0,
+            warm_error_tangent_max: 0.0,
+            solve_us: 10.0 * sweeps as f32,
+            step_us: 100.0,
+            warm_start_us: 1.0,
+            residuals: (0..sweeps).map(|i| 1.0 / (i + 1) as f32).collect(),
+        }
+    }
+
+    #[test]
+    fn quantiles_interpolate_like_numpy() {
+        assert_eq!(median(&[3.0, 1.0, 2.0, 4.0]), 2.5);
+        assert_eq!(median(&[5.0]), 5.0);
+        assert_eq!(quantile(&[0.0, 10.0], 0.1), 1.0);
+        assert_eq!(quantile(&(0..=10).map(f64::from).collect::<Vec<_>>(), 0.9), 9.0);
+        assert!(median(&[]).is_nan());
+    }
+
+    #[test]
+    fn settle_step_is_where_contacts_stay_near_their_final_count() {
+        assert_eq!(settle_step(&[0, 0, 10, 50, 98, 100, 101, 100], 0.05), 4);
+        assert_eq!(settle_step(&[], 0.05), 0);
+        assert_eq!(settle_step(&[7, 7, 7], 0.05), 0);
+    }
+
+    #[test]
+    fn summaries_count_sweeps_caps_and_ratios_exactly() {
+        let mut a = Aggregate::new();
+        // builtin: 2 simulations x 4 steps, sweeps 10 each -> 80 total.
+        for sim in 0..2 {
+            for step in 0..4 {
+                a.add(record("builtin", sim, step, 20, 10));
+            }
+        }
+        // none: sweeps 30, one step hits the cap (1000).
+        for sim in 0..2 {
+            for step in 0..4 {
+                a.add(record("none", sim, step, 20, if (sim, step) == (1, 3) { 1000 } else { 30 }));
+            }
+        }
+        let s = a.summaries();
+        let builtin = s.iter().find(|m| m.model == "builtin").unwrap();
+        let none = s.iter().find(|m| m.model == "none").unwrap();
+        assert_eq!(builtin.all.total_sweeps, 80);
+        assert_eq!(builtin.ratio_to_builtin, Some(1.0));
+        assert_eq!(none.all.total_sweeps, 7 * 30 + 1000);
+        assert_eq!(none.ratio_to_builtin, Some(1210.0 / 80.0));
+        assert_eq!(none.all.cap_hits, 1);
+        assert_eq!(none.all.median_sweeps, 30.0);
+        assert_eq!(none.all.mean_sweeps, 1210.0 / 8.0);
+        assert_eq!(none.simulations, 2);
+        assert_eq!(none.persisting_share, 0.5);
+        assert_eq!(builtin.all.median_solve_us, 100.0);
+        // Constant contact counts: every step is settled.
+        assert_eq!(builtin.settled.steps, 8);
+        assert_eq!(builtin.falling.steps, 0);
+    }
+
+    #[test]
+    fn per_step_bands_and_convergence_curves() {
+        let mut a = Aggregate::new();
+        for (sim, sweeps) in [(0, 10), (1, 20), (2, 30), (3, 40), (4, 50)] {
+            a.add(record("copy", sim, 0, 5, sweeps));
+        }
+        let band = a.per_step("copy", |r| r.sweeps as f64);
+        assert_eq!(band, vec![Band { step: 0, p10: 14.0, median: 30.0, p90: 46.0 }]);
+        let within = a.converged_within("copy", 50);
+        assert_eq!(within[9], (10, 0.2));
+        assert_eq!(within[49], (50, 1.0));
+        let conv = a.convergence("copy", 100);
+        assert_eq!(conv.len(), 50);
+        assert_eq!(conv[0], (1, 1.0));
+        // After 20 sweeps: solves of 10 keep 1/10; the others are at 1/20.
+        assert_eq!(conv[19].1, (1.0f32 / 20.0) as f64);
+    }
+
+    #[test]
+    fn repeated_steps_replace_earlier_records() {
+        let mut a = Aggregate::new();
+        a.add(record("x", 0, 0, 1, 5));
+        a.add(record("x", 0, 0, 1, 7));
+        assert_eq!(a.records("x").count(), 1);
+        assert_eq!(a.records("x").next().unwrap().sweeps, 7);
+    }
+}

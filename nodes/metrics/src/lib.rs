@@ -1,0 +1,13 @@
+//! Solver statistics: per-step records from `SolveStats`, aggregation per model, simulation and
+//! step, and the evaluation report (CSV, markdown, PNG plots, one HTML page).
+//!
+//! The numbers follow the thesis's measurements (chapter 7.4-7.5) with its timing flaw fixed:
+//! solve time and whole-step time are reported separately.
+
+pub mod aggregate;
+pub mod completeness;
+pub mod plot;
+pub mod report;
+
+pub use aggregate::{Aggregate, ModelSummary, StepRecord};
+pub use completeness::Completeness;

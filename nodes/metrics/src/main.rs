@@ -1,0 +1,100 @@
+//! dc-metrics: collects `SolveStats` and control messages, publishes a small per-step summary for
+//! live plots, and writes the report folder when the expected runs have ended (or on shutdown, then
+//! saying what is missing).
+
+use anyhow::Result;
+use clap::Parser;
+use metrics::{report, Aggregate, Completeness, StepRecord};
+use msgs::topics;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(Parser, Debug)]
+#[command(name = "dc-metrics", about = "Aggregates solver statistics and writes the evaluation report")]
+struct Args {
+    /// Report folder (default: reports/metrics-<unix seconds>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Write the report and exit once this many runs have ended (0: run until stopped).
+    #[arg(long, default_value_t = 0)]
+    runs: usize,
+    /// Title of the report.
+    #[arg(long, default_value = "Warm-start evaluation")]
+    title: String,
+    /// Relative band of the settled-phase rule (contacts within this share of their final count).
+    #[arg(long, default_value_t = 0.05)]
+    settle_tolerance: f64,
+}
+
+fn main() -> Result<()> {
+    let args: Args = runtime::parse_args();
+    runtime::init_logging();
+    let node = runtime::Node::from_env("dc-metrics")?;
+    let mut stats = node.subscriber(topics::SOLVE_STATS)?;
+    let mut control = node.subscriber(topics::CONTROL)?;
+    let mut live = node.publisher(topics::METRICS_STEP)?;
+    if !node.ready()? {
+        return Ok(());
+    }
+    let out = args.out.clone().unwrap_or_else(|| {
+        let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+        PathBuf::from(format!("reports/metrics-{secs}"))
+    });
+
+    let mut aggregate = Aggregate::new();
+    aggregate.settle_tolerance = args.settle_tolerance;
+    let mut completeness = Completeness::default();
+    // Per model: cumulative sweeps, for the live summary.
+    let mut cumulative: BTreeMap<String, u64> = BTreeMap::new();
+    let mut handle_stats = |r: &runtime::Received<msgs::SolveStatsHeader, f32>,
+                            aggregate: &mut Aggregate,
+                            completeness: &mut Completeness|
+     -> Result<()> {
+        let record = StepRecord::from_msg(r.header(), r.items());
+        completeness.step(record.run_id, record.simulation, &record.model);
+        let total = cumulative.entry(record.model.clone()).or_default();
+        *total += record.sweeps as u64;
+        // Live: the step's header and [cumulative sweeps of its model, sweeps of this step].
+        live.publish(r.header(), &[*total as f32, record.sweeps as f32])?;
+        aggregate.add(record);
+        Ok(())
+    };
+
+    loop {
+        while let Some(c) = control.try_recv()? {
+            let details = String::from_utf8_lossy(c.items()).into_owned();
+            completeness.control(c.header(), &details);
+            node.observe_control(c.header());
+        }
+        if args.runs > 0 && completeness.runs_ended() >= args.runs {
+            break;
+        }
+        if node.is_shutdown() {
+            tracing::warn!("stopped before every run ended: the report will say what is missing");
+            break;
+        }
+        if let Some(r) = stats.recv_timeout(Duration::from_millis(20))? {
+            handle_stats(&r, &mut aggregate, &mut completeness)?;
+        }
+    }
+    // Statistics published before a run's end are already queued: take them all.
+    while let Some(r) = stats.try_recv()? {
+        handle_stats(&r, &mut aggregate, &mut completeness)?;
+    }
+    while let Some(c) = control.try_recv()? {
+        completeness.control(c.header(), &String::from_utf8_lossy(c.items()));
+    }
+
+    let missing = completeness.missing();
+    for m in &missing {
+        tracing::warn!("missing: {m}");
+    }
+    let written = report::write(&aggregate, &out, &args.title, &missing)?;
+    println!("{}", report::summary_markdown(&written.summaries));
+    println!("report: {}", written.dir.join("report.html").display());
+    if stats.decode_errors() > 0 {
+        tracing::warn!(errors = stats.decode_errors(), "undecodable statistics payloads were skipped");
+    }
+    Ok(())
+}

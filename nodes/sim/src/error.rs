@@ -1,0 +1,31 @@
+//! Errors of the simulator library.
+
+/// Everything that can go wrong when configuring or building a simulation.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum SimError {
+    /// A scene name that none of the scenes answers to.
+    #[error("unknown scene `{0}` (known: ball-box, drum, mixed)")]
+    UnknownScene(String),
+    /// A warm-start model name that none of the models answers to.
+    #[error("unknown warm-start model `{0}` (known: none, builtin, copy, copy0, copy2, bad, random, extrapolate, grid, unet)")]
+    UnknownModel(String),
+    /// A sampler name that none of the samplers answers to.
+    #[error("unknown sampler `{0}` (known: native, numpy)")]
+    UnknownSampler(String),
+    /// A parameter outside its valid range.
+    #[error("invalid parameter `{name}` = {value}: {why}")]
+    InvalidParameter {
+        /// The parameter's name as the user spells it.
+        name: &'static str,
+        /// The value given, as text.
+        value: String,
+        /// What the valid range is.
+        why: String,
+    },
+    /// The bodies do not fit: more bodies than the box can hold, or rejection sampling gave up.
+    #[error("scene too dense: {0}")]
+    SceneTooDense(String),
+    /// A grid-based model was asked for without a grid source to feed it.
+    #[error("model `{0}` needs a grid source (run it inside a graph with the sph or unet node)")]
+    NoGridSource(String),
+}

@@ -1,0 +1,304 @@
+//! `dc-sim`: the simulator node. Runs simulations in sequence and publishes bodies, contacts (with
+//! their final impulses), solver statistics and control messages every step; grid-based warm-start
+//! models read their grid from the bus. `dc-sim --bench` runs the benchmark instead (no bus).
+
+use anyhow::{bail, Context, Result};
+use msgs::{ControlKind, ControlMsg, StepHeader};
+use sim::warm::GridSource;
+use sim::{bench, ModelKind, SamplerKind, SceneConfig, SceneKind, SolveParams, WarmStarter, World, WorldParams};
+use std::time::{Duration, Instant};
+
+fn positive_f32(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("must be a finite number > 0, got {v}")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// A grid deadline; `None` is lockstep. A newtype because clap reads `Option<T>` as "flag may be absent".
+#[derive(Debug, Clone, Copy)]
+struct Deadline(Option<Duration>);
+
+/// Simulator node parameters.
+#[derive(clap::Parser, Debug)]
+#[command(name = "dc-sim", about = "Deep Contact simulator node")]
+struct Args {
+    /// Scene: ball-box, drum or mixed.
+    #[arg(long, default_value = "ball-box", value_parser = |s: &str| s.parse::<SceneKind>())]
+    scene: SceneKind,
+    /// Seeds of the simulations (`0..30`, `0..=29`, `1,5,7`); overrides --seed/--simulations.
+    #[arg(long)]
+    seeds: Option<String>,
+    /// First seed (with --simulations).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Number of simulations, seeds seed..seed+simulations.
+    #[arg(long, default_value_t = 1)]
+    simulations: u64,
+    /// Steps per simulation.
+    #[arg(long, default_value_t = 250)]
+    steps: u32,
+    /// Warm-start model: none, builtin, copy, copy0, copy2, bad, random, extrapolate, grid, unet.
+    #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelKind>())]
+    model: ModelKind,
+    /// Model standing in when a grid is late (a local model).
+    #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelKind>())]
+    fallback: ModelKind,
+    /// Convergence tolerance: largest impulse change of a sweep.
+    #[arg(long, default_value_t = 1e-4, value_parser = positive_f32)]
+    tolerance: f32,
+    /// Sweep cap.
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..))]
+    max_sweeps: u32,
+    /// How long to wait for a grid: `none` (lockstep) or a duration (20ms, 0.5s).
+    #[arg(long, default_value = "none", value_parser = |s: &str| sim::parse_deadline(s).map(Deadline))]
+    deadline: Deadline,
+    /// Initial-world sampler: native or numpy (the original code's worlds, exactly).
+    #[arg(long, default_value = "native", value_parser = |s: &str| s.parse::<SamplerKind>())]
+    sampler: SamplerKind,
+    /// Dynamic bodies.
+    #[arg(long, default_value_t = 100)]
+    n: usize,
+    /// Box side (default 15 * sqrt(n / 100)).
+    #[arg(long, value_parser = positive_f32)]
+    side: Option<f32>,
+    /// Drum angular speed, rad/s.
+    #[arg(long, default_value_t = 1.0)]
+    drum_omega: f32,
+    /// Linear slop of the position pass.
+    #[arg(long, default_value_t = 0.0005)]
+    slop: f32,
+    /// Run id stamped on every message (0: derived from the clock).
+    #[arg(long, default_value_t = 0)]
+    run_id: u64,
+    /// Run the benchmark and print it instead of running the node.
+    #[arg(long)]
+    bench: bool,
+    /// Benchmark cases `n:steps,...` (N=10,000 needs ~300 steps before its balls land).
+    #[arg(long, default_value = "100:250,1000:250,10000:400")]
+    bench_cases: String,
+}
+
+impl Args {
+    fn seeds(&self) -> Result<Vec<u64>> {
+        match &self.seeds {
+            Some(s) => Ok(sim::parse_seeds(s)?),
+            None => {
+                if self.simulations == 0 {
+                    bail!("--simulations must be >= 1");
+                }
+                Ok((self.seed..self.seed + self.simulations).collect())
+            }
+        }
+    }
+
+    fn scene_config(&self, seed: u64) -> SceneConfig {
+        SceneConfig {
+            kind: self.scene,
+            n: self.n,
+            seed,
+            sampler: self.sampler,
+            side: self.side,
+            drum_omega: self.drum_omega,
+            ..SceneConfig::default()
+        }
+    }
+
+    fn world_params(&self) -> WorldParams {
+        let mut p = WorldParams {
+            solve: SolveParams { tolerance: self.tolerance, max_sweeps: self.max_sweeps },
+            ..WorldParams::default()
+        };
+        p.position.slop = self.slop;
+        p
+    }
+}
+
+/// The grid of a step from the bus, waiting up to the deadline; later grids are kept for their step.
+struct BusGridSource {
+    sub: runtime::Subscriber<msgs::GridHeader, f32>,
+    deadline: Option<Duration>,
+    pending: Option<msgs::Grid>,
+    shutdown: runtime::ShutdownSignal,
+}
+
+impl GridSource for BusGridSource {
+    fn grid(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Grid> {
+        // Simulations run in increasing id order, so (simulation, step) orders the stream.
+        let want = (simulation, step);
+        let key = |h: &msgs::GridHeader| (h.step.simulation, h.step.step);
+        if let Some(p) = self.pending.take() {
+            match key(&p.header).cmp(&want) {
+                std::cmp::Ordering::Equal => return Some(p),
+                std::cmp::Ordering::Greater => {
+                    self.pending = Some(p);
+                    return None;
+                }
+                std::cmp::Ordering::Less => {}
+            }
+        }
+        let start = Instant::now();
+        loop {
+            let wait = match self.deadline {
+                Some(d) => match d.checked_sub(start.elapsed()) {
+                    Some(left) if !left.is_zero() => left,
+                    _ => return None,
+                },
+                None => {
+                    if self.shutdown.is_set() {
+                        return None;
+                    }
+                    Duration::from_millis(100)
+                }
+            };
+            let got = match self.sub.recv_timeout(wait) {
+                Ok(Some(r)) => r,
+                Ok(None) => continue,
+                Err(e) => {
+                    tracing::warn!("grid subscriber: {e}");
+                    return None;
+                }
+            };
+            let h = *got.header();
+            if run_id != 0 && h.step.run_id != run_id {
+                continue; // another run's leftovers
+            }
+            match key(&h).cmp(&want) {
+                std::cmp::Ordering::Less => continue, // stale: its step was already solved
+                std::cmp::Ordering::Equal => return Some(got.into_frame()),
+                std::cmp::Ordering::Greater => {
+                    self.pending = Some(got.into_frame());
+                    return None;
+                }
+            }
+        }
+    }
+}
+
+fn run_bench(args: &Args) -> Result<()> {
+    let mut cases = Vec::new();
+    for part in args.bench_cases.split(',') {
+        let (n, steps) = part.split_once(':').context("--bench-cases: expected n:steps,...")?;
+        cases.push((n.trim().parse()?, steps.trim().parse()?));
+    }
+    let base = args.scene_config(args.seed);
+    println!(
+        "dc-sim benchmark: scene {}, seed {}, tolerance {}, max sweeps {}; rapier = its full PhysicsPipeline, default parameters",
+        base.kind.name(),
+        base.seed,
+        args.tolerance,
+        args.max_sweeps
+    );
+    println!("{}", bench::TABLE_HEADER);
+    bench::run(&base, args.world_params(), &cases, &[ModelKind::None, ModelKind::Builtin], |r| {
+        println!("{}", bench::format_row(r))
+    })?;
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    let args: Args = runtime::parse_args();
+    runtime::init_logging();
+    if args.bench {
+        return run_bench(&args);
+    }
+    let seeds = args.seeds()?;
+    let params = args.world_params();
+    params.validate()?;
+    if args.fallback.is_grid_based() {
+        bail!("--fallback must be a local model, not `{}`", args.fallback.name());
+    }
+    // Fail before touching the bus when the scene cannot be built.
+    sim::Scene::build(&args.scene_config(seeds[0])).context("building the scene")?;
+
+    let node = runtime::Node::from_env("dc-sim")?;
+    let mut bodies_pub = node.publisher(msgs::topics::BODIES)?;
+    let mut contacts_pub = node.publisher(msgs::topics::CONTACTS)?;
+    let mut stats_pub = node.publisher(msgs::topics::SOLVE_STATS)?;
+    let mut control_pub = node.publisher(msgs::topics::CONTROL)?;
+    let source: Option<Box<dyn GridSource>> = match args.model {
+        ModelKind::Grid | ModelKind::Unet => {
+            let topic = if args.model == ModelKind::Grid { msgs::topics::GRID_CONTACTS } else { msgs::topics::GRID_UNET };
+            Some(Box::new(BusGridSource {
+                sub: node.subscriber(topic)?,
+                deadline: args.deadline.0,
+                pending: None,
+                shutdown: node.shutdown_signal(),
+            }))
+        }
+        _ => None,
+    };
+    let model = args.model.build_with_source(args.seed, source)?;
+    let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
+    if !node.ready()? {
+        return Ok(());
+    }
+
+    let run_id = if args.run_id != 0 {
+        args.run_id
+    } else {
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH)?.as_nanos() as u64
+    };
+    let run_header = StepHeader { run_id, simulation: 0, step: 0 };
+    let details = serde_json::json!({
+        "scene": args.scene.name(), "n": args.n, "seeds": seeds, "steps": args.steps,
+        "model": args.model.name(), "fallback": args.fallback.name(), "tolerance": args.tolerance,
+        "max_sweeps": args.max_sweeps, "sampler": format!("{:?}", args.sampler).to_lowercase(),
+        "dt": params.dt,
+    });
+    control_pub.publish_frame(&ControlMsg::control(run_header, ControlKind::RunStart, seeds.len() as u32, &details.to_string()))?;
+    tracing::info!(run_id, simulations = seeds.len(), model = args.model.name(), "run start");
+
+    let (mut bodies, mut contacts, mut residuals) = (Vec::new(), Vec::new(), Vec::new());
+    'run: for &seed in &seeds {
+        let simulation = u32::try_from(seed).context("seeds must fit in u32 (they are simulation ids)")?;
+        let mut world = World::new(&args.scene_config(seed), params)?;
+        world.set_ids(run_id, simulation);
+        warm.begin_simulation(simulation, seed);
+        let sim_header = StepHeader { run_id, simulation, step: 0 };
+        let scene_details = serde_json::json!({
+            "seed": seed, "side": world.scene().side, "bodies": world.bodies().len(),
+            "dynamic": world.scene().dynamic_count(), "omega": world.scene().omega,
+        });
+        control_pub.publish_frame(&ControlMsg::control(sim_header, ControlKind::SimulationStart, args.steps, &scene_details.to_string()))?;
+        let (mut total_sweeps, mut unconverged) = (0u64, 0u32);
+        let started = Instant::now();
+        for step in 0..args.steps {
+            if node.is_shutdown() {
+                break 'run;
+            }
+            let stats = world.step(&mut warm).clone();
+            let header = StepHeader { run_id, simulation, step };
+            total_sweeps += stats.solve.sweeps as u64;
+            unconverged += (!stats.solve.converged) as u32;
+            world.body_msgs(&mut bodies);
+            world.contact_msgs(&mut contacts);
+            residuals.clear();
+            residuals.extend(world.residuals().iter().take(msgs::MAX_RESIDUALS));
+            let used = if stats.fallback { warm.fallback.name() } else { warm.model.name() };
+            let stats_header = stats.to_msg(header, warm.model.name(), used);
+            bodies_pub.publish(&header, &bodies)?;
+            contacts_pub.publish(&header, &contacts)?;
+            stats_pub.publish(&stats_header, &residuals)?;
+        }
+        control_pub.publish_frame(&ControlMsg::control(
+            StepHeader { step: world.steps_taken(), ..sim_header },
+            ControlKind::SimulationEnd,
+            world.steps_taken(),
+            "",
+        ))?;
+        tracing::info!(
+            seed,
+            steps = world.steps_taken(),
+            total_sweeps,
+            unconverged,
+            fallbacks = warm.fallbacks_total(),
+            secs = started.elapsed().as_secs_f32(),
+            "simulation done"
+        );
+    }
+    control_pub.publish_frame(&ControlMsg::control(run_header, ControlKind::RunEnd, seeds.len() as u32, ""))?;
+    tracing::info!(run_id, "run end");
+    Ok(())
+}

@@ -1,0 +1,449 @@
+//! Warm-start models: where the solver's initial guess comes from.
+//!
+//! A model is one implementation of [`WarmStartModel`]; the solver never knows which one ran.
+//! Local models live here; the grid-based ones ([`GridModel`]) sample a 2-channel `msgs::Grid`
+//! ("normal", "tangent") that a [`GridSource`] delivers (the bus, in the node). A model that cannot
+//! deliver (a late grid) answers [`Unavailable`] and the [`WarmStarter`] falls back to a named
+//! model, counting it.
+
+use crate::error::SimError;
+use crate::grid::sample_bilinear;
+use crate::rng::{Sampler, Xoshiro};
+use crate::solver::Impulse;
+use crate::world::ContactPoint;
+use std::str::FromStr;
+
+/// Identifies a contact across steps: the body pair (a < b) and the feature pair within it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
+pub struct ContactKey {
+    /// The lower body id.
+    pub body_a: u32,
+    /// The higher body id.
+    pub body_b: u32,
+    /// The packed feature ids of both bodies (see `world::feature_key`).
+    pub feature: u32,
+}
+
+/// The final impulses of the last two steps, sorted by key, for temporal models.
+#[derive(Debug, Clone, Default)]
+pub struct ImpulseHistory {
+    previous: Vec<(ContactKey, Impulse)>,
+    before_previous: Vec<(ContactKey, Impulse)>,
+}
+
+impl ImpulseHistory {
+    /// The impulse of contact `key` in the previous step, if it existed then.
+    pub fn previous(&self, key: &ContactKey) -> Option<Impulse> {
+        lookup(&self.previous, key)
+    }
+
+    /// The impulse of contact `key` two steps ago, if it existed then.
+    pub fn before_previous(&self, key: &ContactKey) -> Option<Impulse> {
+        lookup(&self.before_previous, key)
+    }
+
+    /// Records the step's final impulses (`keys` sorted) and shifts the older step back.
+    pub fn push(&mut self, keys: impl Iterator<Item = ContactKey>, impulses: &[Impulse]) {
+        std::mem::swap(&mut self.previous, &mut self.before_previous);
+        self.previous.clear();
+        self.previous.extend(keys.zip(impulses.iter().copied()));
+        debug_assert!(self.previous.windows(2).all(|w| w[0].0 <= w[1].0), "keys must be sorted");
+    }
+
+    /// Forgets everything (a new simulation).
+    pub fn clear(&mut self) {
+        self.previous.clear();
+        self.before_previous.clear();
+    }
+}
+
+fn lookup(list: &[(ContactKey, Impulse)], key: &ContactKey) -> Option<Impulse> {
+    list.binary_search_by(|(k, _)| k.cmp(key)).ok().map(|i| list[i].1)
+}
+
+/// What a model may look at to produce a warm start.
+pub struct WarmStartInput<'a> {
+    /// Run id of the graph.
+    pub run_id: u64,
+    /// Simulation index (its seed).
+    pub simulation: u32,
+    /// Step being solved.
+    pub step: u32,
+    /// The step's contacts, sorted by key; one impulse per contact is expected.
+    pub contacts: &'a [ContactPoint],
+    /// Final impulses of the two previous steps.
+    pub history: &'a ImpulseHistory,
+    /// Solves the step's contact problem from zero on scratch velocities and writes the solution
+    /// (the oracle behind `copy`); the world's velocities are untouched.
+    pub oracle: &'a mut dyn FnMut(&mut [Impulse]),
+}
+
+/// Why a model gave no warm start this step.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Unavailable(pub String);
+
+/// A source of warm starts. One implementation per model; adding one never touches the solver.
+pub trait WarmStartModel {
+    /// The model's name (in statistics).
+    fn name(&self) -> &str;
+
+    /// Called before the first step of every simulation.
+    fn begin_simulation(&mut self, _simulation: u32, _seed: u64) {}
+
+    /// Writes one impulse per contact of `input` into `out` (zeroed beforehand), or says why it
+    /// cannot this step.
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable>;
+}
+
+/// `none`: start from zero.
+#[derive(Debug, Default)]
+pub struct NoWarmStart;
+
+impl WarmStartModel for NoWarmStart {
+    fn name(&self) -> &str {
+        "none"
+    }
+    fn warm_start(&mut self, _: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        out.fill(Impulse::default());
+        Ok(())
+    }
+}
+
+/// `builtin`: the previous step's impulse of the same contact (temporal coherence), 0 for new ones.
+#[derive(Debug, Default)]
+pub struct Builtin;
+
+impl WarmStartModel for Builtin {
+    fn name(&self) -> &str {
+        "builtin"
+    }
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
+            *o = input.history.previous(&c.key).unwrap_or_default();
+        }
+        Ok(())
+    }
+}
+
+/// `copy`, `copy0`, `copy2`: the step's own solution (optionally rounded to some decimals), the oracle.
+#[derive(Debug)]
+pub struct Copy {
+    decimals: Option<i32>,
+    name: &'static str,
+}
+
+impl Copy {
+    /// The exact solution (`copy`).
+    pub fn exact() -> Copy {
+        Copy { decimals: None, name: "copy" }
+    }
+    /// The solution rounded to `decimals` decimals (`copy0`, `copy2`).
+    pub fn rounded(decimals: i32) -> Copy {
+        let name = match decimals {
+            0 => "copy0",
+            1 => "copy1",
+            2 => "copy2",
+            _ => "copyN",
+        };
+        Copy { decimals: Some(decimals), name }
+    }
+}
+
+impl WarmStartModel for Copy {
+    fn name(&self) -> &str {
+        self.name
+    }
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        (input.oracle)(out);
+        if let Some(d) = self.decimals {
+            let s = 10f32.powi(d);
+            for o in out.iter_mut() {
+                o.normal = (o.normal * s).round() / s;
+                o.tangent = (o.tangent * s).round() / s;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `bad`: 50 for normal and tangent impulses.
+#[derive(Debug, Default)]
+pub struct Bad;
+
+impl WarmStartModel for Bad {
+    fn name(&self) -> &str {
+        "bad"
+    }
+    fn warm_start(&mut self, _: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        out.fill(Impulse { normal: 50.0, tangent: 50.0 });
+        Ok(())
+    }
+}
+
+/// `random`: normal uniform in [0, 5], tangent uniform in [-2, 2]; reseeded from the simulation's
+/// seed, so runs repeat.
+#[derive(Clone)]
+pub struct Random {
+    seed: u64,
+    rng: Xoshiro,
+}
+
+impl Random {
+    /// A random model whose stream derives from `seed` and each simulation's seed.
+    pub fn new(seed: u64) -> Random {
+        Random { seed, rng: Xoshiro::new(seed) }
+    }
+}
+
+impl WarmStartModel for Random {
+    fn name(&self) -> &str {
+        "random"
+    }
+    fn begin_simulation(&mut self, _simulation: u32, seed: u64) {
+        // Distinct from the scene sampler's stream of the same seed.
+        self.rng = Xoshiro::new(self.seed ^ seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ 0x5eed);
+    }
+    fn warm_start(&mut self, _: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        for o in out.iter_mut() {
+            o.normal = self.rng.uniform_range(0.0, 5.0) as f32;
+            o.tangent = self.rng.uniform_range(-2.0, 2.0) as f32;
+        }
+        Ok(())
+    }
+}
+
+/// `extrapolate`: `2 l(k-1) - l(k-2)` on contacts that persisted two steps, `l(k-1)` on those that
+/// persisted one, clamped to the friction cone.
+#[derive(Debug, Default)]
+pub struct Extrapolate;
+
+impl WarmStartModel for Extrapolate {
+    fn name(&self) -> &str {
+        "extrapolate"
+    }
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
+            *o = match (input.history.previous(&c.key), input.history.before_previous(&c.key)) {
+                (Some(l1), Some(l2)) => {
+                    let n = (2.0 * l1.normal - l2.normal).max(0.0);
+                    let t_max = c.friction * n;
+                    Impulse { normal: n, tangent: (2.0 * l1.tangent - l2.tangent).clamp(-t_max, t_max) }
+                }
+                (Some(l1), None) => l1,
+                _ => Impulse::default(),
+            };
+        }
+        Ok(())
+    }
+}
+
+/// Delivers the impulse grid computed from step `step` of simulation `simulation`, or `None` when
+/// it is late (the source owns the deadline) or will never come.
+pub trait GridSource {
+    /// The grid of `(simulation, step)`, waiting up to the source's deadline.
+    fn grid(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Grid>;
+}
+
+impl<F> GridSource for F
+where
+    F: FnMut(u64, u32, u32) -> Option<msgs::Grid>,
+{
+    fn grid(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Grid> {
+        self(run_id, simulation, step)
+    }
+}
+
+/// `grid` / `unet`: the previous step's impulse grid (channels "normal" and "tangent"), sampled
+/// bilinearly at the new contact points.
+pub struct GridModel {
+    name: &'static str,
+    source: Box<dyn GridSource>,
+}
+
+impl GridModel {
+    /// A grid-based model called `name` fed by `source`.
+    pub fn new(name: &'static str, source: Box<dyn GridSource>) -> GridModel {
+        GridModel { name, source }
+    }
+}
+
+impl WarmStartModel for GridModel {
+    fn name(&self) -> &str {
+        self.name
+    }
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        if input.step == 0 {
+            // No previous step exists, hence no grid: zero is the model's own answer here.
+            out.fill(Impulse::default());
+            return Ok(());
+        }
+        // Always fetch, even without contacts: in lockstep the producer waits for us to consume.
+        let grid = self
+            .source
+            .grid(input.run_id, input.simulation, input.step - 1)
+            .ok_or_else(|| Unavailable(format!("no grid for step {} in time", input.step - 1)))?;
+        let (Some(cn), Some(ct)) = (grid.header.channel("normal"), grid.header.channel("tangent")) else {
+            return Err(Unavailable("grid lacks a `normal` or `tangent` channel".into()));
+        };
+        if grid.items.len() < grid.header.len() {
+            return Err(Unavailable("grid holds fewer values than its header announces".into()));
+        }
+        let (normal, tangent) = (grid.channel_data(cn), grid.channel_data(ct));
+        for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
+            o.normal = sample_bilinear(&grid.header, normal, c.point.x, c.point.y);
+            o.tangent = sample_bilinear(&grid.header, tangent, c.point.x, c.point.y);
+        }
+        Ok(())
+    }
+}
+
+/// The warm-start models by name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelKind {
+    /// Zero.
+    None,
+    /// Previous step's impulse of the same contact.
+    Builtin,
+    /// The step's own solution.
+    Copy,
+    /// The solution rounded to 0 decimals.
+    Copy0,
+    /// The solution rounded to 2 decimals.
+    Copy2,
+    /// 50 everywhere.
+    Bad,
+    /// Uniform noise.
+    Random,
+    /// Linear extrapolation of the last two steps.
+    Extrapolate,
+    /// Impulse grid from the sph node.
+    Grid,
+    /// Impulse grid predicted by the U-Net.
+    Unet,
+}
+
+impl ModelKind {
+    /// Every model, in the order of the thesis's table.
+    pub const ALL: [ModelKind; 10] = [
+        ModelKind::None,
+        ModelKind::Builtin,
+        ModelKind::Copy,
+        ModelKind::Copy0,
+        ModelKind::Copy2,
+        ModelKind::Bad,
+        ModelKind::Random,
+        ModelKind::Extrapolate,
+        ModelKind::Grid,
+        ModelKind::Unet,
+    ];
+
+    /// The model's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ModelKind::None => "none",
+            ModelKind::Builtin => "builtin",
+            ModelKind::Copy => "copy",
+            ModelKind::Copy0 => "copy0",
+            ModelKind::Copy2 => "copy2",
+            ModelKind::Bad => "bad",
+            ModelKind::Random => "random",
+            ModelKind::Extrapolate => "extrapolate",
+            ModelKind::Grid => "grid",
+            ModelKind::Unet => "unet",
+        }
+    }
+
+    /// Whether the model needs a [`GridSource`].
+    pub fn is_grid_based(self) -> bool {
+        matches!(self, ModelKind::Grid | ModelKind::Unet)
+    }
+
+    /// Builds a local model; grid-based ones need [`ModelKind::build_with_source`].
+    pub fn build(self, seed: u64) -> Result<Box<dyn WarmStartModel>, SimError> {
+        Ok(match self {
+            ModelKind::None => Box::new(NoWarmStart),
+            ModelKind::Builtin => Box::new(Builtin),
+            ModelKind::Copy => Box::new(Copy::exact()),
+            ModelKind::Copy0 => Box::new(Copy::rounded(0)),
+            ModelKind::Copy2 => Box::new(Copy::rounded(2)),
+            ModelKind::Bad => Box::new(Bad),
+            ModelKind::Random => Box::new(Random::new(seed)),
+            ModelKind::Extrapolate => Box::new(Extrapolate),
+            ModelKind::Grid | ModelKind::Unet => return Err(SimError::NoGridSource(self.name().into())),
+        })
+    }
+
+    /// Builds any model; `source` feeds the grid-based ones and is ignored by the others.
+    pub fn build_with_source(
+        self,
+        seed: u64,
+        source: Option<Box<dyn GridSource>>,
+    ) -> Result<Box<dyn WarmStartModel>, SimError> {
+        match (self.is_grid_based(), source) {
+            (true, Some(s)) => Ok(Box::new(GridModel::new(self.name(), s))),
+            _ => self.build(seed),
+        }
+    }
+}
+
+impl FromStr for ModelKind {
+    type Err = SimError;
+    fn from_str(s: &str) -> Result<Self, SimError> {
+        ModelKind::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| SimError::UnknownModel(s.to_string()))
+    }
+}
+
+/// A model and the model that stands in when it is unavailable, with the fallback count.
+pub struct WarmStarter {
+    /// The model asked for.
+    pub model: Box<dyn WarmStartModel>,
+    /// The stand-in (a local model, never unavailable in practice).
+    pub fallback: Box<dyn WarmStartModel>,
+    fallbacks_total: u32,
+}
+
+impl WarmStarter {
+    /// `model`, falling back to `fallback`.
+    pub fn new(model: Box<dyn WarmStartModel>, fallback: Box<dyn WarmStartModel>) -> WarmStarter {
+        WarmStarter { model, fallback, fallbacks_total: 0 }
+    }
+
+    /// Builds a local model by name with `builtin` as its fallback.
+    pub fn local(kind: ModelKind, seed: u64) -> Result<WarmStarter, SimError> {
+        Ok(WarmStarter::new(kind.build(seed)?, ModelKind::Builtin.build(seed)?))
+    }
+
+    /// Resets per-simulation state (models and the fallback count).
+    pub fn begin_simulation(&mut self, simulation: u32, seed: u64) {
+        self.fallbacks_total = 0;
+        self.model.begin_simulation(simulation, seed);
+        self.fallback.begin_simulation(simulation, seed);
+    }
+
+    /// Fallbacks in this simulation so far.
+    pub fn fallbacks_total(&self) -> u32 {
+        self.fallbacks_total
+    }
+
+    /// Runs the model, or the fallback when it is unavailable; returns whether it fell back.
+    pub fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> bool {
+        out.fill(Impulse::default());
+        match self.model.warm_start(input, out) {
+            Ok(()) => false,
+            Err(Unavailable(why)) => {
+                tracing::debug!(model = self.model.name(), step = input.step, "fallback: {why}");
+                self.fallbacks_total += 1;
+                out.fill(Impulse::default());
+                if let Err(Unavailable(why)) = self.fallback.warm_start(input, out) {
+                    // A fallback that fails too leaves the zero guess: still a valid start.
+                    tracing::warn!(model = self.fallback.name(), "fallback unavailable too: {why}");
+                    out.fill(Impulse::default());
+                }
+                true
+            }
+        }
+    }
+}

@@ -1,0 +1,704 @@
+//! The simulated world: body states (ours), rapier2d for shapes, broad and narrow phase, our
+//! contact solver for the dynamics.
+//!
+//! One step, Box2D 2.3's order (`b2Island::Solve`):
+//! 1. collision detection on the current poses (rapier's `CollisionPipeline`) -> contact points,
+//!    sorted by [`ContactKey`] so that Gauss-Seidel visits them in an order independent of rapier's
+//!    internal storage;
+//! 2. `v += dt * g` for dynamic bodies;
+//! 3. a warm start for every contact from the active model (or its fallback);
+//! 4. the velocity solve to tolerance from that warm start;
+//! 5. `x += dt * v`, `angle += dt * omega` (Box2D's per-step translation/rotation caps);
+//! 6. the position pass; the new poses go back to rapier for the next detection.
+//!
+//! Our body states are the source of truth; rapier only mirrors poses. Everything that affects the
+//! physics is iterated in sorted order, so a run is bit-identical given the same scene and models.
+
+use crate::error::SimError;
+use crate::scene::{BodyKind, Scene, SceneConfig, ShapeSpec};
+use crate::solver::{
+    correct_positions, ContactRow, ContactSolver, Impulse, PoseBody, PositionGeometry, PositionParams,
+    PositionRow, SolveParams, SolveReport, SolverBody,
+};
+use crate::warm::{ContactKey, ImpulseHistory, WarmStartInput, WarmStarter};
+use rapier2d::math::{Pose, Vec2};
+use rapier2d::parry::shape::PackedFeatureId;
+use rapier2d::prelude::{ColliderBuilder, PhysicsWorld, RigidBodyBuilder, RigidBodyHandle};
+use std::time::Instant;
+
+/// Parameters of the time stepping.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorldParams {
+    /// Time step, seconds.
+    pub dt: f32,
+    /// Gravity.
+    pub gravity: [f32; 2],
+    /// Velocity solve stopping rule.
+    pub solve: SolveParams,
+    /// Position pass parameters.
+    pub position: PositionParams,
+    /// rapier's prediction distance: manifolds are kept this far apart, so features are tracked
+    /// while contacts open and close.
+    pub prediction: f32,
+    /// A manifold point becomes a contact row when its signed distance is at most this (0: touching
+    /// or overlapping, as Box2D's discs; a positive margin would stop bodies short of touching).
+    pub contact_margin: f32,
+    /// Largest translation of a body in one step (`b2_maxTranslation`).
+    pub max_translation: f32,
+    /// Largest rotation of a body in one step (`b2_maxRotation`).
+    pub max_rotation: f32,
+}
+
+impl Default for WorldParams {
+    fn default() -> Self {
+        WorldParams {
+            dt: 1.0 / 100.0,
+            gravity: [0.0, -9.81],
+            solve: SolveParams::default(),
+            position: PositionParams::default(),
+            prediction: 0.02,
+            contact_margin: 0.0,
+            max_translation: 2.0,
+            max_rotation: 0.5 * std::f32::consts::PI,
+        }
+    }
+}
+
+impl WorldParams {
+    /// Checks the parameters.
+    pub fn validate(&self) -> Result<(), SimError> {
+        let bad = |name, value: String, why: &str| {
+            Err(SimError::InvalidParameter { name, value, why: why.to_string() })
+        };
+        if !(self.solve.tolerance.is_finite() && self.solve.tolerance > 0.0) {
+            return bad("tolerance", self.solve.tolerance.to_string(), "must be > 0");
+        }
+        if self.solve.max_sweeps == 0 {
+            return bad("max-sweeps", "0".into(), "must be >= 1");
+        }
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return bad("dt", self.dt.to_string(), "must be > 0");
+        }
+        if !(self.position.slop >= 0.0 && self.position.baumgarte >= 0.0 && self.position.baumgarte <= 1.0) {
+            return bad("baumgarte/slop", format!("{:?}", self.position), "baumgarte in [0, 1], slop >= 0");
+        }
+        Ok(())
+    }
+}
+
+/// The state and mass properties of one body.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BodyState {
+    /// How it moves.
+    pub kind: BodyKind,
+    /// Its shape.
+    pub shape: ShapeSpec,
+    /// Position of the centre of mass.
+    pub x: Vec2,
+    /// Orientation.
+    pub angle: f32,
+    /// Linear velocity.
+    pub v: Vec2,
+    /// Angular velocity.
+    pub w: f32,
+    /// Mass (0 for static and kinematic bodies).
+    pub mass: f32,
+    /// Moment of inertia about the centre of mass (0 for static and kinematic bodies).
+    pub inertia: f32,
+    /// Initial pose, from which kinematic bodies' prescribed poses are computed without drift.
+    pub x0: Vec2,
+    /// Initial orientation.
+    pub angle0: f32,
+}
+
+impl BodyState {
+    fn inv_mass(&self) -> f32 {
+        if self.mass > 0.0 {
+            1.0 / self.mass
+        } else {
+            0.0
+        }
+    }
+    fn inv_inertia(&self) -> f32 {
+        if self.inertia > 0.0 {
+            1.0 / self.inertia
+        } else {
+            0.0
+        }
+    }
+}
+
+/// One contact point of the current step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactPoint {
+    /// Identifies the contact across steps.
+    pub key: ContactKey,
+    /// World contact point (midway between the two surfaces).
+    pub point: Vec2,
+    /// Unit normal from body a to body b.
+    pub normal: Vec2,
+    /// Overlap depth (positive when overlapping).
+    pub penetration: f32,
+    /// Friction coefficient.
+    pub friction: f32,
+}
+
+/// What one step measured (the content of a `msgs::SolveStatsHeader`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StepStats {
+    /// Step index.
+    pub step: u32,
+    /// Contact points solved.
+    pub contacts: u32,
+    /// Contacts whose key existed in the previous step.
+    pub persisting_contacts: u32,
+    /// The velocity solve's report.
+    pub solve: SolveReport,
+    /// Whether the model fell back.
+    pub fallback: bool,
+    /// Fallbacks so far in this simulation.
+    pub fallbacks_total: u32,
+    /// Mean squared error of the warm start's normal impulses vs the solution.
+    pub warm_error_normal_mse: f32,
+    /// Largest absolute error of the warm start's normal impulses.
+    pub warm_error_normal_max: f32,
+    /// Mean squared error of the warm start's tangent impulses.
+    pub warm_error_tangent_mse: f32,
+    /// Largest absolute error of the warm start's tangent impulses.
+    pub warm_error_tangent_max: f32,
+    /// Wall time of the velocity solve, microseconds.
+    pub solve_us: f32,
+    /// Wall time of the warm start (including waiting for a grid), microseconds.
+    pub warm_start_us: f32,
+    /// Wall time of the whole step, microseconds.
+    pub step_us: f32,
+    /// Smallest separation after the position pass (negative: overlap).
+    pub min_separation: f32,
+}
+
+impl StepStats {
+    /// The statistics as a message header, for `model` (asked for) and `used` (model or fallback).
+    pub fn to_msg(&self, step: msgs::StepHeader, model: &str, used: &str) -> msgs::SolveStatsHeader {
+        msgs::SolveStatsHeader {
+            step,
+            model: msgs::name16(model),
+            used_model: msgs::name16(used),
+            contacts: self.contacts,
+            persisting_contacts: self.persisting_contacts,
+            sweeps: self.solve.sweeps,
+            converged: self.solve.converged as u32,
+            fallback: self.fallback as u32,
+            fallbacks_total: self.fallbacks_total,
+            final_residual: self.solve.final_residual,
+            warm_error_normal_mse: self.warm_error_normal_mse,
+            warm_error_normal_max: self.warm_error_normal_max,
+            warm_error_tangent_mse: self.warm_error_tangent_mse,
+            warm_error_tangent_max: self.warm_error_tangent_max,
+            solve_us: self.solve_us,
+            step_us: self.step_us,
+            warm_start_us: self.warm_start_us,
+        }
+    }
+}
+
+/// Packs one feature id into 16 bits: 2 bits of type (vertex/face), 14 bits of index.
+fn pack_feature(f: PackedFeatureId) -> u32 {
+    ((f.0 >> 30) << 14) | (f.0 & 0x3fff)
+}
+
+/// The feature part of a [`ContactKey`]: body a's feature in the high half, body b's in the low.
+pub fn feature_key(fa: PackedFeatureId, fb: PackedFeatureId) -> u32 {
+    (pack_feature(fa) << 16) | pack_feature(fb)
+}
+
+#[inline]
+fn rotate(angle: f32, v: Vec2) -> Vec2 {
+    let (s, c) = angle.sin_cos();
+    Vec2::new(c * v.x - s * v.y, s * v.x + c * v.y)
+}
+
+/// A simulation: scene, body states, rapier's collision structures, the solver and its buffers.
+pub struct World {
+    scene: Scene,
+    params: WorldParams,
+    bodies: Vec<BodyState>,
+    rapier: PhysicsWorld,
+    handles: Vec<RigidBodyHandle>,
+    step: u32,
+    run_id: u64,
+    simulation: u32,
+    // Per-step buffers, reused.
+    contacts: Vec<ContactPoint>,
+    rows: Vec<ContactRow>,
+    position_rows: Vec<PositionRow>,
+    solver_bodies: Vec<SolverBody>,
+    scratch_bodies: Vec<SolverBody>,
+    poses: Vec<PoseBody>,
+    warm: Vec<Impulse>,
+    solver: ContactSolver,
+    oracle_solver: ContactSolver,
+    history: ImpulseHistory,
+    staging: Vec<(ContactKey, ContactPoint, PositionRow)>,
+    stats: StepStats,
+    oracle_report: Option<SolveReport>,
+}
+
+impl World {
+    /// Builds the scene of `config` and a world that simulates it with `params`.
+    pub fn new(config: &SceneConfig, params: WorldParams) -> Result<World, SimError> {
+        params.validate()?;
+        let scene = Scene::build(config)?;
+        Ok(World::from_scene(scene, params))
+    }
+
+    /// A world simulating an already built scene (tests build custom scenes this way).
+    pub fn from_scene(scene: Scene, params: WorldParams) -> World {
+        let mut rapier = PhysicsWorld::new();
+        let mut bodies = Vec::with_capacity(scene.bodies.len());
+        let mut handles = Vec::with_capacity(scene.bodies.len());
+        let friction = scene.config.friction;
+        for (id, spec) in scene.bodies.iter().enumerate() {
+            let builder = match spec.kind {
+                BodyKind::Dynamic => RigidBodyBuilder::dynamic(),
+                BodyKind::Static => RigidBodyBuilder::fixed(),
+                BodyKind::Kinematic => RigidBodyBuilder::kinematic_position_based(),
+            };
+            let pose = Pose::new(Vec2::from(spec.position), spec.angle);
+            let rb = builder.pose(pose).user_data(id as u128).build();
+            let collider = match &spec.shape {
+                ShapeSpec::Ball { radius } => ColliderBuilder::ball(*radius),
+                ShapeSpec::Cuboid { half } => ColliderBuilder::cuboid(half[0], half[1]),
+                ShapeSpec::Polygon { vertices } => {
+                    ColliderBuilder::convex_polyline(vertices.iter().map(|v| Vec2::from(*v)).collect())
+                        .expect("scene polygons are convex with at least 3 vertices")
+                }
+            }
+            .density(scene.config.density)
+            .friction(friction)
+            .restitution(0.0)
+            .user_data(id as u128)
+            .build();
+            let (mass, inertia) = if spec.kind == BodyKind::Dynamic {
+                let mp = collider.mass_properties();
+                (1.0 / mp.inv_mass, 1.0 / mp.inv_principal_inertia)
+            } else {
+                (0.0, 0.0)
+            };
+            handles.push(rapier.insert(rb, collider).0);
+            bodies.push(BodyState {
+                kind: spec.kind,
+                shape: spec.shape.clone(),
+                x: pose.translation,
+                angle: spec.angle,
+                v: Vec2::ZERO,
+                w: 0.0,
+                mass,
+                inertia,
+                x0: pose.translation,
+                angle0: spec.angle,
+            });
+        }
+        let mut world = World {
+            scene,
+            params,
+            bodies,
+            rapier,
+            handles,
+            step: 0,
+            run_id: 0,
+            simulation: 0,
+            contacts: Vec::new(),
+            rows: Vec::new(),
+            position_rows: Vec::new(),
+            solver_bodies: Vec::new(),
+            scratch_bodies: Vec::new(),
+            poses: Vec::new(),
+            warm: Vec::new(),
+            solver: ContactSolver::new(),
+            oracle_solver: ContactSolver::new(),
+            history: ImpulseHistory::default(),
+            staging: Vec::new(),
+            stats: StepStats::default(),
+            oracle_report: None,
+        };
+        world.set_kinematic_state(0.0);
+        world.sync_rapier();
+        world
+    }
+
+    /// Labels the messages and grid requests of this world (run id and simulation index).
+    pub fn set_ids(&mut self, run_id: u64, simulation: u32) {
+        self.run_id = run_id;
+        self.simulation = simulation;
+    }
+
+    /// The scene simulated.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The stepping parameters.
+    pub fn params(&self) -> &WorldParams {
+        &self.params
+    }
+
+    /// Body states (index = body id).
+    pub fn bodies(&self) -> &[BodyState] {
+        &self.bodies
+    }
+
+    /// Steps taken so far.
+    pub fn steps_taken(&self) -> u32 {
+        self.step
+    }
+
+    /// Contacts of the last step (sorted by key).
+    pub fn contacts(&self) -> &[ContactPoint] {
+        &self.contacts
+    }
+
+    /// Final impulses of the last step, one per contact.
+    pub fn impulses(&self) -> &[Impulse] {
+        self.solver.impulses()
+    }
+
+    /// Warm start used in the last step, one per contact.
+    pub fn warm_start_used(&self) -> &[Impulse] {
+        &self.warm
+    }
+
+    /// Residual after every sweep of the last solve.
+    pub fn residuals(&self) -> &[f32] {
+        self.solver.residuals()
+    }
+
+    /// Velocity-solver rows of the last step (for independent checks of the solution).
+    pub fn rows(&self) -> &[ContactRow] {
+        &self.rows
+    }
+
+    /// The solver's view of the bodies after the last velocity solve (before position integration).
+    pub fn solver_bodies(&self) -> &[SolverBody] {
+        &self.solver_bodies
+    }
+
+    /// Report of the oracle's solve from zero in the last step, if the model asked for it (`copy`).
+    pub fn oracle_report(&self) -> Option<SolveReport> {
+        self.oracle_report
+    }
+
+    /// Statistics of the last step.
+    pub fn stats(&self) -> &StepStats {
+        &self.stats
+    }
+
+    /// Total mechanical energy of the dynamic bodies: kinetic, rotational and gravitational
+    /// (zero potential at y = 0).
+    pub fn energy(&self) -> f64 {
+        let g = Vec2::from(self.params.gravity);
+        self.bodies
+            .iter()
+            .filter(|b| b.kind == BodyKind::Dynamic)
+            .map(|b| {
+                let m = b.mass as f64;
+                0.5 * m * b.v.length_squared() as f64 + 0.5 * b.inertia as f64 * (b.w as f64).powi(2)
+                    - m * g.dot(b.x) as f64
+            })
+            .sum()
+    }
+
+    /// Prescribed pose and velocity of the kinematic bodies at time `t` (rotation about the centre).
+    fn set_kinematic_state(&mut self, t: f64) {
+        let omega = self.scene.omega;
+        let c = Vec2::from(self.scene.centre);
+        let theta = (omega as f64 * t) as f32;
+        for b in self.bodies.iter_mut().filter(|b| b.kind == BodyKind::Kinematic) {
+            b.x = c + rotate(theta, b.x0 - c);
+            b.angle = b.angle0 + theta;
+            let r = b.x - c;
+            b.v = Vec2::new(-omega * r.y, omega * r.x);
+            b.w = omega;
+        }
+    }
+
+    /// Mirrors the poses of moving bodies into rapier (marks them modified for the narrow phase).
+    fn sync_rapier(&mut self) {
+        for (b, h) in self.bodies.iter().zip(&self.handles) {
+            if b.kind == BodyKind::Static {
+                continue;
+            }
+            if let Some(rb) = self.rapier.bodies.get_mut(*h) {
+                rb.set_position(Pose::new(b.x, b.angle), true);
+            }
+        }
+    }
+
+    /// Runs rapier's collision detection and gathers the contact points, sorted by key.
+    fn detect_contacts(&mut self) {
+        let r = &mut self.rapier;
+        r.collision_pipeline.step(
+            self.params.prediction,
+            &mut r.islands,
+            &mut r.broad_phase,
+            &mut r.narrow_phase,
+            &mut r.bodies,
+            &mut r.colliders,
+            &(),
+            &(),
+        );
+        self.staging.clear();
+        for pair in r.narrow_phase.contact_pairs() {
+            let (Some(c1), Some(c2)) = (r.colliders.get(pair.collider1), r.colliders.get(pair.collider2)) else {
+                continue;
+            };
+            let (id1, id2) = (c1.user_data as u32, c2.user_data as u32);
+            let (b1, b2) = (&self.bodies[id1 as usize], &self.bodies[id2 as usize]);
+            if b1.mass == 0.0 && b2.mass == 0.0 {
+                continue;
+            }
+            // Canonical order: a is the lower id, so keys do not depend on rapier's pair order.
+            let swap = id1 > id2;
+            let (ia, ib) = if swap { (id2, id1) } else { (id1, id2) };
+            let (ba, bb) = (&self.bodies[ia as usize], &self.bodies[ib as usize]);
+            for manifold in pair.manifolds() {
+                let friction = manifold.data.friction;
+                let (ln_a, ln_b) = if swap {
+                    (manifold.local_n2, manifold.local_n1)
+                } else {
+                    (manifold.local_n1, manifold.local_n2)
+                };
+                let normal = if swap { -manifold.data.normal } else { manifold.data.normal };
+                for p in &manifold.points {
+                    if p.dist > self.params.contact_margin {
+                        continue;
+                    }
+                    let (lp_a, lp_b, f_a, f_b) = if swap {
+                        (p.local_p2, p.local_p1, p.fid2, p.fid1)
+                    } else {
+                        (p.local_p1, p.local_p2, p.fid1, p.fid2)
+                    };
+                    let wa = ba.x + rotate(ba.angle, lp_a);
+                    let wb = bb.x + rotate(bb.angle, lp_b);
+                    let key = ContactKey { body_a: ia, body_b: ib, feature: feature_key(f_a, f_b) };
+                    let point = ContactPoint {
+                        key,
+                        point: (wa + wb) * 0.5,
+                        normal,
+                        penetration: -p.dist,
+                        friction,
+                    };
+                    let geometry = match (&ba.shape, &bb.shape) {
+                        (ShapeSpec::Ball { radius: ra }, ShapeSpec::Ball { radius: rb }) => {
+                            PositionGeometry::Circles { radius_a: *ra, radius_b: *rb }
+                        }
+                        // A disc never carries the reference face: its normal follows the other body.
+                        (ShapeSpec::Ball { radius }, _) => PositionGeometry::Face {
+                            reference_is_a: false,
+                            local_normal: ln_b,
+                            local_plane_point: lp_b,
+                            local_clip_point: Vec2::ZERO,
+                            clip_radius: *radius,
+                        },
+                        (_, ShapeSpec::Ball { radius }) => PositionGeometry::Face {
+                            reference_is_a: true,
+                            local_normal: ln_a,
+                            local_plane_point: lp_a,
+                            local_clip_point: Vec2::ZERO,
+                            clip_radius: *radius,
+                        },
+                        _ => PositionGeometry::Face {
+                            reference_is_a: true,
+                            local_normal: ln_a,
+                            local_plane_point: lp_a,
+                            local_clip_point: lp_b,
+                            clip_radius: 0.0,
+                        },
+                    };
+                    self.staging.push((key, point, PositionRow { body_a: ia, body_b: ib, geometry }));
+                }
+            }
+        }
+        // Stable sort: equal keys (never expected for convex shapes) keep rapier's order.
+        self.staging.sort_by(|a, b| a.0.cmp(&b.0));
+        self.contacts.clear();
+        self.position_rows.clear();
+        self.contacts.extend(self.staging.iter().map(|s| s.1));
+        self.position_rows.extend(self.staging.iter().map(|s| s.2));
+    }
+
+    /// Advances the world by one step, taking the warm start from `warm`.
+    pub fn step(&mut self, warm: &mut WarmStarter) -> &StepStats {
+        let t_step = Instant::now();
+        let dt = self.params.dt;
+        self.detect_contacts();
+
+        // Velocities after external forces (kinematic bodies carry their prescribed velocity).
+        let g = Vec2::from(self.params.gravity);
+        self.solver_bodies.clear();
+        for b in &self.bodies {
+            let v = if b.kind == BodyKind::Dynamic { b.v + g * dt } else { b.v };
+            self.solver_bodies.push(SolverBody { v, w: b.w, inv_mass: b.inv_mass(), inv_inertia: b.inv_inertia() });
+        }
+        self.rows.clear();
+        for (c, pr) in self.contacts.iter().zip(&self.position_rows) {
+            let (a, b) = (&self.bodies[pr.body_a as usize], &self.bodies[pr.body_b as usize]);
+            self.rows.push(ContactRow {
+                body_a: pr.body_a,
+                body_b: pr.body_b,
+                ra: c.point - a.x,
+                rb: c.point - b.x,
+                normal: c.normal,
+                friction: c.friction,
+            });
+        }
+
+        // Warm start.
+        let t_warm = Instant::now();
+        self.warm.clear();
+        self.warm.resize(self.contacts.len(), Impulse::default());
+        self.oracle_report = None;
+        let fallback = {
+            let oracle_report = &mut self.oracle_report;
+            let rows = &self.rows;
+            let bodies = &self.solver_bodies;
+            let scratch = &mut self.scratch_bodies;
+            let oracle_solver = &mut self.oracle_solver;
+            let solve = self.params.solve;
+            let mut oracle = |out: &mut [Impulse]| {
+                scratch.clear();
+                scratch.extend_from_slice(bodies);
+                let zeros = vec![Impulse::default(); rows.len()];
+                *oracle_report = Some(oracle_solver.solve(rows, scratch, &zeros, &solve));
+                out.copy_from_slice(oracle_solver.impulses());
+            };
+            let mut input = WarmStartInput {
+                run_id: self.run_id,
+                simulation: self.simulation,
+                step: self.step,
+                contacts: &self.contacts,
+                history: &self.history,
+                oracle: &mut oracle,
+            };
+            warm.warm_start(&mut input, &mut self.warm)
+        };
+        let warm_start_us = t_warm.elapsed().as_secs_f32() * 1e6;
+
+        // Velocity solve.
+        let t_solve = Instant::now();
+        let report = self.solver.solve(&self.rows, &mut self.solver_bodies, &self.warm, &self.params.solve);
+        let solve_us = t_solve.elapsed().as_secs_f32() * 1e6;
+
+        // Integrate positions (dynamic bodies; kinematic ones follow their prescribed motion).
+        self.poses.clear();
+        for (b, sb) in self.bodies.iter_mut().zip(&self.solver_bodies) {
+            if b.kind == BodyKind::Dynamic {
+                let mut v = sb.v;
+                let mut w = sb.w;
+                let tr = v * dt;
+                if tr.length_squared() > self.params.max_translation * self.params.max_translation {
+                    v *= self.params.max_translation / tr.length();
+                }
+                if (w * dt).abs() > self.params.max_rotation {
+                    w *= self.params.max_rotation / (w * dt).abs();
+                }
+                b.v = v;
+                b.w = w;
+                b.x += v * dt;
+                b.angle += w * dt;
+            }
+            self.poses.push(PoseBody { x: b.x, angle: b.angle, inv_mass: sb.inv_mass, inv_inertia: sb.inv_inertia });
+        }
+        self.step += 1;
+        let t_next = self.step as f64 * dt as f64;
+        if self.scene.omega != 0.0 {
+            self.set_kinematic_state(t_next);
+            for (p, b) in self.poses.iter_mut().zip(&self.bodies) {
+                if b.kind == BodyKind::Kinematic {
+                    p.x = b.x;
+                    p.angle = b.angle;
+                }
+            }
+        }
+
+        // Position pass, then mirror the poses into rapier for the next detection.
+        let min_separation = correct_positions(&self.position_rows, &mut self.poses, &self.params.position);
+        for (b, p) in self.bodies.iter_mut().zip(&self.poses) {
+            if b.kind == BodyKind::Dynamic {
+                b.x = p.x;
+                b.angle = p.angle;
+            }
+        }
+        self.sync_rapier();
+
+        // Statistics and history.
+        let final_impulses = self.solver.impulses();
+        let persisting = self.contacts.iter().filter(|c| self.history.previous(&c.key).is_some()).count();
+        let (mut n_mse, mut n_max, mut t_mse, mut t_max) = (0.0f64, 0.0f32, 0.0f64, 0.0f32);
+        for (w, f) in self.warm.iter().zip(final_impulses) {
+            let dn = w.normal - f.normal;
+            let dtn = w.tangent - f.tangent;
+            n_mse += (dn as f64).powi(2);
+            t_mse += (dtn as f64).powi(2);
+            n_max = n_max.max(dn.abs());
+            t_max = t_max.max(dtn.abs());
+        }
+        let count = self.contacts.len().max(1) as f64;
+        self.history.push(self.contacts.iter().map(|c| c.key), final_impulses);
+        self.stats = StepStats {
+            step: self.step - 1,
+            contacts: self.contacts.len() as u32,
+            persisting_contacts: persisting as u32,
+            solve: report,
+            fallback,
+            fallbacks_total: warm.fallbacks_total(),
+            warm_error_normal_mse: (n_mse / count) as f32,
+            warm_error_normal_max: n_max,
+            warm_error_tangent_mse: (t_mse / count) as f32,
+            warm_error_tangent_max: t_max,
+            solve_us,
+            warm_start_us,
+            step_us: t_step.elapsed().as_secs_f32() * 1e6,
+            min_separation,
+        };
+        &self.stats
+    }
+
+    /// The bodies as messages.
+    pub fn body_msgs(&self, out: &mut Vec<msgs::Body>) {
+        out.clear();
+        out.extend(self.bodies.iter().enumerate().map(|(id, b)| {
+            let (shape, size) = b.shape.msg_shape(b.kind);
+            msgs::Body {
+                id: id as u32,
+                shape: shape as u32,
+                size,
+                mass: b.mass,
+                inertia: b.inertia,
+                x: b.x.x,
+                y: b.x.y,
+                angle: b.angle,
+                vx: b.v.x,
+                vy: b.v.y,
+                omega: b.w,
+            }
+        }));
+    }
+
+    /// The last step's contacts with their final impulses, as messages.
+    pub fn contact_msgs(&self, out: &mut Vec<msgs::Contact>) {
+        out.clear();
+        out.extend(self.contacts.iter().zip(self.solver.impulses()).map(|(c, l)| msgs::Contact {
+            body_a: c.key.body_a,
+            body_b: c.key.body_b,
+            feature: c.key.feature,
+            x: c.point.x,
+            y: c.point.y,
+            nx: c.normal.x,
+            ny: c.normal.y,
+            penetration: c.penetration,
+            friction: c.friction,
+            normal_impulse: l.normal,
+            tangent_impulse: l.tangent,
+        }));
+    }
+}

@@ -1,0 +1,97 @@
+//! Warm-start models: grid sampling through a grid source, fallbacks, temporal models.
+
+use msgs::{Grid, StepHeader};
+use sim::warm::{GridModel, GridSource, ModelKind, WarmStarter};
+use sim::{SceneConfig, World, WorldParams};
+use std::cell::Cell;
+use std::rc::Rc;
+
+fn constant_grid(step: StepHeader, normal: f32, tangent: f32) -> Grid {
+    let mut g = Grid::zeros(step, [0.0, 0.0], 0.5, 31, 31, &["normal", "tangent"]);
+    g.channel_data_mut(0).fill(normal);
+    g.channel_data_mut(1).fill(tangent);
+    g
+}
+
+#[test]
+fn grid_model_samples_the_previous_steps_grid_at_the_contacts() {
+    let asked = Rc::new(Cell::new(Vec::<u32>::new()));
+    let log = asked.clone();
+    let source = move |run: u64, sim: u32, step: u32| {
+        let mut v = log.take();
+        v.push(step);
+        log.set(v);
+        Some(constant_grid(StepHeader { run_id: run, simulation: sim, step }, 0.25, -0.1))
+    };
+    let model = ModelKind::Grid.build_with_source(0, Some(Box::new(source) as Box<dyn GridSource>)).unwrap();
+    let mut warm = WarmStarter::new(model, ModelKind::Builtin.build(0).unwrap());
+    let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
+    let mut saw_contacts = false;
+    for _ in 0..120 {
+        let s = world.step(&mut warm).clone();
+        assert!(!s.fallback);
+        if s.contacts > 0 {
+            saw_contacts = true;
+            assert!(world.warm_start_used().iter().all(|l| l.normal == 0.25 && (l.tangent + 0.1).abs() < 1e-7));
+        }
+    }
+    assert!(saw_contacts);
+    // Step k asks for the grid of step k - 1 (none at step 0), every step, contacts or not.
+    assert_eq!(asked.take(), (0..119).collect::<Vec<u32>>());
+}
+
+#[test]
+fn late_grid_falls_back_to_the_named_model_and_is_counted() {
+    // Grids arrive only for even steps.
+    let source = |run: u64, sim: u32, step: u32| {
+        (step % 2 == 0).then(|| constant_grid(StepHeader { run_id: run, simulation: sim, step }, 1.0, 0.0))
+    };
+    let model = GridModel::new("grid", Box::new(source));
+    let mut warm = WarmStarter::new(Box::new(model), ModelKind::None.build(0).unwrap());
+    warm.begin_simulation(0, 0);
+    let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
+    let mut fallbacks = 0;
+    for k in 0..100u32 {
+        let s = world.step(&mut warm).clone();
+        // Step k needs the grid of k - 1: missing when k - 1 is odd.
+        let expect = k > 0 && (k - 1) % 2 == 1;
+        assert_eq!(s.fallback, expect, "step {k}");
+        fallbacks += expect as u32;
+        assert_eq!(s.fallbacks_total, fallbacks);
+        let msg = s.to_msg(StepHeader::default(), "grid", if s.fallback { "none" } else { "grid" });
+        assert_eq!(msg.fallback, expect as u32);
+    }
+    assert_eq!(warm.fallbacks_total(), 50 - 1);
+}
+
+#[test]
+fn builtin_reuses_persisting_impulses_and_counts_them() {
+    let mut world = World::new(&SceneConfig { seed: 6, ..Default::default() }, WorldParams::default()).unwrap();
+    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+    let mut previous: Vec<(sim::warm::ContactKey, sim::Impulse)> = Vec::new();
+    let mut persisting_seen = 0;
+    for _ in 0..200 {
+        let s = world.step(&mut warm).clone();
+        let mut persisting = 0;
+        for (c, w) in world.contacts().iter().zip(world.warm_start_used()) {
+            match previous.iter().find(|(k, _)| *k == c.key) {
+                Some((_, l)) => {
+                    persisting += 1;
+                    assert_eq!(w, l);
+                }
+                None => assert_eq!(*w, sim::Impulse::default()),
+            }
+        }
+        assert_eq!(s.persisting_contacts, persisting);
+        persisting_seen += persisting;
+        previous = world.contacts().iter().map(|c| c.key).zip(world.impulses().iter().copied()).collect();
+    }
+    // Once the pile forms, most contacts persist from step to step.
+    assert!(persisting_seen > 5_000, "{persisting_seen}");
+}
+
+#[test]
+fn grid_models_without_a_source_are_a_clear_error() {
+    let e = ModelKind::Unet.build(0).err().unwrap();
+    assert!(e.to_string().contains("needs a grid source"), "{e}");
+}
