@@ -83,3 +83,24 @@ fn garbage_payloads_on_zenoh_are_counted_and_the_subscriber_keeps_running() {
     assert_eq!(bodies["decode_errors"], 6, "{bodies}");
     assert_eq!(grid["decode_errors"], 4, "{grid}");
 }
+
+#[test]
+fn a_subscriber_that_polls_late_still_loses_nothing() {
+    // The source's publisher appears after the sink's subscriber, and the sink polls late: 60
+    // frames, queue depth 16 — the source must wait for the sleeping sink, not drop frames.
+    let graph = r#"
+[[nodes]]
+name = "late-sink"
+binary = "dc-bench-bus"
+params = { role = "sink", kind = "bodies", n = 100, count = 60, verify = true, start-delay-ms = 500 }
+
+[[nodes]]
+name = "source"
+binary = "dc-bench-bus"
+params = { role = "source", kind = "bodies", n = 100, count = 60, verify = true, create-delay-ms = 200 }
+"#;
+    let (_, out) = launch("late-sink", graph, &[]);
+    assert!(out.status.success(), "{}", text(&out));
+    let r = sink_result(&String::from_utf8_lossy(&out.stdout), "late-sink");
+    assert_eq!(r["verified"], 60, "{r}");
+}

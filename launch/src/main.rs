@@ -39,11 +39,51 @@ enum Command {
     },
     /// Print the graph of a launch file.
     List { file: PathBuf },
+    /// The thesis protocol: every warm-start model on the same seeds, one report comparing them.
+    Eval(EvalArgs),
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
         what: BenchWhat,
     },
+}
+
+#[derive(clap::Args, Debug)]
+struct EvalArgs {
+    /// Warm-start models to compare.
+    #[arg(long, value_delimiter = ',', default_value = "none,builtin,copy,copy2,bad,random")]
+    models: Vec<String>,
+    /// Evaluation seeds (simulation ids), the same for every model.
+    #[arg(long, default_value = "0..30")]
+    seeds: String,
+    #[arg(long, default_value = "ball-box")]
+    scene: String,
+    #[arg(long, default_value_t = 250)]
+    steps: u32,
+    /// Solver tolerance (largest impulse change of a sweep).
+    #[arg(long, default_value_t = 1e-4)]
+    tolerance: f64,
+    /// Dynamic bodies.
+    #[arg(long, default_value_t = 100)]
+    n: u32,
+    /// Simulator processes running at once (models are split among them); 1 keeps timings clean.
+    #[arg(long, default_value_t = 1)]
+    jobs: usize,
+    /// Report folder (default reports/eval-<unix seconds>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Seeds reserved for training; evaluating on them is refused unless --force.
+    #[arg(long, default_value = "1000..1110")]
+    training_seeds: String,
+    /// Evaluate even on training seeds.
+    #[arg(long)]
+    force: bool,
+    /// Print the graph instead of running it.
+    #[arg(long)]
+    dry_run: bool,
+    /// More simulator parameters, passed through (after `--`).
+    #[arg(last = true)]
+    sim_args: Vec<String>,
 }
 
 #[derive(Subcommand)]
@@ -114,6 +154,7 @@ fn real_main(cli: Cli) -> Result<()> {
             print_graph(&graph, None);
             Ok(())
         }
+        Command::Eval(args) => eval(args),
         Command::Bench { what: BenchWhat::Bus { count, latency_count } } => bench_bus(count, latency_count),
     }
 }
@@ -223,4 +264,78 @@ fn bench_graph(program: &std::path::Path, args: &[String], zenoh: bool) -> Graph
         }
     }
     graph
+}
+
+/// Builds the evaluation graph: one metrics node and `jobs` simulators sharing the models.
+fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
+    let seeds = msgs::parse_seeds(&args.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
+    let training = msgs::parse_seeds(&args.training_seeds).map_err(|e| anyhow::anyhow!("--training-seeds {e}"))?;
+    let overlap: Vec<u64> = seeds.iter().copied().filter(|s| training.binary_search(s).is_ok()).collect();
+    if !overlap.is_empty() && !args.force {
+        bail!(
+            "{} evaluation seeds are training seeds (e.g. {}): results would flatter learned models; use other seeds or --force",
+            overlap.len(),
+            overlap[0]
+        );
+    }
+    if args.models.is_empty() {
+        bail!("--models is empty");
+    }
+    let find = |b: &str| find_binary(b).with_context(|| format!("{b} not built (cargo build --workspace --bins)"));
+    let (sim, metrics) = (find("dc-sim")?, find("dc-metrics")?);
+    let jobs = args.jobs.clamp(1, args.models.len());
+    let mut graph = Graph::parse("<eval>", "[[nodes]]\nname = 'x'\nbinary = 'sh'\n").expect("built-in graph parses");
+    graph.name = "eval".into();
+    graph.namespace = format!("eval-{}", std::process::id());
+    let node = |name: String, program: &std::path::Path, binary: &str, args: Vec<String>| NodeSpec {
+        name,
+        binary: binary.into(),
+        program: program.to_path_buf(),
+        host: DEFAULT_HOST.into(),
+        daemon: false,
+        args,
+        env: Default::default(),
+        line: 0,
+    };
+    let title = format!(
+        "Warm-start evaluation: {} scene, {} bodies, seeds {}, {} steps, tolerance {}",
+        args.scene, args.n, args.seeds, args.steps, args.tolerance
+    );
+    graph.nodes = vec![node(
+        "metrics".into(),
+        &metrics,
+        "dc-metrics",
+        vec![format!("--runs={}", args.models.len()), format!("--out={}", out.display()), format!("--title={title}")],
+    )];
+    for j in 0..jobs {
+        let models: Vec<&str> = args.models.iter().skip(j).step_by(jobs).map(String::as_str).collect();
+        let mut sim_args = vec![
+            format!("--models={}", models.join(",")),
+            format!("--seeds={}", args.seeds),
+            format!("--scene={}", args.scene),
+            format!("--steps={}", args.steps),
+            format!("--tolerance={}", args.tolerance),
+            format!("--n={}", args.n),
+        ];
+        sim_args.extend(args.sim_args.iter().cloned());
+        graph.nodes.push(node(format!("sim-{j}"), &sim, "dc-sim", sim_args));
+    }
+    Ok(graph)
+}
+
+fn eval(args: EvalArgs) -> Result<()> {
+    let out = args.out.clone().unwrap_or_else(|| {
+        let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+        PathBuf::from(format!("reports/eval-{secs}"))
+    });
+    let graph = eval_graph(&args, &out)?;
+    graph.check_params()?;
+    if args.dry_run {
+        print_graph(&graph, None);
+        return Ok(());
+    }
+    let flag = interrupt_flag();
+    supervisor::run(&graph, DEFAULT_HOST, Output::Forward, &flag)?;
+    println!("evaluation report: {}", out.join("report.html").display());
+    Ok(())
 }

@@ -86,6 +86,7 @@ fn free_port(address: &str) -> u16 {
 
 enum Event {
     Ready(usize),
+    Connected(usize),
     Line(usize, String),
 }
 
@@ -154,6 +155,8 @@ pub fn run(
             for line in BufReader::new(stdout).lines().map_while(Result::ok) {
                 if line == runtime::READY_MARKER {
                     let _ = tx_out.send(Event::Ready(i));
+                } else if line == runtime::CONNECTED_MARKER {
+                    let _ = tx_out.send(Event::Connected(i));
                 } else {
                     if forward {
                         println!("{p} {line}");
@@ -173,8 +176,11 @@ pub fn run(
     }
     drop(tx);
 
+    // Two barriers: every node's ports exist (ready) -> "connect"; every node attached its
+    // subscribers (connected) -> "start".
     let mut ready = vec![false; nodes.len()];
-    let mut started = false;
+    let mut connected = vec![false; nodes.len()];
+    let (mut connecting, mut started) = (false, false);
     let capture = |report: &mut RunReport, i: usize, line: String, nodes: &[Running]| {
         if matches!(output, Output::Capture) {
             report.stdout.entry(nodes[i].spec.name.clone()).or_default().push(line);
@@ -182,25 +188,22 @@ pub fn run(
     };
     loop {
         // Drain events (ready markers, captured lines) with a short wait, then look at exits.
-        match rx.recv_timeout(Duration::from_millis(20)) {
-            Ok(Event::Ready(i)) => ready[i] = true,
-            Ok(Event::Line(i, line)) => capture(&mut report, i, line, &nodes),
-            Err(_) => {}
-        }
-        while let Ok(ev) = rx.try_recv() {
+        let mut first = rx.recv_timeout(Duration::from_millis(20)).ok();
+        while let Some(ev) = first.take().or_else(|| rx.try_recv().ok()) {
             match ev {
                 Event::Ready(i) => ready[i] = true,
+                Event::Connected(i) => connected[i] = true,
                 Event::Line(i, line) => capture(&mut report, i, line, &nodes),
             }
         }
-        if !started && ready.iter().zip(&nodes).all(|(r, n)| *r || n.exited.is_some()) {
+        if !connecting && ready.iter().zip(&nodes).all(|(r, n)| *r || n.exited.is_some()) {
+            connecting = true;
+            tell_all(&mut nodes, runtime::CONNECT_LINE);
+        }
+        if connecting && !started && connected.iter().zip(&nodes).all(|(c, n)| *c || n.exited.is_some()) {
             started = true;
-            for n in nodes.iter_mut().filter(|n| n.exited.is_none()) {
-                if let Some(stdin) = &mut n.stdin {
-                    let _ = writeln!(stdin, "{}", runtime::START_LINE).and_then(|_| stdin.flush());
-                }
-            }
-            tracing::debug!("all {} nodes ready: started", nodes.len());
+            tell_all(&mut nodes, runtime::START_LINE);
+            tracing::debug!("all {} nodes connected: started", nodes.len());
         }
         if interrupt.load(std::sync::atomic::Ordering::SeqCst) {
             eprintln!("[dc] interrupted: stopping the graph");
@@ -235,6 +238,15 @@ pub fn run(
             }
             drain_lines(&rx, &mut report, &nodes, &output);
             return Ok(report);
+        }
+    }
+}
+
+/// Writes a line to every running node's stdin.
+fn tell_all(nodes: &mut [Running], line: &str) {
+    for n in nodes.iter_mut().filter(|n| n.exited.is_none()) {
+        if let Some(stdin) = &mut n.stdin {
+            let _ = writeln!(stdin, "{line}").and_then(|_| stdin.flush());
         }
     }
 }

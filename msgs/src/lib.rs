@@ -69,6 +69,38 @@ pub fn name16_str(n: &Name16) -> &str {
     std::str::from_utf8(&n[..end]).unwrap_or("<invalid utf-8>")
 }
 
+/// Parses a seed list: `N`, `A..B` (exclusive), `A..=B`, or a comma list of those; sorted,
+/// without repeats. Seeds are simulation ids, shared by the simulator and the evaluation.
+pub fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
+    let num = |t: &str| {
+        t.trim().parse::<u64>().map_err(|_| format!("`{s}`: expected N, A..B, A..=B or a comma list"))
+    };
+    let mut out = Vec::new();
+    for part in s.split(',').filter(|p| !p.trim().is_empty()) {
+        if let Some((a, b)) = part.split_once("..=") {
+            let (a, b) = (num(a)?, num(b)?);
+            if b < a {
+                return Err(format!("`{s}`: empty range"));
+            }
+            out.extend(a..=b);
+        } else if let Some((a, b)) = part.split_once("..") {
+            let (a, b) = (num(a)?, num(b)?);
+            if b <= a {
+                return Err(format!("`{s}`: empty range"));
+            }
+            out.extend(a..b);
+        } else {
+            out.push(num(part)?);
+        }
+    }
+    if out.is_empty() {
+        return Err(format!("`{s}`: no seeds"));
+    }
+    out.sort_unstable();
+    out.dedup();
+    Ok(out)
+}
+
 /// Identifies the simulation step a message belongs to, so nodes can match streams and drop stale data.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Pod, Zeroable, ZeroCopySend, Serialize, Deserialize)]
@@ -352,6 +384,15 @@ mod tests {
             assert_eq!(<Body as ZeroCopySend>::type_name(), "dc::Body");
             assert_eq!(<GridHeader as ZeroCopySend>::type_name(), "dc::GridHeader");
         }
+    }
+
+    #[test]
+    fn seed_lists_parse() {
+        assert_eq!(parse_seeds("0..3").unwrap(), [0, 1, 2]);
+        assert_eq!(parse_seeds("5,1..=2,1").unwrap(), [1, 2, 5]);
+        assert!(parse_seeds("3..3").is_err());
+        assert!(parse_seeds("x").is_err());
+        assert!(parse_seeds("").is_err());
     }
 
     #[test]

@@ -49,6 +49,12 @@ struct Args {
     /// Sink: give up (and fail) when nothing arrived for this long.
     #[arg(long, default_value_t = 30.0)]
     timeout_s: f64,
+    /// Sleep this long before creating the ports (a node that is slow to start).
+    #[arg(long, default_value_t = 0)]
+    create_delay_ms: u64,
+    /// Sink: sleep this long after start before the first receive (a slow consumer).
+    #[arg(long, default_value_t = 0)]
+    start_delay_ms: u64,
     /// Label of the transport in the result line.
     #[arg(long, default_value = "")]
     label: String,
@@ -71,6 +77,7 @@ fn main() -> Result<()> {
     if args.role == Role::Inproc {
         return inproc(&args);
     }
+    std::thread::sleep(Duration::from_millis(args.create_delay_ms));
     let node = Node::from_env("dc-bench-bus")?;
     match (args.role, args.kind) {
         (Role::Source, Kind::Bodies) => {
@@ -183,6 +190,7 @@ fn sink(
     decode_errors: impl Fn() -> u64,
     stopped: impl Fn() -> bool,
 ) -> Result<()> {
+    std::thread::sleep(Duration::from_millis(args.start_delay_ms));
     let latency_count = if args.verify { 0 } else { args.latency_count };
     let mut latencies = Vec::with_capacity(latency_count as usize);
     let mut next = (if latency_count > 0 { 0 } else { 1 }, 0u32);

@@ -160,6 +160,20 @@ impl<H: msgs::FrameHeader, T: msgs::FrameItem> IoxPublisher<H, T> {
     }
 }
 
+/// A subscriber that can attach to its publishers' connections before data flows.
+pub(crate) trait Attach {
+    fn attach(&self);
+}
+
+impl<H: msgs::FrameHeader, T: msgs::FrameItem> Attach for IoxSubscriber<H, T> {
+    fn attach(&self) {
+        // `has_samples` updates the connections without taking a sample.
+        if let Err(e) = self.subscriber.has_samples() {
+            tracing::warn!(topic = %self.topic, "attaching to publishers: {e:?}");
+        }
+    }
+}
+
 pub(crate) type IoxSample<H, T> = iceoryx2::sample::Sample<ipc::Service, [T], H>;
 
 pub(crate) struct IoxSubscriber<H: msgs::FrameHeader, T: msgs::FrameItem> {

@@ -36,7 +36,11 @@ use std::time::Duration;
 
 /// Line a launched node prints on stdout once its ports exist.
 pub const READY_MARKER: &str = "\u{1e}dc-ready";
-/// Line the launcher writes to a node's stdin once every node of the graph is ready.
+/// Line the launcher writes to a node's stdin once every node's ports exist.
+pub const CONNECT_LINE: &str = "connect";
+/// Line a launched node prints once its subscribers are attached to every publisher.
+pub const CONNECTED_MARKER: &str = "\u{1e}dc-connected";
+/// Line the launcher writes to a node's stdin once every node is connected.
 pub const START_LINE: &str = "start";
 
 /// Errors of the runtime.
@@ -148,6 +152,8 @@ pub struct Node {
     shutdown: ShutdownSignal,
     iox: OnceLock<iox::IoxNode>,
     zenoh: OnceLock<zenoh::Session>,
+    /// The node's iceoryx2 subscribers, attached to their publishers at start (see [`Node::ready`]).
+    iox_subscribers: std::cell::RefCell<Vec<std::rc::Weak<dyn iox::Attach>>>,
 }
 
 impl Node {
@@ -177,6 +183,7 @@ impl Node {
             shutdown,
             iox: OnceLock::new(),
             zenoh: OnceLock::new(),
+            iox_subscribers: Default::default(),
         }
     }
 
@@ -254,7 +261,10 @@ impl Node {
     ) -> Result<Subscriber<H, T>> {
         let transport = self.bus.transport(topic);
         let inner = if transport.uses_iceoryx2() {
-            pubsub::SubInner::Iox(self.iox()?.subscriber::<H, T>(&self.bus, topic)?)
+            let sub = std::rc::Rc::new(self.iox()?.subscriber::<H, T>(&self.bus, topic)?);
+            let weak: std::rc::Weak<dyn iox::Attach> = std::rc::Rc::downgrade(&sub) as _;
+            self.iox_subscribers.borrow_mut().push(weak);
+            pubsub::SubInner::Iox(sub)
         } else {
             pubsub::SubInner::Zenoh(zen::ZenSubscriber::new(
                 self.zenoh(topic)?,
@@ -268,15 +278,34 @@ impl Node {
 
     /// Tells the launcher that this node's ports exist and waits for the whole graph to be ready.
     /// Without a launcher it returns at once. Returns false when the graph was stopped meanwhile.
+    ///
+    /// Two phases, because an iceoryx2 publisher delivers (with back-pressure) only to subscribers
+    /// that have attached to its connection, which a subscriber does when it polls: once every
+    /// node's ports exist (`connect`), each node attaches its subscribers to every publisher and
+    /// says so; only then do sources start (`start`). Without this a fast source overruns a
+    /// subscriber that has not polled yet and iceoryx2 drops samples.
     pub fn ready(&self) -> Result<bool> {
         if !self.launched {
+            self.attach_subscribers();
             return Ok(true);
         }
-        {
-            let mut out = std::io::stdout().lock();
-            writeln!(out, "{READY_MARKER}").map_err(|e| Error::Launcher(e.to_string()))?;
-            out.flush().map_err(|e| Error::Launcher(e.to_string()))?;
+        say(READY_MARKER)?;
+        if !self.wait_for_line(CONNECT_LINE)? {
+            return Ok(false);
         }
+        self.attach_subscribers();
+        say(CONNECTED_MARKER)?;
+        self.wait_for_line(START_LINE)
+    }
+
+    fn attach_subscribers(&self) {
+        for sub in self.iox_subscribers.borrow().iter().filter_map(std::rc::Weak::upgrade) {
+            sub.attach();
+        }
+    }
+
+    /// Reads stdin until `expected`; false (and shutdown) when the launcher closes it.
+    fn wait_for_line(&self, expected: &str) -> Result<bool> {
         let mut line = String::new();
         loop {
             line.clear();
@@ -289,7 +318,7 @@ impl Node {
                 self.request_shutdown();
                 return Ok(false);
             }
-            if line.trim() == START_LINE {
+            if line.trim() == expected {
                 return Ok(true);
             }
         }
@@ -313,6 +342,13 @@ impl Node {
         })?;
         Ok(self.zenoh.get_or_init(|| session))
     }
+}
+
+/// Prints a marker line for the launcher.
+fn say(marker: &str) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{marker}").map_err(|e| Error::Launcher(e.to_string()))?;
+    out.flush().map_err(|e| Error::Launcher(e.to_string()))
 }
 
 /// Set by Ctrl-C / SIGTERM.

@@ -122,7 +122,7 @@ impl<H: FrameHeader, T: FrameItem> Received<H, T> {
 }
 
 pub(crate) enum SubInner<H: FrameHeader, T: FrameItem> {
-    Iox(IoxSubscriber<H, T>),
+    Iox(std::rc::Rc<IoxSubscriber<H, T>>),
     Zenoh(ZenSubscriber),
 }
 

@@ -36,32 +36,7 @@ use std::time::Duration;
 /// Parses a seed list: `7`, `0..30` (exclusive), `0..=29`, or a comma list of those; the result
 /// is sorted and without duplicates (downstream nodes rely on increasing simulation ids).
 pub fn parse_seeds(s: &str) -> Result<Vec<u64>, SimError> {
-    let bad = |why: &str| SimError::InvalidParameter { name: "seeds", value: s.to_string(), why: why.to_string() };
-    let num = |t: &str| t.trim().parse::<u64>().map_err(|_| bad("expected N, A..B, A..=B or a comma list"));
-    let mut out = Vec::new();
-    for part in s.split(',').filter(|p| !p.trim().is_empty()) {
-        if let Some((a, b)) = part.split_once("..=") {
-            let (a, b) = (num(a)?, num(b)?);
-            if b < a {
-                return Err(bad("empty range"));
-            }
-            out.extend(a..=b);
-        } else if let Some((a, b)) = part.split_once("..") {
-            let (a, b) = (num(a)?, num(b)?);
-            if b <= a {
-                return Err(bad("empty range"));
-            }
-            out.extend(a..b);
-        } else {
-            out.push(num(part)?);
-        }
-    }
-    if out.is_empty() {
-        return Err(bad("no seeds"));
-    }
-    out.sort_unstable();
-    out.dedup();
-    Ok(out)
+    msgs::parse_seeds(s).map_err(|why| SimError::InvalidParameter { name: "seeds", value: s.to_string(), why })
 }
 
 /// Parses a grid deadline: `none` (lockstep: wait as long as it takes), or a duration such as

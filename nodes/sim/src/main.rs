@@ -42,6 +42,9 @@ struct Args {
     /// Warm-start model: none, builtin, copy, copy0, copy2, bad, random, extrapolate, grid, unet.
     #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelKind>())]
     model: ModelKind,
+    /// Several models, each run in turn as its own run (`none,builtin,copy`); overrides --model.
+    #[arg(long, value_delimiter = ',', value_parser = |s: &str| s.parse::<ModelKind>())]
+    models: Vec<ModelKind>,
     /// Model standing in when a grid is late (a local model).
     #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelKind>())]
     fallback: ModelKind,
@@ -213,45 +216,100 @@ fn main() -> Result<()> {
     sim::Scene::build(&args.scene_config(seeds[0])).context("building the scene")?;
 
     let node = runtime::Node::from_env("dc-sim")?;
-    let mut bodies_pub = node.publisher(msgs::topics::BODIES)?;
-    let mut contacts_pub = node.publisher(msgs::topics::CONTACTS)?;
-    let mut stats_pub = node.publisher(msgs::topics::SOLVE_STATS)?;
-    let mut control_pub = node.publisher(msgs::topics::CONTROL)?;
-    let source: Option<Box<dyn GridSource>> = match args.model {
-        ModelKind::Grid | ModelKind::Unet => {
-            let topic = if args.model == ModelKind::Grid { msgs::topics::GRID_CONTACTS } else { msgs::topics::GRID_UNET };
-            Some(Box::new(BusGridSource {
-                sub: node.subscriber(topic)?,
-                deadline: args.deadline.0,
-                pending: None,
-                shutdown: node.shutdown_signal(),
-            }))
-        }
-        _ => None,
+    let models = if args.models.is_empty() { vec![args.model] } else { args.models.clone() };
+    let mut grid_subs = GridSubscribers::default();
+    let mut pubs = Publishers {
+        bodies: node.publisher(msgs::topics::BODIES)?,
+        contacts: node.publisher(msgs::topics::CONTACTS)?,
+        stats: node.publisher(msgs::topics::SOLVE_STATS)?,
+        control: node.publisher(msgs::topics::CONTROL)?,
     };
-    let model = args.model.build_with_source(args.seed, source)?;
-    let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
+    for &model in &models {
+        grid_subs.ensure(&node, model)?;
+    }
     if !node.ready()? {
         return Ok(());
     }
-
-    let run_id = if args.run_id != 0 {
+    let first_run_id = if args.run_id != 0 {
         args.run_id
     } else {
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH)?.as_nanos() as u64
     };
+    for (i, &model) in models.iter().enumerate() {
+        if node.is_shutdown() {
+            break;
+        }
+        // Each model is its own run, so downstream nodes can tell them apart.
+        run(&args, &node, &mut pubs, &mut grid_subs, model, first_run_id + i as u64, &seeds, params)?;
+    }
+    Ok(())
+}
+
+/// The simulator's publishers.
+struct Publishers {
+    bodies: runtime::Publisher<StepHeader, msgs::Body>,
+    contacts: runtime::Publisher<StepHeader, msgs::Contact>,
+    stats: runtime::Publisher<msgs::SolveStatsHeader, f32>,
+    control: runtime::Publisher<msgs::Control, u8>,
+}
+
+/// Grid subscribers of the grid-based models, created before the graph starts.
+#[derive(Default)]
+struct GridSubscribers {
+    grid: Option<runtime::Subscriber<msgs::GridHeader, f32>>,
+    unet: Option<runtime::Subscriber<msgs::GridHeader, f32>>,
+}
+
+impl GridSubscribers {
+    fn ensure(&mut self, node: &runtime::Node, model: ModelKind) -> Result<()> {
+        match model {
+            ModelKind::Grid if self.grid.is_none() => self.grid = Some(node.subscriber(msgs::topics::GRID_CONTACTS)?),
+            ModelKind::Unet if self.unet.is_none() => self.unet = Some(node.subscriber(msgs::topics::GRID_UNET)?),
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn take(&mut self, model: ModelKind) -> Option<runtime::Subscriber<msgs::GridHeader, f32>> {
+        match model {
+            ModelKind::Grid => self.grid.take(),
+            ModelKind::Unet => self.unet.take(),
+            _ => None,
+        }
+    }
+}
+
+/// One run: every seed with one warm-start model.
+#[allow(clippy::too_many_arguments)]
+fn run(
+    args: &Args,
+    node: &runtime::Node,
+    pubs: &mut Publishers,
+    grid_subs: &mut GridSubscribers,
+    model_kind: ModelKind,
+    run_id: u64,
+    seeds: &[u64],
+    params: WorldParams,
+) -> Result<()> {
+    let Publishers { bodies: bodies_pub, contacts: contacts_pub, stats: stats_pub, control: control_pub } = pubs;
+    let source: Option<Box<dyn GridSource>> = grid_subs.take(model_kind).map(|sub| {
+        Box::new(BusGridSource { sub, deadline: args.deadline.0, pending: None, shutdown: node.shutdown_signal() })
+            as Box<dyn GridSource>
+    });
+    let model = model_kind.build_with_source(args.seed, source)?;
+    let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
     let run_header = StepHeader { run_id, simulation: 0, step: 0 };
     let details = serde_json::json!({
         "scene": args.scene.name(), "n": args.n, "seeds": seeds, "steps": args.steps,
-        "model": args.model.name(), "fallback": args.fallback.name(), "tolerance": args.tolerance,
+        "model": model_kind.name(), "fallback": args.fallback.name(), "tolerance": args.tolerance,
         "max_sweeps": args.max_sweeps, "sampler": format!("{:?}", args.sampler).to_lowercase(),
         "dt": params.dt,
     });
     control_pub.publish_frame(&ControlMsg::control(run_header, ControlKind::RunStart, seeds.len() as u32, &details.to_string()))?;
-    tracing::info!(run_id, simulations = seeds.len(), model = args.model.name(), "run start");
+    tracing::info!(run_id, simulations = seeds.len(), model = model_kind.name(), "run start");
 
     let (mut bodies, mut contacts, mut residuals) = (Vec::new(), Vec::new(), Vec::new());
-    'run: for &seed in &seeds {
+    'run: for &seed in seeds {
         let simulation = u32::try_from(seed).context("seeds must fit in u32 (they are simulation ids)")?;
         let mut world = World::new(&args.scene_config(seed), params)?;
         world.set_ids(run_id, simulation);
