@@ -18,7 +18,6 @@
 
 pub mod bench;
 pub mod error;
-pub mod grid;
 pub mod rng;
 pub mod scene;
 pub mod solver;

@@ -7,7 +7,7 @@
 //! model, counting it.
 
 use crate::error::SimError;
-use crate::grid::sample_bilinear;
+use sph::sample_bilinear;
 use crate::rng::{Sampler, Xoshiro};
 use crate::solver::Impulse;
 use crate::world::ContactPoint;
@@ -166,6 +166,69 @@ impl WarmStartModel for Copy {
     }
 }
 
+/// `copy-grid`, `copy-grid-sph`: the step's exact solution sent through the SPH grid and back
+/// (particle -> grid -> bilinear at the contacts). The gate for every grid-based model: no
+/// prediction on that grid can do better than the solution itself after the transfer.
+pub struct CopyGrid {
+    name: &'static str,
+    config: sph::TransferConfig,
+    /// Grid spacing (the thesis's 0.125).
+    spacing: f32,
+}
+
+impl CopyGrid {
+    /// Through the value-preserving transfer (`copy-grid`) or the thesis's (`copy-grid-sph`).
+    pub fn new(mode: sph::Mode) -> CopyGrid {
+        let name = match mode {
+            sph::Mode::Preserving => "copy-grid",
+            sph::Mode::Sph => "copy-grid-sph",
+        };
+        CopyGrid { name, config: sph::TransferConfig { mode, ..Default::default() }, spacing: 0.125 }
+    }
+
+    /// A grid over the contacts, on the lattice of a scene grid with origin (0, 0) (so the result
+    /// is the same as on the scene-sized grid: only nodes within the kernel radius matter).
+    fn geometry(&self, contacts: &[ContactPoint]) -> Result<sph::GridGeometry, sph::SphError> {
+        let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+        for c in contacts {
+            for (i, v) in [c.point.x, c.point.y].into_iter().enumerate() {
+                lo[i] = lo[i].min(v);
+                hi[i] = hi[i].max(v);
+            }
+        }
+        let margin = self.config.h + self.spacing;
+        let snap_lo = |v: f32| ((v - margin) / self.spacing).floor() * self.spacing;
+        let snap_hi = |v: f32| ((v + margin) / self.spacing).ceil() * self.spacing;
+        let bounds = sph::Bounds::new([snap_lo(lo[0]), snap_lo(lo[1])], [snap_hi(hi[0]), snap_hi(hi[1])])?;
+        sph::GridGeometry::from_bounds(bounds, self.spacing, 1)
+    }
+}
+
+impl WarmStartModel for CopyGrid {
+    fn name(&self) -> &str {
+        self.name
+    }
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        (input.oracle)(out);
+        if input.contacts.is_empty() {
+            return Ok(());
+        }
+        let unavailable = |e: sph::SphError| Unavailable(format!("grid transfer: {e}"));
+        let mut particles = sph::ParticleSet::new(&["normal", "tangent"]);
+        for (c, o) in input.contacts.iter().zip(out.iter()) {
+            let source = sph::Source::Contact { body_a: c.key.body_a, body_b: c.key.body_b };
+            particles.push(source, [c.point.x, c.point.y], &[o.normal, o.tangent]).map_err(unavailable)?;
+        }
+        let mut transfer = sph::Transfer::new(self.config, self.geometry(input.contacts).map_err(unavailable)?)
+            .map_err(unavailable)?;
+        let (back, _) = transfer.round_trip(&particles).map_err(unavailable)?;
+        for (o, v) in out.iter_mut().zip(back.chunks_exact(2)) {
+            *o = Impulse { normal: v[0], tangent: v[1] };
+        }
+        Ok(())
+    }
+}
+
 /// `bad`: 50 for normal and tangent impulses.
 #[derive(Debug, Default)]
 pub struct Bad;
@@ -316,6 +379,10 @@ pub enum ModelKind {
     Random,
     /// Linear extrapolation of the last two steps.
     Extrapolate,
+    /// The exact solution through the value-preserving grid transfer and back.
+    CopyGrid,
+    /// The exact solution through the thesis's grid transfer and back.
+    CopyGridSph,
     /// Impulse grid from the sph node.
     Grid,
     /// Impulse grid predicted by the U-Net.
@@ -324,7 +391,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 10] = [
+    pub const ALL: [ModelKind; 12] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -333,6 +400,8 @@ impl ModelKind {
         ModelKind::Bad,
         ModelKind::Random,
         ModelKind::Extrapolate,
+        ModelKind::CopyGrid,
+        ModelKind::CopyGridSph,
         ModelKind::Grid,
         ModelKind::Unet,
     ];
@@ -348,6 +417,8 @@ impl ModelKind {
             ModelKind::Bad => "bad",
             ModelKind::Random => "random",
             ModelKind::Extrapolate => "extrapolate",
+            ModelKind::CopyGrid => "copy-grid",
+            ModelKind::CopyGridSph => "copy-grid-sph",
             ModelKind::Grid => "grid",
             ModelKind::Unet => "unet",
         }
@@ -369,6 +440,8 @@ impl ModelKind {
             ModelKind::Bad => Box::new(Bad),
             ModelKind::Random => Box::new(Random::new(seed)),
             ModelKind::Extrapolate => Box::new(Extrapolate),
+            ModelKind::CopyGrid => Box::new(CopyGrid::new(sph::Mode::Preserving)),
+            ModelKind::CopyGridSph => Box::new(CopyGrid::new(sph::Mode::Sph)),
             ModelKind::Grid | ModelKind::Unet => return Err(SimError::NoGridSource(self.name().into())),
         })
     }

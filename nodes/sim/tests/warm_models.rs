@@ -95,3 +95,28 @@ fn grid_models_without_a_source_are_a_clear_error() {
     let e = ModelKind::Unet.build(0).err().unwrap();
     assert!(e.to_string().contains("needs a grid source"), "{e}");
 }
+
+/// Total sweeps of one ball-box simulation (seed 0, 150 steps) with `model`.
+fn total_sweeps(model: ModelKind) -> u64 {
+    let mut warm = WarmStarter::new(model.build(0).unwrap(), ModelKind::None.build(0).unwrap());
+    warm.begin_simulation(0, 0);
+    let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
+    (0..150).map(|_| world.step(&mut warm).solve.sweeps as u64).sum()
+}
+
+#[test]
+fn the_exact_solution_survives_the_preserving_grid_but_not_the_thesis_transfer() {
+    // The gate of grid warm starts: the solution itself, sent through the grid and back.
+    let (copy, preserving, thesis, none) = (
+        total_sweeps(ModelKind::Copy),
+        total_sweeps(ModelKind::CopyGrid),
+        total_sweeps(ModelKind::CopyGridSph),
+        total_sweeps(ModelKind::None),
+    );
+    eprintln!("total sweeps: copy {copy}, copy-grid {preserving}, copy-grid-sph {thesis}, none {none}");
+    // The transfer costs something (copy is exact), but keeps most of the solution's worth.
+    assert!(copy <= preserving, "copy {copy} vs copy-grid {preserving}");
+    assert!(preserving * 3 < none, "copy-grid {preserving} vs none {none}");
+    // The thesis's transfer shrinks impulses to ~8%: barely better than starting from zero.
+    assert!(thesis * 10 > none * 8, "copy-grid-sph {thesis} vs none {none}");
+}
