@@ -191,10 +191,12 @@ impl<H: msgs::FrameHeader, T: msgs::FrameItem> IoxSubscriber<H, T> {
 
     /// Sleeps on the topic's event until a notification or `timeout`.
     pub(crate) fn wait(&self, timeout: Duration) -> Result<()> {
-        self.listener
-            .timed_wait(|_| {}, timeout)
-            .map(|_| ())
-            .map_err(|e| err(&self.topic, format!("wait for event: {e:?}")))
+        match self.listener.timed_wait(|_| {}, timeout) {
+            // A signal (Ctrl-C, the launcher's SIGTERM) interrupts the wait; the caller then sees
+            // the node's shutdown flag, which the signal handler set.
+            Ok(_) | Err(iceoryx2::port::listener::ListenerWaitError::InterruptSignal) => Ok(()),
+            Err(e) => Err(err(&self.topic, format!("wait for event: {e:?}"))),
+        }
     }
 }
 

@@ -200,6 +200,13 @@ impl GridGeometry {
             && (0.0..=(self.height.max(1) - 1) as f32).contains(&r)
     }
 
+    /// Whether `(x, y)` lies within `margin` (world units) of the node rectangle.
+    pub fn contains_within(&self, x: f32, y: f32, margin: f32) -> bool {
+        let [c, r] = self.grid_coords(x, y);
+        let m = margin / self.spacing;
+        (-m..=(self.width.max(1) - 1) as f32 + m).contains(&c) && (-m..=(self.height.max(1) - 1) as f32 + m).contains(&r)
+    }
+
     /// World position of every node, row-major (the order of a channel's values).
     pub fn node_positions(&self) -> Vec<[f32; 2]> {
         (0..self.height)
