@@ -51,7 +51,7 @@ enum Command {
 #[derive(clap::Args, Debug)]
 struct EvalArgs {
     /// Warm-start models to compare.
-    #[arg(long, value_delimiter = ',', default_value = "none,builtin,copy,copy2,bad,random")]
+    #[arg(long, value_delimiter = ',', default_value = "none,builtin,copy,copy2,bad,random,grid,copy-grid")]
     models: Vec<String>,
     /// Evaluation seeds (simulation ids), the same for every model.
     #[arg(long, default_value = "0..30")]
@@ -307,6 +307,17 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
         "dc-metrics",
         vec![format!("--runs={}", args.models.len()), format!("--out={}", out.display()), format!("--title={title}")],
     )];
+    // Grid-based models need the SPH node (it turns each step's contacts into the next step's
+    // warm-start grid); it serves every simulator of the graph.
+    if args.models.iter().any(|m| m == "grid") {
+        let sph = find("dc-sph")?;
+        let mut sph_node = node("sph".into(), &sph, "dc-sph", vec!["--mode=preserving".into()]);
+        sph_node.daemon = true;
+        graph.nodes.push(sph_node);
+    }
+    if jobs > 1 && args.models.iter().any(|m| m == "grid") {
+        bail!("--jobs > 1 with the grid model: one SPH node cannot tell interleaved simulators apart yet");
+    }
     for j in 0..jobs {
         let models: Vec<&str> = args.models.iter().skip(j).step_by(jobs).map(String::as_str).collect();
         let mut sim_args = vec![

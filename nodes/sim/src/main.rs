@@ -270,6 +270,14 @@ impl GridSubscribers {
         Ok(())
     }
 
+    /// Drops grids nobody asked for (a run of another model): the grid producer publishes with
+    /// back-pressure and would otherwise stall the graph once our queue is full.
+    fn discard_pending(&mut self) {
+        for sub in [&mut self.grid, &mut self.unet].into_iter().flatten() {
+            while let Ok(Some(_)) = sub.try_recv() {}
+        }
+    }
+
     fn take(&mut self, model: ModelKind) -> Option<runtime::Subscriber<msgs::GridHeader, f32>> {
         match model {
             ModelKind::Grid => self.grid.take(),
@@ -326,6 +334,7 @@ fn run(
             if node.is_shutdown() {
                 break 'run;
             }
+            grid_subs.discard_pending();
             let stats = world.step(&mut warm).clone();
             let header = StepHeader { run_id, simulation, step };
             total_sweeps += stats.solve.sweeps as u64;
