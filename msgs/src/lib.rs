@@ -253,6 +253,11 @@ pub struct SolveStatsHeader {
     pub step_us: f32,
     /// Wall time spent obtaining the warm start (including waiting for a grid), in microseconds.
     pub warm_start_us: f32,
+    /// Kinetic energy (linear + rotational) of the dynamic bodies after the step, in J.
+    pub kinetic_energy: f32,
+    /// Largest speed of a dynamic body after the step, in m/s (tells a settled pile from one
+    /// that still has bodies flying: the contact count alone does not).
+    pub max_speed: f32,
 }
 
 /// Most residuals a [`SolveStatsHeader`] frame carries (one per sweep; longer solves keep the first ones).

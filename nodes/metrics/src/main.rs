@@ -22,9 +22,9 @@ struct Args {
     /// Title of the report.
     #[arg(long, default_value = "Warm-start evaluation")]
     title: String,
-    /// Relative band of the settled-phase rule (contacts within this share of their final count).
-    #[arg(long, default_value_t = 0.05)]
-    settle_tolerance: f64,
+    /// A step is settled once every body stays slower than this (m/s) for the rest of its simulation.
+    #[arg(long, default_value_t = 0.1)]
+    settle_speed: f32,
 }
 
 fn main() -> Result<()> {
@@ -43,7 +43,7 @@ fn main() -> Result<()> {
     });
 
     let mut aggregate = Aggregate::new();
-    aggregate.settle_tolerance = args.settle_tolerance;
+    aggregate.settle_speed = args.settle_speed;
     let mut completeness = Completeness::default();
     // Per model: cumulative sweeps, for the live summary.
     let mut cumulative: BTreeMap<String, u64> = BTreeMap::new();

@@ -220,7 +220,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
     }
     html.push_str("<h2>Summary</h2>");
     html.push_str(&markdown_table_to_html(&table));
-    html.push_str("<p>Phases: a step is <i>settled</i> once its simulation's contact count stays within 5% of its final count; earlier steps are <i>falling</i>. Times are wall-clock on the machine that ran the simulator.</p>");
+    html.push_str("<p>Phases: a step is <i>settled</i> once every body of its simulation stays slower than the settle speed (default 0.1 m/s) for the rest of the simulation; earlier steps are <i>falling</i> (a dash: no step settled). Times are wall-clock on the machine that ran the simulator.</p>");
     for (caption, path) in &plots {
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let _ = write!(html, "<h2>{}</h2><img src=\"{name}\" alt=\"{}\">", escape(caption), escape(caption));

@@ -174,6 +174,10 @@ pub struct StepStats {
     pub step_us: f32,
     /// Smallest separation after the position pass (negative: overlap).
     pub min_separation: f32,
+    /// Kinetic energy of the dynamic bodies after the step.
+    pub kinetic_energy: f32,
+    /// Largest speed of a dynamic body after the step.
+    pub max_speed: f32,
 }
 
 impl StepStats {
@@ -197,6 +201,8 @@ impl StepStats {
             solve_us: self.solve_us,
             step_us: self.step_us,
             warm_start_us: self.warm_start_us,
+            kinetic_energy: self.kinetic_energy,
+            max_speed: self.max_speed,
         }
     }
 }
@@ -390,6 +396,16 @@ impl World {
     /// Statistics of the last step.
     pub fn stats(&self) -> &StepStats {
         &self.stats
+    }
+
+    /// Kinetic energy (linear + rotational) and largest speed of the dynamic bodies.
+    pub fn motion(&self) -> (f32, f32) {
+        let (mut energy, mut max_speed) = (0.0f64, 0.0f32);
+        for b in self.bodies.iter().filter(|b| b.kind == BodyKind::Dynamic) {
+            energy += 0.5 * b.mass as f64 * b.v.length_squared() as f64 + 0.5 * b.inertia as f64 * (b.w as f64).powi(2);
+            max_speed = max_speed.max(b.v.length());
+        }
+        (energy as f32, max_speed)
     }
 
     /// Total mechanical energy of the dynamic bodies: kinetic, rotational and gravitational
@@ -659,7 +675,11 @@ impl World {
             warm_start_us,
             step_us: t_step.elapsed().as_secs_f32() * 1e6,
             min_separation,
+            kinetic_energy: 0.0,
+            max_speed: 0.0,
         };
+        // Measured after the step's timer stopped: bookkeeping, not simulation.
+        (self.stats.kinetic_energy, self.stats.max_speed) = self.motion();
         &self.stats
     }
 
