@@ -22,7 +22,9 @@ pub fn bin(name: &str) -> PathBuf {
 pub fn unique_namespace(test: &str) -> String {
     use std::sync::atomic::{AtomicU32, Ordering};
     static N: AtomicU32 = AtomicU32::new(0);
-    format!("t{}-{}-{}", std::process::id(), N.fetch_add(1, Ordering::SeqCst), test)
+    // Process ids recycle (pid_max is 32768 here): the clock keeps earlier runs' leftovers apart.
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
+    format!("t{}-{}-{nanos}-{test}", std::process::id(), N.fetch_add(1, Ordering::SeqCst))
 }
 
 /// A scratch folder under the target dir, removed and re-created.

@@ -256,7 +256,7 @@ fn bench_graph(program: &std::path::Path, args: &[String], zenoh: bool) -> Graph
     };
     let mut graph = Graph::parse("<bench>", "[[nodes]]\nname = 'x'\nbinary = 'sh'\n").expect("built-in graph parses");
     graph.name = "bench-bus".into();
-    graph.namespace = format!("bench-{}", std::process::id());
+    graph.namespace = unique_namespace("bench");
     graph.nodes = vec![node("sink", "sink"), node("source", "source")];
     if zenoh {
         for t in [msgs::topics::BENCH_BODIES.name, msgs::topics::BENCH_GRID.name] {
@@ -286,7 +286,7 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
     let jobs = args.jobs.clamp(1, args.models.len());
     let mut graph = Graph::parse("<eval>", "[[nodes]]\nname = 'x'\nbinary = 'sh'\n").expect("built-in graph parses");
     graph.name = "eval".into();
-    graph.namespace = format!("eval-{}", std::process::id());
+    graph.namespace = unique_namespace("eval");
     let node = |name: String, program: &std::path::Path, binary: &str, args: Vec<String>| NodeSpec {
         name,
         binary: binary.into(),
@@ -349,4 +349,11 @@ fn eval(args: EvalArgs) -> Result<()> {
     supervisor::run(&graph, DEFAULT_HOST, Output::Forward, &flag)?;
     println!("evaluation report: {}", out.join("report.html").display());
     Ok(())
+}
+
+/// A bus namespace no earlier graph used: process ids are recycled, and a namespace shared with
+/// a dead graph's leftovers (a subscriber that never reads) would stall publishers.
+fn unique_namespace(prefix: &str) -> String {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
+    format!("{prefix}-{}-{nanos}", std::process::id())
 }

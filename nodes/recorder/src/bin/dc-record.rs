@@ -1,0 +1,354 @@
+//! `dc-record`: records every topic of a graph (or `--topics a,b`) into one MCAP file per run;
+//! `dc-record info FILE` and `dc-record recover IN OUT` inspect and repair recordings.
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use msgs::{ControlKind, FrameHeader, FrameItem};
+use recorder::kind::HasStep;
+use recorder::{FrameKind, RecordingWriter};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+#[derive(Parser, Debug)]
+#[command(about = "Record a Deep Contact graph to MCAP; inspect and repair recordings")]
+struct Args {
+    #[command(subcommand)]
+    command: Option<Command>,
+    /// Topics to record, comma separated (default: every known topic).
+    #[arg(long, value_delimiter = ',')]
+    topics: Vec<String>,
+    /// Write everything to this one file instead of one file per run under `--dir`.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Folder of the per-run files `run-<run id>-<UTC time>.mcap`.
+    #[arg(long, default_value = "recordings")]
+    dir: PathBuf,
+    /// Longest time between chunk flushes, in milliseconds (a kill loses at most this much).
+    #[arg(long, default_value_t = 1000)]
+    flush_ms: u64,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Topics, types, counts, time range, simulations and steps, size and compression of a recording.
+    Info { file: PathBuf },
+    /// Rewrite a recording whose writer was killed into a valid indexed file.
+    Recover { input: PathBuf, output: PathBuf },
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Args = runtime::parse_args();
+    runtime::init_logging();
+    match &args.command {
+        Some(Command::Info { file }) => {
+            let info = recorder::Info::read(file)?;
+            print!("{info}");
+            Ok(())
+        }
+        Some(Command::Recover { input, output }) => {
+            let r = recorder::recover::recover(input, output)?;
+            match &r.damage {
+                Some(d) => tracing::warn!("input damaged after {} bytes: {d}", r.bytes_read),
+                None => tracing::info!("input was intact"),
+            }
+            println!(
+                "recovered {} messages on {} channels, {} metadata records into {}",
+                r.messages,
+                r.channels,
+                r.metadata,
+                output.display()
+            );
+            Ok(())
+        }
+        None => record(&args),
+    }
+}
+
+/// A subscriber of one topic that hands out its frames as CBOR.
+trait RecordedTopic {
+    fn topic(&self) -> &str;
+    fn kind(&self) -> FrameKind;
+    /// Takes up to `max` waiting frames: `(step, encoded frame)` each.
+    fn poll(&mut self, max: usize, out: &mut Vec<(msgs::StepHeader, Vec<u8>)>) -> anyhow::Result<()>;
+    fn received(&self) -> u64;
+    fn decode_errors(&self) -> u64;
+}
+
+struct Typed<H: FrameHeader, T: FrameItem> {
+    kind: FrameKind,
+    sub: runtime::Subscriber<H, T>,
+}
+
+impl<H: FrameHeader + HasStep, T: FrameItem> RecordedTopic for Typed<H, T> {
+    fn topic(&self) -> &str {
+        self.sub.topic()
+    }
+    fn kind(&self) -> FrameKind {
+        self.kind
+    }
+    fn poll(&mut self, max: usize, out: &mut Vec<(msgs::StepHeader, Vec<u8>)>) -> anyhow::Result<()> {
+        for _ in 0..max {
+            let Some(r) = self.sub.try_recv()? else { break };
+            let mut bytes = Vec::with_capacity(64 + std::mem::size_of_val(r.items()));
+            msgs::encode_into(r.header(), r.items(), &mut bytes)?;
+            out.push((r.header().step_header(), bytes));
+        }
+        Ok(())
+    }
+    fn received(&self) -> u64 {
+        self.sub.received()
+    }
+    fn decode_errors(&self) -> u64 {
+        self.sub.decode_errors()
+    }
+}
+
+fn subscribe(node: &runtime::Node, topic: &str) -> anyhow::Result<Box<dyn RecordedTopic>> {
+    let kind = FrameKind::of_topic(topic)
+        .with_context(|| format!("unknown topic `{topic}` (known: {})", msgs::topics::ALL.join(", ")))?;
+    Ok(match kind {
+        FrameKind::Bodies => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::Body>(topic)? }),
+        FrameKind::Contacts => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::Contact>(topic)? }),
+        FrameKind::Grid => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::GridHeader, f32>(topic)? }),
+        FrameKind::SolveStats => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::SolveStatsHeader, f32>(topic)? }),
+        FrameKind::Control => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::Control, u8>(topic)? }),
+    })
+}
+
+/// One open recording file.
+struct Open {
+    writer: RecordingWriter,
+    last_flush: Instant,
+}
+
+/// The recorder's files: one per run id (or one for all with `--out`).
+struct Files<'a> {
+    args: &'a Args,
+    node_metadata: BTreeMap<String, String>,
+    topics: Vec<(String, FrameKind)>,
+    open: BTreeMap<u64, Open>,
+    /// Runs whose end was announced, closed after a grace period for frames still in other queues.
+    ending: BTreeMap<u64, Instant>,
+    finished: Vec<(PathBuf, u64)>,
+}
+
+/// How long a run's file stays open after its `RunEnd` for frames still queued on other topics.
+const RUN_END_GRACE: Duration = Duration::from_secs(1);
+
+impl Files<'_> {
+    /// The file of `run_id`, opened on its first message.
+    fn file(&mut self, run_id: u64) -> anyhow::Result<&mut Open> {
+        let key = if self.args.out.is_some() { 0 } else { run_id };
+        if !self.open.contains_key(&key) {
+            let path = match &self.args.out {
+                Some(p) => p.clone(),
+                None => self.args.dir.join(format!("run-{run_id}-{}.mcap", utc_stamp(SystemTime::now()))),
+            };
+            let mut writer = RecordingWriter::create(&path)?;
+            for (topic, kind) in &self.topics {
+                writer.add_channel(topic, *kind)?;
+            }
+            let mut meta = self.node_metadata.clone();
+            meta.insert("run_id".into(), run_id.to_string());
+            writer.write_metadata("dc-record", meta)?;
+            tracing::info!(path = %path.display(), run_id, "recording");
+            self.open.insert(key, Open { writer, last_flush: Instant::now() });
+        }
+        Ok(self.open.get_mut(&key).expect("inserted above"))
+    }
+
+    fn finish(&mut self, run_id: u64) -> anyhow::Result<()> {
+        let key = if self.args.out.is_some() { 0 } else { run_id };
+        if self.args.out.is_some() {
+            // One file for all runs: a run end is only a flush point.
+            if let Some(open) = self.open.get_mut(&key) {
+                open.writer.flush()?;
+                open.last_flush = Instant::now();
+            }
+            return Ok(());
+        }
+        if let Some(open) = self.open.remove(&key) {
+            let path = open.writer.path().to_path_buf();
+            let n = open.writer.finish()?;
+            tracing::info!(path = %path.display(), messages = n, "recording finished");
+            self.finished.push((path, n));
+        }
+        Ok(())
+    }
+
+    fn flush_due(&mut self, every: Duration) -> anyhow::Result<()> {
+        for open in self.open.values_mut() {
+            if open.last_flush.elapsed() >= every {
+                open.writer.flush()?;
+                open.last_flush = Instant::now();
+            }
+        }
+        Ok(())
+    }
+
+    fn finish_all(&mut self) -> anyhow::Result<()> {
+        for (_, open) in std::mem::take(&mut self.open) {
+            let path = open.writer.path().to_path_buf();
+            let n = open.writer.finish()?;
+            tracing::info!(path = %path.display(), messages = n, "recording finished");
+            self.finished.push((path, n));
+        }
+        Ok(())
+    }
+}
+
+fn record(args: &Args) -> anyhow::Result<()> {
+    let node = runtime::Node::from_env("dc-record")?;
+    let names: Vec<String> = if args.topics.is_empty() {
+        msgs::topics::ALL.iter().map(|s| s.to_string()).collect()
+    } else {
+        args.topics.clone()
+    };
+    let mut subs = names.iter().map(|t| subscribe(&node, t)).collect::<anyhow::Result<Vec<_>>>()?;
+    // Control last in every pass: the data a control message follows is taken first.
+    subs.sort_by_key(|s| s.kind() == FrameKind::Control);
+
+    let mut node_metadata = BTreeMap::from([
+        ("node".to_string(), node.name().to_string()),
+        ("namespace".to_string(), node.bus().namespace.clone()),
+        ("args".to_string(), std::env::args().skip(1).collect::<Vec<_>>().join(" ")),
+        ("wire_version".to_string(), msgs::WIRE_VERSION.to_string()),
+        ("recorder".to_string(), concat!("dc-record ", env!("CARGO_PKG_VERSION")).to_string()),
+        ("started".to_string(), utc_stamp(SystemTime::now())),
+    ]);
+    if let Some(rev) = git_revision() {
+        node_metadata.insert("git_revision".into(), rev);
+    }
+    let mut files = Files {
+        args,
+        node_metadata,
+        topics: subs.iter().map(|s| (s.topic().to_string(), s.kind())).collect(),
+        open: BTreeMap::new(),
+        ending: BTreeMap::new(),
+        finished: Vec::new(),
+    };
+
+    if !node.ready()? {
+        return Ok(());
+    }
+    tracing::info!(topics = %names.join(","), "recording");
+    let flush_every = Duration::from_millis(args.flush_ms.max(1));
+    let mut batch = Vec::new();
+    let mut write_failed = 0u64;
+    let started = Instant::now();
+    let mut bytes = 0u64;
+    loop {
+        let stopping = node.is_shutdown();
+        let mut got = 0;
+        for sub in subs.iter_mut() {
+            batch.clear();
+            sub.poll(64, &mut batch)?;
+            got += batch.len();
+            let log_time = now_ns();
+            for (step, data) in batch.drain(..) {
+                bytes += data.len() as u64;
+                let open = files.file(step.run_id)?;
+                if let Err(e) = open.writer.write(sub.topic(), sub.kind(), log_time, log_time, &data) {
+                    write_failed += 1;
+                    tracing::error!("dropped a message of `{}`: {e}", sub.topic());
+                    continue;
+                }
+                if sub.kind() == FrameKind::Control {
+                    let c: msgs::Control = msgs::decode_header(&data)?;
+                    node.observe_control(&c);
+                    match c.kind() {
+                        Some(ControlKind::SimulationEnd) => {
+                            open.writer.flush()?;
+                            open.last_flush = Instant::now();
+                        }
+                        Some(ControlKind::RunStart) => {
+                            let details = msgs::decode::<msgs::Control, u8>(&data)?;
+                            let details = String::from_utf8_lossy(&details.items).into_owned();
+                            let meta = BTreeMap::from([
+                                ("run_id".to_string(), step.run_id.to_string()),
+                                ("details".to_string(), details),
+                            ]);
+                            open.writer.write_metadata("run_start", meta)?;
+                        }
+                        Some(ControlKind::RunEnd) => {
+                            open.writer.flush()?;
+                            open.last_flush = Instant::now();
+                            files.ending.insert(step.run_id, Instant::now());
+                        }
+                        _ => {}
+                    }
+                }
+            }
+        }
+        files.flush_due(flush_every)?;
+        let ended: Vec<u64> =
+            files.ending.iter().filter(|(_, t)| t.elapsed() >= RUN_END_GRACE).map(|(r, _)| *r).collect();
+        for run in ended {
+            files.ending.remove(&run);
+            files.finish(run)?;
+        }
+        if got == 0 {
+            if stopping {
+                break; // shut down and drained
+            }
+            std::thread::sleep(Duration::from_micros(500));
+        }
+    }
+    files.finish_all()?;
+    let elapsed = started.elapsed().as_secs_f64();
+    let mut received = 0;
+    let mut undecodable = 0;
+    for s in &subs {
+        received += s.received();
+        undecodable += s.decode_errors();
+        if s.received() > 0 || s.decode_errors() > 0 {
+            tracing::info!(topic = s.topic(), received = s.received(), undecodable = s.decode_errors(), "topic");
+        }
+    }
+    tracing::info!(
+        received,
+        undecodable,
+        dropped = write_failed,
+        mib = format!("{:.1}", bytes as f64 / (1 << 20) as f64),
+        mib_per_s = format!("{:.1}", bytes as f64 / (1 << 20) as f64 / elapsed.max(1e-9)),
+        files = files.finished.len(),
+        "recorder done"
+    );
+    for (path, n) in &files.finished {
+        println!("recorded {n} messages to {}", path.display());
+    }
+    println!("received {received}, undecodable {undecodable}, dropped {write_failed}");
+    Ok(())
+}
+
+fn now_ns() -> u64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
+}
+
+/// `git rev-parse HEAD` of the working directory, best effort.
+fn git_revision() -> Option<String> {
+    let out = std::process::Command::new("git")
+        .args(["rev-parse", "HEAD"])
+        .stderr(std::process::Stdio::null())
+        .output()
+        .ok()?;
+    out.status.success().then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+}
+
+/// `YYYYMMDDTHHMMSSZ` in UTC.
+fn utc_stamp(t: SystemTime) -> String {
+    let secs = t.duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0) as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!("{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
+}

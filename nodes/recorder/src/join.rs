@@ -1,0 +1,185 @@
+//! The trainer's view of recordings: steps joined per (run, simulation, step).
+//!
+//! ```no_run
+//! for step in recorder::Steps::open("recordings".as_ref())? {
+//!     let step = step?;
+//!     println!("{:?}: {} bodies, {} contacts", step.key, step.bodies.items.len(), step.contacts.items.len());
+//! }
+//! # Ok::<(), recorder::Error>(())
+//! ```
+
+use crate::read::{Item, RecordingReader};
+use crate::{recording_files, Error, Result};
+use msgs::{topics, Bodies, Contacts, SolveStats, StepHeader};
+use std::collections::{BTreeMap, VecDeque};
+use std::path::{Path, PathBuf};
+
+/// One simulation step: the bodies at its end, its contacts with their impulses, and the solver
+/// statistics when the recording has them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Step {
+    pub key: StepHeader,
+    pub bodies: Bodies,
+    pub contacts: Contacts,
+    pub stats: Option<SolveStats>,
+}
+
+/// Steps still waiting for one of their parts.
+const DEFAULT_WINDOW: usize = 64;
+
+#[derive(Default)]
+struct Partial {
+    bodies: Option<Bodies>,
+    contacts: Option<Contacts>,
+    stats: Option<SolveStats>,
+}
+
+type Key = (u64, u32, u32);
+
+/// Iterates the steps of one recording or of a folder of recordings (files in name order), in
+/// (run, simulation, step) order within a file, holding at most a window of incomplete steps in
+/// memory. A step missing its bodies or contacts (or its statistics, when the file has a stats
+/// channel) is skipped and counted in [`Steps::incomplete`]; a payload that does not decode is
+/// skipped and counted in [`Steps::undecodable`].
+pub struct Steps {
+    files: VecDeque<PathBuf>,
+    reader: Option<RecordingReader>,
+    pending: BTreeMap<Key, Partial>,
+    ready: VecDeque<Step>,
+    window: usize,
+    has_stats: bool,
+    incomplete: u64,
+    undecodable: u64,
+}
+
+impl Steps {
+    /// Steps of `path`: an `.mcap` file or a folder of them.
+    pub fn open(path: &Path) -> Result<Steps> {
+        Ok(Steps {
+            files: recording_files(path)?.into(),
+            reader: None,
+            pending: BTreeMap::new(),
+            ready: VecDeque::new(),
+            window: DEFAULT_WINDOW,
+            has_stats: false,
+            incomplete: 0,
+            undecodable: 0,
+        })
+    }
+
+    /// At most `window` incomplete steps are held before the oldest is given up.
+    pub fn with_window(mut self, window: usize) -> Steps {
+        self.window = window.max(1);
+        self
+    }
+
+    /// Steps skipped because a part never arrived.
+    pub fn incomplete(&self) -> u64 {
+        self.incomplete
+    }
+
+    /// Payloads skipped because they did not decode.
+    pub fn undecodable(&self) -> u64 {
+        self.undecodable
+    }
+
+    fn complete(&self, p: &Partial) -> bool {
+        p.bodies.is_some() && p.contacts.is_some() && (p.stats.is_some() || !self.has_stats)
+    }
+
+    /// Moves complete steps at the front to `ready`; gives up the oldest beyond the window, or all
+    /// at the end of a file.
+    fn release(&mut self, end_of_file: bool) {
+        while let Some((&key, front)) = self.pending.first_key_value() {
+            let complete = self.complete(front);
+            if !complete && !end_of_file && self.pending.len() <= self.window {
+                break;
+            }
+            let p = self.pending.remove(&key).expect("the first key");
+            if complete {
+                let key = StepHeader { run_id: key.0, simulation: key.1, step: key.2 };
+                self.ready.push_back(Step {
+                    key,
+                    bodies: p.bodies.expect("complete"),
+                    contacts: p.contacts.expect("complete"),
+                    stats: p.stats,
+                });
+            } else {
+                self.incomplete += 1;
+            }
+        }
+    }
+
+    fn take(&mut self, topic: &str, data: &[u8]) {
+        let key = |s: StepHeader| (s.run_id, s.simulation, s.step);
+        if topic == topics::BODIES.name {
+            match msgs::decode::<StepHeader, msgs::Body>(data) {
+                Ok(f) => {
+                    let k = key(f.header);
+                    self.pending.entry(k).or_default().bodies = Some(f)
+                }
+                Err(_) => self.undecodable += 1,
+            }
+        } else if topic == topics::CONTACTS.name {
+            match msgs::decode::<StepHeader, msgs::Contact>(data) {
+                Ok(f) => {
+                    let k = key(f.header);
+                    self.pending.entry(k).or_default().contacts = Some(f)
+                }
+                Err(_) => self.undecodable += 1,
+            }
+        } else if topic == topics::SOLVE_STATS.name {
+            match msgs::decode::<msgs::SolveStatsHeader, f32>(data) {
+                Ok(f) => {
+                    let k = key(f.header.step);
+                    self.pending.entry(k).or_default().stats = Some(f)
+                }
+                Err(_) => self.undecodable += 1,
+            }
+        }
+    }
+}
+
+impl Iterator for Steps {
+    type Item = Result<Step, Error>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            if let Some(step) = self.ready.pop_front() {
+                return Some(Ok(step));
+            }
+            let reader = match &mut self.reader {
+                Some(r) => r,
+                None => {
+                    let file = self.files.pop_front()?;
+                    self.has_stats = false;
+                    match RecordingReader::open(&file) {
+                        Ok(r) => self.reader.insert(r),
+                        Err(e) => return Some(Err(e)),
+                    }
+                }
+            };
+            match reader.next_item() {
+                None => {
+                    self.reader = None;
+                    self.release(true);
+                }
+                Some(Err(e)) => {
+                    self.reader = None;
+                    self.pending.clear();
+                    return Some(Err(e));
+                }
+                Some(Ok(Item::Channel(c))) => {
+                    if c.topic == topics::SOLVE_STATS.name {
+                        self.has_stats = true;
+                    }
+                }
+                Some(Ok(Item::Message(m))) => {
+                    self.take(&m.channel.topic, &m.data);
+                    self.release(false);
+                }
+                Some(Ok(_)) => {}
+            }
+        }
+    }
+}

@@ -1,0 +1,74 @@
+//! Deep Contact recordings: MCAP files holding a graph's frames exactly as they travel on zenoh
+//! (CBOR `{v, h, i}`, message encoding `cbor`, no schema), one channel per topic.
+//!
+//! - [`write::RecordingWriter`]: what `dc-record` writes with: zstd chunks written whole (a killed
+//!   writer leaves only complete chunks behind), channel metadata with the frame type and wire
+//!   version, run metadata as MCAP metadata records.
+//! - [`read::RecordingReader`]: streams a file record by record with bounded memory (one chunk at a
+//!   time), checks the magic and every channel's wire version, and names the file in every error.
+//! - [`join::Steps`]: what the trainer reads: a recording (one file or a folder of files) as steps
+//!   joined per (run, simulation, step): bodies + contacts (+ solver statistics).
+//! - [`info::Info`] (`dc-record info`) and [`recover::recover`] (`dc-record recover`).
+//!
+//! Compression: the `mcap` crate (0.24) sets one compression per writer, not per channel, so every
+//! chunk is zstd (float grids compress less, but still gain from zstd's entropy stage).
+
+pub mod info;
+pub mod join;
+pub mod kind;
+pub mod read;
+pub mod recover;
+pub mod write;
+
+pub use info::Info;
+pub use join::{Step, Steps};
+pub use kind::FrameKind;
+pub use read::{Item, Message, RecordingReader};
+pub use write::RecordingWriter;
+
+use std::path::PathBuf;
+
+/// Message encoding of every channel the recorder writes.
+pub const MESSAGE_ENCODING: &str = "cbor";
+/// Channel metadata key: the frame type ([`FrameKind::type_name`]).
+pub const META_TYPE: &str = "type";
+/// Channel metadata key: the wire version of the CBOR frames ([`msgs::WIRE_VERSION`]).
+pub const META_WIRE_VERSION: &str = "wire_version";
+
+/// Why a recording could not be read or written; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: not an MCAP file ({detail})")]
+    NotMcap { path: PathBuf, detail: String },
+    #[error("{path}: damaged or truncated MCAP file: {detail} (a recorder killed mid-run leaves such a file; `dc-record recover IN OUT` rescues its complete messages)")]
+    Damaged { path: PathBuf, detail: String },
+    #[error("{path}: topic `{topic}` was recorded with wire version {found}; this build reads version {expected}")]
+    WireVersion { path: PathBuf, topic: String, found: String, expected: u32 },
+    #[error("{path}: MCAP writer: {source}")]
+    Write { path: PathBuf, source: mcap::McapError },
+    #[error("{path}: no .mcap recordings there")]
+    NoRecordings { path: PathBuf },
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// The `.mcap` files a path names: the file itself, or a folder's `*.mcap` files sorted by name.
+pub fn recording_files(path: &std::path::Path) -> Result<Vec<PathBuf>> {
+    let io = |source| Error::Io { path: path.to_path_buf(), source };
+    if !path.is_dir() {
+        std::fs::metadata(path).map_err(io)?;
+        return Ok(vec![path.to_path_buf()]);
+    }
+    let mut files: Vec<PathBuf> = std::fs::read_dir(path)
+        .map_err(io)?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(Error::NoRecordings { path: path.to_path_buf() });
+    }
+    Ok(files)
+}

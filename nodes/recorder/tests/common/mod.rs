@@ -1,0 +1,96 @@
+//! Shared by the recorder's tests: synthetic recordings written without a bus, and the paths of
+//! built binaries for the multi-process tests.
+#![allow(dead_code)]
+
+use msgs::{Body, Contact, ControlKind, ControlMsg, SolveStatsHeader, StepHeader};
+use recorder::{FrameKind, RecordingWriter};
+use std::path::{Path, PathBuf};
+
+/// The cargo target folder holding the binaries (`target/debug`), found from the test executable.
+pub fn bin_dir() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    exe.parent().and_then(Path::parent).expect("target dir").to_path_buf()
+}
+
+/// Path of a workspace binary; these tests need `dc` and `dc-sim` built too.
+pub fn bin(name: &str) -> PathBuf {
+    let p = bin_dir().join(name);
+    assert!(p.is_file(), "{} is not built (run `cargo build --workspace --bins` first)", p.display());
+    p
+}
+
+/// A fresh scratch folder under the target dir.
+pub fn scratch(test: &str) -> PathBuf {
+    let d = bin_dir().join("recorder-scratch").join(format!("{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("scratch dir");
+    d
+}
+
+/// A bus namespace of its own per test.
+pub fn namespace(test: &str) -> String {
+    format!("rec{}-{test}", std::process::id())
+}
+
+pub fn bodies(s: StepHeader, n: usize) -> msgs::Bodies {
+    let items = (0..n)
+        .map(|i| Body { id: i as u32, x: s.step as f32 + i as f32 * 0.5, y: s.simulation as f32, mass: 1.0, ..Default::default() })
+        .collect();
+    msgs::Frame::new(s, items)
+}
+
+pub fn contacts(s: StepHeader, n: usize) -> msgs::Contacts {
+    let items = (0..n)
+        .map(|i| Contact { body_a: i as u32, body_b: i as u32 + 1, normal_impulse: s.step as f32 * 0.25, ny: 1.0, ..Default::default() })
+        .collect();
+    msgs::Frame::new(s, items)
+}
+
+pub fn stats(s: StepHeader) -> msgs::SolveStats {
+    msgs::Frame::new(SolveStatsHeader { step: s, sweeps: 3 + s.step, converged: 1, ..Default::default() }, vec![0.1, 0.01, 0.001])
+}
+
+/// Writes one run the way `dc-record` lays it out: control, then per step bodies, contacts and
+/// stats; flushes at every simulation end. `hook(writer, simulation)` runs after each simulation's
+/// flush. Returns the messages written.
+pub fn write_run(
+    writer: &mut RecordingWriter,
+    run_id: u64,
+    simulations: u32,
+    steps: u32,
+    mut hook: impl FnMut(&mut RecordingWriter, u32),
+) -> u64 {
+    let mut t = 1_000_000_000u64 + run_id * 1_000_000_000_000;
+    let mut put = |w: &mut RecordingWriter, topic: &str, data: Vec<u8>| {
+        t += 1_000_000;
+        w.write(topic, FrameKind::of_topic(topic).unwrap(), t, t, &data).unwrap();
+    };
+    let run = StepHeader { run_id, simulation: 0, step: 0 };
+    put(writer, "control", msgs::encode(&ControlMsg::control(run, ControlKind::RunStart, simulations, "{\"model\":\"builtin\"}")).unwrap());
+    for sim in 0..simulations {
+        let s0 = StepHeader { run_id, simulation: sim, step: 0 };
+        put(writer, "control", msgs::encode(&ControlMsg::control(s0, ControlKind::SimulationStart, steps, "")).unwrap());
+        for step in 0..steps {
+            let s = StepHeader { run_id, simulation: sim, step };
+            put(writer, "bodies", msgs::encode(&bodies(s, 4)).unwrap());
+            put(writer, "contacts", msgs::encode(&contacts(s, step as usize % 3)).unwrap());
+            put(writer, "stats/solve", msgs::encode(&stats(s)).unwrap());
+        }
+        put(writer, "control", msgs::encode(&ControlMsg::control(s0, ControlKind::SimulationEnd, steps, "")).unwrap());
+        writer.flush().unwrap();
+        hook(writer, sim);
+    }
+    put(writer, "control", msgs::encode(&ControlMsg::control(run, ControlKind::RunEnd, simulations, "")).unwrap());
+    writer.messages()
+}
+
+/// A finished recording of one run.
+pub fn fixture(path: &Path, run_id: u64, simulations: u32, steps: u32) -> u64 {
+    let mut w = RecordingWriter::create(path).unwrap();
+    for (topic, kind) in [("control", FrameKind::Control), ("bodies", FrameKind::Bodies), ("contacts", FrameKind::Contacts), ("stats/solve", FrameKind::SolveStats)] {
+        w.add_channel(topic, kind).unwrap();
+    }
+    let n = write_run(&mut w, run_id, simulations, steps, |_, _| {});
+    assert_eq!(w.finish().unwrap(), n);
+    n
+}

@@ -1,0 +1,236 @@
+//! Multi-process tests with the real binaries: record a live graph, replay it into another graph,
+//! kill a recorder, and the command line on bad input. Need `dc` and `dc-sim` built beside the
+//! recorder's binaries (`cargo build --workspace --bins`).
+
+mod common;
+
+use common::*;
+use recorder::read::RecordingReader;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+const DC_RECORD: &str = env!("CARGO_BIN_EXE_dc-record");
+const DC_REPLAY: &str = env!("CARGO_BIN_EXE_dc-replay");
+
+fn text(out: &Output) -> String {
+    format!(
+        "status: {}\n--- stdout\n{}\n--- stderr\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// Runs `dc launch` on `toml` in a namespace of its own.
+fn launch(dir: &Path, name: &str, toml: &str) -> Output {
+    let file = dir.join(format!("{name}.toml"));
+    std::fs::write(&file, toml).unwrap();
+    Command::new(bin("dc"))
+        .arg("launch")
+        .arg(&file)
+        .args(["--namespace", &namespace(name)])
+        .output()
+        .expect("run dc")
+}
+
+/// Every payload of a recording, per topic, in file order.
+fn payloads(file: &Path) -> BTreeMap<String, Vec<Vec<u8>>> {
+    let mut out: BTreeMap<String, Vec<Vec<u8>>> = BTreeMap::new();
+    let mut reader = RecordingReader::open(file).unwrap();
+    while let Some(m) = reader.next_message() {
+        let m = m.unwrap();
+        out.entry(m.channel.topic.clone()).or_default().push(m.data);
+    }
+    out
+}
+
+#[test]
+fn replayed_recording_is_recorded_again_message_for_message() {
+    let dir = scratch("replay");
+    let first = dir.join("live.mcap");
+    let second = dir.join("replayed.mcap");
+    let t = Instant::now();
+    let out = launch(
+        &dir,
+        "record",
+        &format!(
+            r#"
+[graph]
+name = "record"
+
+[[nodes]]
+name = "recorder"
+binary = "dc-record"
+daemon = true
+params = {{ out = "{}" }}
+
+[[nodes]]
+name = "sim"
+binary = "dc-sim"
+params = {{ seeds = "0..2", steps = 30, model = "builtin", n = 40 }}
+"#,
+            first.display()
+        ),
+    );
+    assert!(out.status.success(), "{}", text(&out));
+    let recorded = payloads(&first);
+    eprintln!("live graph recorded in {:.1} s", t.elapsed().as_secs_f64());
+    let counts: BTreeMap<&str, usize> = recorded.iter().map(|(k, v)| (k.as_str(), v.len())).collect();
+    // 2 simulations x 30 steps; control: run start/end + start/end of each simulation.
+    assert_eq!(
+        counts,
+        BTreeMap::from([("bodies", 60), ("contacts", 60), ("control", 6), ("stats/solve", 60)]),
+        "{}",
+        text(&out)
+    );
+    let steps: Vec<_> = recorder::Steps::open(&first).unwrap().collect::<Result<_, _>>().unwrap();
+    assert_eq!(steps.len(), 60);
+    assert!(steps.iter().all(|s| s.stats.is_some() && s.bodies.items.len() >= 40));
+
+    let t = Instant::now();
+    let out = launch(
+        &dir,
+        "replay",
+        &format!(
+            r#"
+[graph]
+name = "replay"
+
+[[nodes]]
+name = "recorder"
+binary = "dc-record"
+daemon = true
+params = {{ out = "{}" }}
+
+[[nodes]]
+name = "replay"
+binary = "dc-replay"
+params = {{ input = "{}", rate = 0 }}
+"#,
+            second.display(),
+            first.display()
+        ),
+    );
+    assert!(out.status.success(), "{}", text(&out));
+    eprintln!("replay graph ran in {:.1} s", t.elapsed().as_secs_f64());
+    let replayed = payloads(&second);
+    for (topic, frames) in &recorded {
+        let again = replayed.get(topic).map(Vec::as_slice).unwrap_or_default();
+        assert_eq!(again.len(), frames.len(), "topic {topic}: count\n{}", text(&out));
+        assert!(again == frames.as_slice(), "topic {topic}: a payload differs");
+    }
+    assert_eq!(replayed.len(), recorded.len(), "extra topics: {:?}", replayed.keys());
+}
+
+/// The children of this test, by process id (never by name).
+fn pid_of(child: &std::process::Child) -> libc::pid_t {
+    child.id() as libc::pid_t
+}
+
+#[test]
+fn killed_recorder_loses_at_most_the_last_flush_and_recover_makes_it_indexed() {
+    let dir = scratch("kill");
+    let file = dir.join("killed.mcap");
+    let bus = format!(r#"{{"namespace":"{}"}}"#, namespace("kill"));
+    let mut rec = Command::new(DC_RECORD)
+        .args(["--out", file.to_str().unwrap(), "--topics", "control,bodies,contacts,stats/solve"])
+        .env("DC_BUS", &bus)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    let mut sim = Command::new(bin("dc-sim"))
+        .args(["--seeds", "0..1000", "--steps", "50", "--model", "builtin", "--n", "40"])
+        .env("DC_BUS", &bus)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // Let it record for a while (several flushes), then kill it without warning.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while std::fs::metadata(&file).map(|m| m.len()).unwrap_or(0) < 200_000 && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    std::thread::sleep(Duration::from_millis(1500));
+    let killed_at = SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_nanos() as u64;
+    unsafe { libc::kill(pid_of(&rec), libc::SIGKILL) };
+    rec.wait().unwrap();
+    // The simulator is blocked on the dead subscriber's full queue (back-pressure): kill it too.
+    unsafe { libc::kill(pid_of(&sim), libc::SIGKILL) };
+    sim.wait().unwrap();
+
+    // The file is not a valid MCAP file as it stands ...
+    let info = Command::new(DC_RECORD).arg("info").arg(&file).output().unwrap();
+    assert!(!info.status.success(), "{}", text(&info));
+    assert!(String::from_utf8_lossy(&info.stderr).contains("recover"), "{}", text(&info));
+    // ... recover rewrites it.
+    let fixed = dir.join("recovered.mcap");
+    let out = Command::new(DC_RECORD).arg("recover").arg(&file).arg(&fixed).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+
+    let data = std::fs::read(&fixed).unwrap();
+    let summary = mcap::Summary::read(&data).unwrap().expect("an indexed file");
+    let stats = summary.stats.expect("statistics");
+    assert!(stats.message_count > 100, "{stats:?}");
+    assert!(!summary.chunk_indexes.is_empty());
+    // Messages of the last second at most are lost (flush every second; 0.5 s slack).
+    let lost_ns = killed_at.saturating_sub(stats.message_end_time);
+    assert!(lost_ns < 1_500_000_000, "lost the last {:.2} s", lost_ns as f64 * 1e-9);
+    // Every recovered step is whole: steps of each simulation are contiguous from 0.
+    let mut last: BTreeMap<u32, u32> = BTreeMap::new();
+    let mut reader = RecordingReader::open(&fixed).unwrap();
+    while let Some(m) = reader.next_message() {
+        let m = m.unwrap();
+        if m.channel.topic == "bodies" {
+            let h: msgs::StepHeader = msgs::decode_header(&m.data).unwrap();
+            let expected = last.get(&h.simulation).map_or(0, |s| s + 1);
+            assert_eq!(h.step, expected, "simulation {}", h.simulation);
+            last.insert(h.simulation, h.step);
+        }
+    }
+    eprintln!(
+        "recovered {} messages, {} simulations; lost the last {:.2} s",
+        stats.message_count,
+        last.len(),
+        lost_ns as f64 * 1e-9
+    );
+}
+
+#[test]
+fn info_and_replay_refuse_bad_input_naming_the_file() {
+    let dir = scratch("badcli");
+    let notes = dir.join("notes.mcap");
+    std::fs::write(&notes, "not a recording").unwrap();
+    let good = dir.join("good.mcap");
+    fixture(&good, 1, 1, 5);
+    let bytes = std::fs::read(&good).unwrap();
+    let truncated = dir.join("truncated.mcap");
+    std::fs::write(&truncated, &bytes[..bytes.len() * 2 / 3]).unwrap();
+
+    let future = dir.join("future.mcap");
+    let mut w = recorder::RecordingWriter::create(&future).unwrap();
+    let meta = BTreeMap::from([("type".to_string(), "dc::Bodies".to_string()), ("wire_version".to_string(), "2".to_string())]);
+    let id = w.add_raw_channel("bodies", "cbor", &meta).unwrap();
+    w.write_to_channel(id, 1, 1, b"from the future").unwrap();
+    w.finish().unwrap();
+
+    for (file, reason) in [(&notes, "not an MCAP file"), (&truncated, "truncated"), (&future, "wire version 2")] {
+        let info = Command::new(DC_RECORD).arg("info").arg(file).output().unwrap();
+        let replay = Command::new(DC_REPLAY).arg("--input").arg(file).env("DC_BUS", r#"{"namespace":"unused"}"#).output().unwrap();
+        for out in [info, replay] {
+            assert!(!out.status.success(), "{}", text(&out));
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert!(err.contains(&file.display().to_string()) && err.contains(reason), "{}", text(&out));
+            assert!(!err.contains("panicked"), "{}", text(&out));
+        }
+    }
+
+    let out = Command::new(DC_RECORD).arg("info").arg(&good).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("Topic: bodies") && stdout.contains("run 1 simulation 0: steps 0..=4"), "{stdout}");
+    assert!(stdout.contains("zstd"), "{stdout}");
+}

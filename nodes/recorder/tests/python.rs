@@ -1,0 +1,32 @@
+//! A recording is readable from Python with the PyPI `mcap` and `cbor2` packages (what a notebook
+//! or a Python trainer uses). Skipped, saying so, where those packages are not installed.
+
+mod common;
+
+use common::*;
+use std::process::Command;
+
+#[test]
+fn python_reads_topics_counts_and_cbor_fields() {
+    let have = Command::new("python3").args(["-c", "import mcap, cbor2"]).output();
+    if !have.as_ref().is_ok_and(|o| o.status.success()) {
+        eprintln!("SKIPPED python_reads_topics_counts_and_cbor_fields: python3 with `mcap` and `cbor2` is not available (pip install mcap cbor2)");
+        return;
+    }
+    let dir = scratch("python");
+    let file = dir.join("a.mcap");
+    fixture(&file, 11, 2, 4);
+    // Body 0 of the first frame: see `common::bodies` (x = step + id * 0.5).
+    let expected = serde_json::json!({
+        "counts": { "bodies": 8, "contacts": 8, "stats/solve": 8, "control": 6 },
+        "first_body": { "run_id": 11, "simulation": 0, "step": 0, "n": 4, "x0": 0.0 },
+    });
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_with_python.py");
+    let out = Command::new("python3").arg(script).arg(&file).arg(expected.to_string()).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
