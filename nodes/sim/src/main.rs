@@ -217,16 +217,12 @@ fn main() -> Result<()> {
 
     let node = runtime::Node::from_env("dc-sim")?;
     let models = if args.models.is_empty() { vec![args.model] } else { args.models.clone() };
-    let mut grid_subs = GridSubscribers::default();
     let mut pubs = Publishers {
         bodies: node.publisher(msgs::topics::BODIES)?,
         contacts: node.publisher(msgs::topics::CONTACTS)?,
         stats: node.publisher(msgs::topics::SOLVE_STATS)?,
         control: node.publisher(msgs::topics::CONTROL)?,
     };
-    for &model in &models {
-        grid_subs.ensure(&node, model)?;
-    }
     if !node.ready()? {
         return Ok(());
     }
@@ -240,7 +236,7 @@ fn main() -> Result<()> {
             break;
         }
         // Each model is its own run, so downstream nodes can tell them apart.
-        run(&args, &node, &mut pubs, &mut grid_subs, model, first_run_id + i as u64, &seeds, params)?;
+        run(&args, &node, &mut pubs, model, first_run_id + i as u64, &seeds, params)?;
     }
     Ok(())
 }
@@ -253,57 +249,36 @@ struct Publishers {
     control: runtime::Publisher<msgs::Control, u8>,
 }
 
-/// Grid subscribers of the grid-based models, created before the graph starts.
-#[derive(Default)]
-struct GridSubscribers {
-    grid: Option<runtime::Subscriber<msgs::GridHeader, f32>>,
-    unet: Option<runtime::Subscriber<msgs::GridHeader, f32>>,
-}
-
-impl GridSubscribers {
-    fn ensure(&mut self, node: &runtime::Node, model: ModelKind) -> Result<()> {
-        match model {
-            ModelKind::Grid if self.grid.is_none() => self.grid = Some(node.subscriber(msgs::topics::GRID_CONTACTS)?),
-            ModelKind::Unet if self.unet.is_none() => self.unet = Some(node.subscriber(msgs::topics::GRID_UNET)?),
-            _ => {}
-        }
-        Ok(())
-    }
-
-    /// Drops grids nobody asked for (a run of another model): the grid producer publishes with
-    /// back-pressure and would otherwise stall the graph once our queue is full.
-    fn discard_pending(&mut self) {
-        for sub in [&mut self.grid, &mut self.unet].into_iter().flatten() {
-            while let Ok(Some(_)) = sub.try_recv() {}
-        }
-    }
-
-    fn take(&mut self, model: ModelKind) -> Option<runtime::Subscriber<msgs::GridHeader, f32>> {
-        match model {
-            ModelKind::Grid => self.grid.take(),
-            ModelKind::Unet => self.unet.take(),
-            _ => None,
-        }
-    }
-}
-
 /// One run: every seed with one warm-start model.
 #[allow(clippy::too_many_arguments)]
 fn run(
     args: &Args,
     node: &runtime::Node,
     pubs: &mut Publishers,
-    grid_subs: &mut GridSubscribers,
     model_kind: ModelKind,
     run_id: u64,
     seeds: &[u64],
     params: WorldParams,
 ) -> Result<()> {
     let Publishers { bodies: bodies_pub, contacts: contacts_pub, stats: stats_pub, control: control_pub } = pubs;
-    let source: Option<Box<dyn GridSource>> = grid_subs.take(model_kind).map(|sub| {
-        Box::new(BusGridSource { sub, deadline: args.deadline.0, pending: None, shutdown: node.shutdown_signal() })
-            as Box<dyn GridSource>
-    });
+    // The grid subscriber exists only during a grid-based run: a grid producer publishes with
+    // back-pressure, and a subscriber nobody reads (another model's run) would fill up and stall
+    // the producer, which stalls the simulator in turn (a deadlock seen in `dc eval`). In lockstep
+    // at most one grid is outstanding, so the loop cannot fill it.
+    let topic = match model_kind {
+        ModelKind::Grid => Some(msgs::topics::GRID_CONTACTS),
+        ModelKind::Unet => Some(msgs::topics::GRID_UNET),
+        _ => None,
+    };
+    let source: Option<Box<dyn GridSource>> = match topic {
+        Some(topic) => Some(Box::new(BusGridSource {
+            sub: node.subscriber(topic)?,
+            deadline: args.deadline.0,
+            pending: None,
+            shutdown: node.shutdown_signal(),
+        })),
+        None => None,
+    };
     let model = model_kind.build_with_source(args.seed, source)?;
     let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
     let run_header = StepHeader { run_id, simulation: 0, step: 0 };
@@ -334,7 +309,6 @@ fn run(
             if node.is_shutdown() {
                 break 'run;
             }
-            grid_subs.discard_pending();
             let stats = world.step(&mut warm).clone();
             let header = StepHeader { run_id, simulation, step };
             total_sweeps += stats.solve.sweeps as u64;
