@@ -39,6 +39,11 @@ enum Command {
     },
     /// Print the graph of a launch file.
     List { file: PathBuf },
+    /// Recordings: `dc record info FILE`, `dc record recover IN OUT` (runs dc-record).
+    Record {
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
     /// The thesis protocol: every warm-start model on the same seeds, one report comparing them.
     Eval(EvalArgs),
     /// Benchmarks.
@@ -140,15 +145,8 @@ fn real_main(cli: Cli) -> Result<()> {
             supervisor::run(&graph, &host, Output::Forward, &flag)?;
             Ok(())
         }
-        Command::Run { node, args } => {
-            let program = [format!("dc-{node}"), node.clone()]
-                .iter()
-                .find_map(|n| find_binary(n))
-                .with_context(|| format!("no node binary `dc-{node}` or `{node}` beside dc or on PATH"))?;
-            use std::os::unix::process::CommandExt;
-            let err = std::process::Command::new(&program).args(&args).exec();
-            bail!("cannot run {}: {err}", program.display())
-        }
+        Command::Run { node, args } => exec_node(&node, &args),
+        Command::Record { args } => exec_node("record", &args),
         Command::List { file } => {
             let graph = Graph::load(&file)?;
             print_graph(&graph, None);
@@ -356,4 +354,15 @@ fn eval(args: EvalArgs) -> Result<()> {
 fn unique_namespace(prefix: &str) -> String {
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
     format!("{prefix}-{}-{nanos}", std::process::id())
+}
+
+/// Replaces this process with node binary `dc-<node>` (or `<node>`) run with `args`.
+fn exec_node(node: &str, args: &[String]) -> Result<()> {
+    let program = [format!("dc-{node}"), node.to_string()]
+        .iter()
+        .find_map(|n| find_binary(n))
+        .with_context(|| format!("no node binary `dc-{node}` or `{node}` beside dc or on PATH"))?;
+    use std::os::unix::process::CommandExt;
+    let err = std::process::Command::new(&program).args(args).exec();
+    bail!("cannot run {}: {err}", program.display())
 }
