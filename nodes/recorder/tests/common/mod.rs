@@ -6,30 +6,19 @@ use msgs::{Body, Contact, ControlKind, ControlMsg, SolveStatsHeader, StepHeader}
 use recorder::{FrameKind, RecordingWriter};
 use std::path::{Path, PathBuf};
 
-/// The cargo target folder holding the binaries (`target/debug`), found from the test executable.
-pub fn bin_dir() -> PathBuf {
-    let exe = std::env::current_exe().expect("test executable path");
-    exe.parent().and_then(Path::parent).expect("target dir").to_path_buf()
-}
-
-/// Path of a workspace binary; these tests need `dc` and `dc-sim` built too.
+/// Path of a workspace binary (`dc`, `dc-sim`, ...), from the workspace's e2e test support.
 pub fn bin(name: &str) -> PathBuf {
-    let p = bin_dir().join(name);
-    assert!(p.is_file(), "{} is not built (run `cargo build --workspace --bins` first)", p.display());
-    p
+    deep_contact::bin(name)
 }
 
 /// A fresh scratch folder under the target dir.
 pub fn scratch(test: &str) -> PathBuf {
-    let d = bin_dir().join("recorder-scratch").join(format!("{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("scratch dir");
-    d
+    deep_contact::scratch_dir(test)
 }
 
-/// A bus namespace of its own per test.
+/// A bus namespace of its own per test (and per run: process ids recycle).
 pub fn namespace(test: &str) -> String {
-    format!("rec{}-{test}", std::process::id())
+    deep_contact::unique_namespace(test)
 }
 
 pub fn bodies(s: StepHeader, n: usize) -> msgs::Bodies {
