@@ -14,7 +14,7 @@ pub fn bin_dir() -> PathBuf {
 /// Path of a workspace binary such as `dc` or `dc-sim`.
 pub fn bin(name: &str) -> PathBuf {
     let p = bin_dir().join(name);
-    assert!(p.is_file(), "{} is not built (run `cargo test --workspace`)", p.display());
+    assert!(p.is_file(), "{} is not built (run `cargo build --workspace --bins` first)", p.display());
     p
 }
 
