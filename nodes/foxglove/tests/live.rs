@@ -247,7 +247,7 @@ fn two_clients_at_once_both_get_the_scene_and_grid() {
 #[test]
 fn client_that_never_reads_does_not_stall_the_sim() {
     let _serial = serial();
-    let steps = 3000;
+    let steps = 10_000;
 
     // Without any client.
     let port = free_port();
