@@ -4,7 +4,7 @@ use crate::heatmap::write_heatmap;
 use anyhow::{bail, Context, Result};
 use sph::study::{self, StudyCase, StudyFrame};
 use sph::{synth, Bounds, GridGeometry, KernelKind, Mode, ParticleSet, Search, Transfer, TransferConfig};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Where the grid lies.
@@ -72,10 +72,11 @@ pub enum Command {
 #[derive(clap::Args, Debug)]
 pub struct StudyArgs {
     /// Frames: `pile` (100-ball piles, contacts), `scattered` (uniform particles, smooth values),
-    /// `isolated` (particles > 1.1 apart), or `csv:PATH` (contacts, columns frame,x,y,normal,tangent).
+    /// `isolated` (particles > 1.1 apart), `csv:PATH` (contacts, columns frame,x,y,normal,tangent),
+    /// or `mcap:PATH` (the contacts of a recording's steps, a file or a folder: real sim frames).
     #[arg(long, default_value = "pile")]
     dataset: String,
-    /// Synthetic frames (seeds 0..N).
+    /// Synthetic frames (seeds 0..N); for `mcap:` at most N steps with contacts, evenly spread.
     #[arg(long, default_value_t = 8)]
     frames: u64,
     /// Kernels to try.
@@ -90,9 +91,9 @@ pub struct StudyArgs {
     /// Modes to try.
     #[arg(long, value_delimiter = ',', default_value = "sph,preserving")]
     modes: Vec<Mode>,
-    /// Grid rectangle `x0,y0,x1,y1`.
-    #[arg(long, default_value = "0,0,15,15")]
-    bounds: Bounds,
+    /// Grid rectangle `x0,y0,x1,y1` (default: the walls' inner faces for `mcap:`, else 0,0,15,15).
+    #[arg(long)]
+    bounds: Option<Bounds>,
     /// Output folder for study.csv, study.md and the heat-maps.
     #[arg(long, default_value = "sph-study")]
     out: PathBuf,
@@ -120,38 +121,75 @@ pub fn run(command: Command) -> Result<()> {
     }
 }
 
-fn study_frames(args: &StudyArgs) -> Result<Vec<StudyFrame>> {
+/// Frames of a recording: the contacts of up to `max` of its steps that have contacts, evenly
+/// spread over the recording, and the grid rectangle of its first step's walls.
+fn recorded_frames(path: &Path, max: u64) -> Result<(Vec<StudyFrame>, Option<Bounds>)> {
+    let mut steps = recorder::Steps::open(path)?;
+    let mut all = Vec::new();
+    let mut walls = None;
+    for step in steps.by_ref() {
+        let step = step?;
+        if walls.is_none() {
+            walls = Bounds::from_walls(&step.bodies.items);
+        }
+        if !step.contacts.items.is_empty() {
+            let k = step.key;
+            let name = format!("run{}-sim{}-step{}", k.run_id, k.simulation, k.step);
+            all.push(study::contacts_frame(name, &step.contacts.items)?);
+        }
+    }
+    if steps.incomplete() + steps.undecodable() > 0 {
+        tracing::warn!(incomplete = steps.incomplete(), undecodable = steps.undecodable(), "steps skipped");
+    }
+    let max = max.max(1) as usize;
+    if all.len() > max {
+        // Evenly spread, first and last included.
+        let last = all.len() - 1;
+        let picks: Vec<usize> = (0..max).map(|k| (k * last + (max - 1) / 2) / (max - 1).max(1)).collect();
+        all = picks.into_iter().map(|i| all[i].clone()).collect();
+    }
+    Ok((all, walls))
+}
+
+fn study_frames(args: &StudyArgs) -> Result<(Vec<StudyFrame>, Option<Bounds>)> {
     let frame = |name: String, particles: ParticleSet| StudyFrame { name, particles };
-    Ok(match args.dataset.as_str() {
+    let bounds = args.bounds.unwrap_or(Bounds::THESIS_BOX);
+    if let Some(path) = args.dataset.strip_prefix("mcap:") {
+        return recorded_frames(Path::new(path), args.frames);
+    }
+    let frames = match args.dataset.as_str() {
         "pile" => (0..args.frames)
             .map(|s| Ok(frame(format!("pile-{s}"), ParticleSet::from_contacts(&synth::ball_pile(s, 100).contacts)?)))
             .collect::<Result<_>>()?,
         "scattered" => (0..args.frames)
-            .map(|s| frame(format!("scattered-{s}"), synth::scattered(s, 300, args.bounds, &sph::CONTACT_CHANNELS)))
+            .map(|s| frame(format!("scattered-{s}"), synth::scattered(s, 300, bounds, &sph::CONTACT_CHANNELS)))
             .collect(),
         "isolated" => (0..args.frames)
-            .map(|s| frame(format!("isolated-{s}"), synth::isolated(s, 40, args.bounds, 1.1)))
+            .map(|s| frame(format!("isolated-{s}"), synth::isolated(s, 40, bounds, 1.1)))
             .collect(),
         other => match other.strip_prefix("csv:") {
             Some(path) => {
                 let text = std::fs::read_to_string(path).with_context(|| format!("reading {path}"))?;
                 study::frames_from_contacts_csv(path, &text)?
             }
-            None => bail!("unknown dataset `{other}` (pile, scattered, isolated, csv:PATH)"),
+            None => bail!("unknown dataset `{other}` (pile, scattered, isolated, csv:PATH, mcap:PATH)"),
         },
-    })
+    };
+    Ok((frames, None))
 }
 
 fn run_study(args: StudyArgs) -> Result<()> {
-    let frames = study_frames(&args)?;
+    let (frames, walls) = study_frames(&args)?;
     if frames.is_empty() {
         bail!("dataset `{}` has no frames", args.dataset);
     }
+    let bounds = args.bounds.or(walls).unwrap_or(Bounds::THESIS_BOX);
+    eprintln!("grid rectangle {bounds:?}");
     let cases = study::cases(&args.kernels, &args.hs, &args.ress, &args.modes);
     eprintln!("{} cases x {} frames ({})", cases.len(), frames.len(), args.dataset);
     let results = cases
         .iter()
-        .map(|&c| study::run_case(c, &frames, args.bounds))
+        .map(|&c| study::run_case(c, &frames, bounds))
         .collect::<Result<Vec<_>, _>>()?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     std::fs::write(args.out.join("study.csv"), study::to_csv(&results))?;
@@ -163,7 +201,7 @@ fn run_study(args: StudyArgs) -> Result<()> {
     print!("{}", highlights(&results));
 
     // Heat-maps of the first frame's first channel at the thesis's parameters, both modes.
-    let geometry = GridGeometry::from_bounds(args.bounds, 0.125, 1)?;
+    let geometry = GridGeometry::from_bounds(bounds, 0.125, 1)?;
     for mode in Mode::ALL {
         let config = TransferConfig { mode, ..TransferConfig::default() };
         let mut t = Transfer::new(config, geometry)?;

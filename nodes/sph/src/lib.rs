@@ -21,6 +21,7 @@ pub mod geometry;
 pub mod kernel;
 pub mod pairing;
 pub mod particles;
+mod scatter;
 pub mod study;
 pub mod synth;
 pub mod transfer;

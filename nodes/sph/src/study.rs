@@ -8,6 +8,7 @@ use crate::kernel::KernelKind;
 use crate::particles::{ParticleSet, Source, CONTACT_CHANNELS};
 use crate::transfer::{Mode, Search, Transfer, TransferConfig};
 use crate::SphError;
+use msgs::Contact;
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -147,6 +148,12 @@ pub fn to_markdown(results: &[CaseResult]) -> String {
         );
     }
     s
+}
+
+/// A frame of one simulation step's contacts (channels `normal`, `tangent`): what the study runs
+/// on for a real recording (`dc-sph study --dataset mcap:PATH`).
+pub fn contacts_frame(name: impl Into<String>, contacts: &[Contact]) -> Result<StudyFrame, SphError> {
+    Ok(StudyFrame { name: name.into(), particles: ParticleSet::from_contacts(contacts)? })
 }
 
 /// Frames of contacts from CSV text with columns `frame,x,y,normal,tangent` (a header line and

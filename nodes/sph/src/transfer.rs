@@ -26,6 +26,7 @@
 use crate::geometry::GridGeometry;
 use crate::kernel::{Kernel, KernelKind};
 use crate::particles::{ParticleSet, WEIGHT_CHANNEL};
+use crate::scatter;
 use crate::SphError;
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
@@ -135,67 +136,42 @@ pub struct SplatReport {
     pub outside: usize,
 }
 
-/// `ceil(max(x, 0))` as an index, without a libm call.
-#[inline(always)]
-fn ceil_nonneg(x: f32) -> usize {
-    let x = x.max(0.0);
-    let i = x as usize;
-    i + ((i as f32) < x) as usize
-}
-
-/// `node += w * v` on one node's block, as fixed-size arrays so that the compiler emits whole
-/// SIMD registers without bounds checks.
-#[inline(always)]
-fn add_weighted<const N: usize>(node: &mut [f32], w: f32, v: &[f32; N]) {
-    let node: &mut [f32; N] = node.try_into().expect("blocks of N");
-    // LLVM keeps this loop scalar (one movss/addss per lane); SSE2 is part of every x86-64, so
-    // four lanes at a time are always available there.
-    #[cfg(target_arch = "x86_64")]
-    if N % 4 == 0 {
-        use std::arch::x86_64::{_mm_add_ps, _mm_loadu_ps, _mm_mul_ps, _mm_set1_ps, _mm_storeu_ps};
-        // SAFETY: SSE2 is baseline on x86-64; `node` and `v` both hold exactly N floats and every
-        // access covers lanes k..k+4 with k + 4 <= N.
-        unsafe {
-            let wv = _mm_set1_ps(w);
-            for k in (0..N).step_by(4) {
-                let a = _mm_loadu_ps(node.as_ptr().add(k));
-                let b = _mm_loadu_ps(v.as_ptr().add(k));
-                _mm_storeu_ps(node.as_mut_ptr().add(k), _mm_add_ps(a, _mm_mul_ps(wv, b)));
-            }
-        }
-        return;
-    }
-    for (a, b) in node.iter_mut().zip(v) {
-        *a += w * b;
-    }
-}
-
 /// Below this fraction of `W(0)` a node's summed weight counts as "no particle within reach": in
 /// preserving mode the node is then 0 rather than a ratio of two denormals.
 const EMPTY_WEIGHT_FRACTION: f32 = 1e-7;
 
+/// Fewest particles per thread: below it a band's work (~0.1 us per particle) is not worth a
+/// thread start (~20-50 us).
+const MIN_PARTICLES_PER_BAND: usize = 2_000;
+
 /// A particle -> grid transfer for one geometry: the kernel, the cached k-d tree of the nodes and
-/// scratch buffers, reused from frame to frame (nothing is allocated per frame after the first).
+/// scratch buffers, reused from frame to frame (nothing is allocated per frame after the first
+/// but the threads' start-up).
 pub struct Transfer {
     config: TransferConfig,
     geometry: GridGeometry,
     kernel: Kernel,
     tree: Option<ImmutableKdTree<f32, u32, 2, 32>>,
+    /// Threads the index-window scatter may use (bands of rows).
+    threads: usize,
+    /// Whether the CPU has AVX2 + FMA (checked once).
+    avx: bool,
     /// Node-major accumulator in blocks of `N` (channels + 1 rounded up to a power of two): a
     /// node's C channel sums, then its summed weight, then zeros (for 7 channels one 32-byte block
     /// per node), so one particle's writes to a node land in one cache line.
     acc: Vec<f32>,
     /// The current particle's nodes and weights (k-d tree search).
     neighbours: Vec<(u32, f32)>,
-    /// The current particle's squared x distances per window column, and weights per window node.
-    dx2: Vec<f32>,
-    wbuf: Vec<f32>,
-    /// The current particle's window rows: first node index and length of each row's chord.
-    spans: Vec<(usize, usize)>,
+    /// Per band: window offsets and weights of the current particle.
+    scratch: Vec<Vec<f32>>,
     /// Particles inside the grid in node order, with the counting sort's buckets and keys.
     order: Vec<u32>,
     rows: Vec<u32>,
     particle_rows: Vec<u32>,
+    /// Positions and values (`N` per particle, weight slot 1) of `order`, packed, so that the
+    /// scatter reads them sequentially.
+    sorted_positions: Vec<[f32; 2]>,
+    sorted_values: Vec<f32>,
 }
 
 impl Transfer {
@@ -214,15 +190,28 @@ impl Transfer {
             geometry,
             kernel,
             tree,
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            avx: scatter::has_avx(),
             acc: Vec::new(),
             neighbours: Vec::new(),
-            dx2: Vec::new(),
-            wbuf: Vec::new(),
-            spans: Vec::new(),
+            scratch: Vec::new(),
             order: Vec::new(),
             rows: Vec::new(),
             particle_rows: Vec::new(),
+            sorted_positions: Vec::new(),
+            sorted_values: Vec::new(),
         })
+    }
+
+    /// Limits the index-window scatter to `threads` threads (default: the available cores; it
+    /// uses one per [`MIN_PARTICLES_PER_BAND`] particles at most). The grid does not depend on it.
+    pub fn set_threads(&mut self, threads: usize) {
+        self.threads = threads.max(1);
+    }
+
+    /// Threads the index-window scatter may use.
+    pub fn threads(&self) -> usize {
+        self.threads
     }
 
     /// The configuration.
@@ -276,17 +265,15 @@ impl Transfer {
             return Err(SphError::TooManyChannels(c_count));
         }
         // Each node's block is a power-of-two array (channels + weight, zero-padded), so the
-        // per-node update is whole SIMD registers: 7 channels + weight = 8 lanes = 2 SSE adds.
+        // per-node update is whole SIMD registers: 7 channels + weight = 8 lanes = 1 AVX FMA.
         let stride = (c_count + 1).next_power_of_two().max(2);
-        self.acc.clear();
-        self.acc.resize(self.geometry.nodes() * stride, 0.0);
-        let report = match stride {
-            2 => self.scatter::<2>(particles),
-            4 => self.scatter::<4>(particles),
-            8 => self.scatter::<8>(particles),
-            _ => self.scatter::<16>(particles),
-        };
-        self.finish(c_count, stride, out);
+        let report = self.order_by_row(particles.positions());
+        match stride {
+            2 => self.splat_sorted::<2>(particles, out),
+            4 => self.splat_sorted::<4>(particles, out),
+            8 => self.splat_sorted::<8>(particles, out),
+            _ => self.splat_sorted::<16>(particles, out),
+        }
         Ok(report)
     }
 
@@ -298,14 +285,15 @@ impl Transfer {
         Ok((grid, report))
     }
 
-    /// Adds every particle's weighted values into `acc` (blocks of `N` >= channels + 1).
-    fn scatter<const N: usize>(&mut self, particles: &ParticleSet) -> SplatReport {
+    /// After [`Transfer::order_by_row`]: packs the particles in node order, scatters them into
+    /// blocks of `N` (>= channels + 1) and writes the output channels.
+    fn splat_sorted<const N: usize>(&mut self, particles: &ParticleSet, out: &mut [f32]) {
         let c_count = particles.channel_count();
-        let report = self.order_by_row(particles.positions());
-        let order = std::mem::take(&mut self.order);
-        for &i in &order {
+        self.sorted_positions.clear();
+        self.sorted_values.clear();
+        for &i in &self.order {
             let i = i as usize;
-            let [x, y] = particles.positions()[i];
+            self.sorted_positions.push(particles.positions()[i]);
             // The values plus a 1 in the weight slot: the weight accumulates like a channel.
             let mut v = [0.0f32; N];
             // (An element loop: `copy_from_slice` of a run-time length is a memcpy call.)
@@ -313,13 +301,117 @@ impl Transfer {
                 *d = x;
             }
             v[c_count] = 1.0;
-            match self.tree.is_some() {
-                true => self.scatter_kdtree(x, y, &v),
-                false => self.scatter_window(x, y, &v),
-            }
+            self.sorted_values.extend_from_slice(&v);
         }
-        self.order = order;
-        report
+        let nodes = self.geometry.nodes();
+        self.acc.resize(nodes * N, 0.0);
+        let empty = EMPTY_WEIGHT_FRACTION * self.kernel.eval(0.0);
+        let out_channels = c_count + self.config.weight_channel as usize;
+        if self.tree.is_some() {
+            self.acc.fill(0.0);
+            for i in 0..self.sorted_positions.len() {
+                let [x, y] = self.sorted_positions[i];
+                let v: [f32; N] = self.sorted_values[i * N..(i + 1) * N].try_into().expect("N values");
+                self.scatter_kdtree::<N>(x, y, &v);
+            }
+            let mut outs: Vec<&mut [f32]> = out.chunks_exact_mut(nodes).take(out_channels).collect();
+            scatter::finish_band(&mut self.acc, N, c_count, self.config.mode, empty, &mut outs);
+            return;
+        }
+        self.splat_window::<N>(c_count, out_channels, empty, out);
+    }
+
+    /// The index-window scatter: bands of rows with about equal particle counts, one thread
+    /// each, every band zeroing, filling and finishing its own rows.
+    fn splat_window<const N: usize>(&mut self, c_count: usize, out_channels: usize, empty: f32, out: &mut [f32]) {
+        let g = self.geometry;
+        let side = scatter::window_side(self.kernel.support() / g.spacing);
+        let particles = self.sorted_positions.len();
+        let bands = self.threads.min(particles / MIN_PARTICLES_PER_BAND).min(g.height / side).max(1);
+        // Particles are in node order: those whose windows reach a band lie in its rows and the
+        // `side` rows above and below.
+        let ranges: Vec<_> = self
+            .band_rows(bands)
+            .into_iter()
+            .map(|rows| {
+                let first = self.row_start(rows.start.saturating_sub(side));
+                let last = self.row_start((rows.end + side).min(g.height));
+                (rows, first..last)
+            })
+            .collect();
+        self.scratch.resize_with(bands, Vec::new);
+        for s in &mut self.scratch {
+            s.resize(scatter::scratch_len(side), 0.0);
+        }
+        let frame = scatter::Frame {
+            geometry: g,
+            kernel: self.kernel,
+            mode: self.config.mode,
+            side,
+            positions: &self.sorted_positions,
+            values: &self.sorted_values,
+        };
+        // Split the accumulator and every output channel at the band boundaries.
+        let mut work: Vec<(scatter::Band, Vec<&mut [f32]>)> = Vec::with_capacity(bands);
+        let mut acc_rest: &mut [f32] = &mut self.acc;
+        let mut out_rest: Vec<&mut [f32]> = out.chunks_exact_mut(g.nodes()).take(out_channels).collect();
+        for (band_rows, band_particles) in ranges {
+            let band_nodes = band_rows.len() * g.width;
+            let (acc, tail) = std::mem::take(&mut acc_rest).split_at_mut(band_nodes * N);
+            acc_rest = tail;
+            let mut outs = Vec::with_capacity(out_channels);
+            for channel in &mut out_rest {
+                let (head, tail) = std::mem::take(channel).split_at_mut(band_nodes);
+                outs.push(head);
+                *channel = tail;
+            }
+            work.push((scatter::Band { rows: band_rows, particles: band_particles, acc }, outs));
+        }
+        let (stride, mode, avx) = (N, self.config.mode, self.avx);
+        let run = |(band, outs): &mut (scatter::Band, Vec<&mut [f32]>), scratch: &mut Vec<f32>| {
+            band.acc.fill(0.0);
+            scatter::scatter_band::<N>(&frame, band, scratch, avx);
+            scatter::finish_band(band.acc, stride, c_count, mode, empty, outs);
+        };
+        let run = &run;
+        let mut jobs = work.iter_mut().zip(self.scratch.iter_mut());
+        let (first_band, first_scratch) = jobs.next().expect("at least one band");
+        std::thread::scope(|s| {
+            for (band, scratch) in jobs {
+                s.spawn(move || run(band, scratch));
+            }
+            // The calling thread takes the first band.
+            run(first_band, first_scratch);
+        });
+    }
+
+    /// Index in node order of the first particle whose nearest-node row is `row` or later
+    /// (`row <= height`); after [`Transfer::order_by_row`], whose counting sort leaves each
+    /// bucket's end in `rows`.
+    fn row_start(&self, row: usize) -> usize {
+        match row * self.geometry.width {
+            0 => 0,
+            node => self.rows[node - 1] as usize,
+        }
+    }
+
+    /// Splits the grid rows into `bands` consecutive ranges of about equal particle counts.
+    fn band_rows(&self, bands: usize) -> Vec<std::ops::Range<usize>> {
+        let height = self.geometry.height;
+        let total = self.row_start(height);
+        let mut ranges = Vec::with_capacity(bands);
+        let mut start = 0;
+        for b in 1..bands {
+            let target = total * b / bands;
+            let mut end = start + 1;
+            while end < height - (bands - b) && self.row_start(end) < target {
+                end += 1;
+            }
+            ranges.push(start..end);
+            start = end;
+        }
+        ranges.push(start..height);
+        ranges
     }
 
     /// Fills `self.order` with the indices of the particles inside the grid, sorted by their
@@ -365,54 +457,6 @@ impl Transfer {
         report
     }
 
-    /// One particle through the index window: the nodes of the square `[x - h, x + h] x
-    /// [y - h, y + h]`, weighted (0 beyond h), row by row.
-    #[inline(always)]
-    fn scatter_window<const N: usize>(&mut self, x: f32, y: f32, v: &[f32; N]) {
-        let g = &self.geometry;
-        let h = self.kernel.support();
-        let [gc, gr] = g.grid_coords(x, y);
-        let inv_spacing = 1.0 / g.spacing;
-        let reach = h * inv_spacing;
-        // Coordinates are >= -reach/2 (see `order_by_row`); `ceil_nonneg` clamps at 0 and a cast
-        // saturates there (`floor()` and `ceil()` are libm calls on baseline x86-64, measurable at
-        // 10,000 particles).
-        let c0 = ceil_nonneg(gc - reach);
-        let c1 = ((gc + reach) as usize).min(g.width - 1);
-        let r0 = ceil_nonneg(gr - reach);
-        let r1 = ((gr + reach) as usize).min(g.height - 1);
-        self.dx2.clear();
-        self.dx2.extend((c0..=c1).map(|col| {
-            let dx = g.origin[0] + col as f32 * g.spacing - x;
-            dx * dx
-        }));
-        // Per row only the chord |dx| <= sqrt(h^2 - dy^2): ~60 nodes instead of the 81 of the
-        // square for h = 4 spacings, and no work on the square's empty corners.
-        self.wbuf.clear();
-        self.spans.clear();
-        let mut total = 0.0;
-        for row in r0..=r1 {
-            let dy = g.origin[1] + row as f32 * g.spacing - y;
-            let half = (h * h - dy * dy).max(0.0).sqrt() * inv_spacing;
-            let lo = ceil_nonneg(gc - half).max(c0);
-            let hi = ((gc + half) as usize).min(c1);
-            if lo > hi {
-                continue;
-            }
-            total += self.kernel.row_weights(&self.dx2[lo - c0..=hi - c0], dy * dy, &mut self.wbuf);
-            self.spans.push((row * g.width + lo, hi + 1 - lo));
-        }
-        let scale = self.particle_scale(total);
-        let mut k = 0;
-        for &(first, len) in &self.spans {
-            let acc_row = &mut self.acc[first * N..(first + len) * N];
-            for (node, &w) in acc_row.chunks_exact_mut(N).zip(&self.wbuf[k..k + len]) {
-                add_weighted::<N>(node, w * scale, v);
-            }
-            k += len;
-        }
-    }
-
     /// One particle through a range query on the k-d tree of the nodes (the thesis's algorithm).
     #[inline(always)]
     fn scatter_kdtree<const N: usize>(&mut self, x: f32, y: f32, v: &[f32; N]) {
@@ -425,49 +469,14 @@ impl Transfer {
             total += w;
             self.neighbours.push((n.item, w));
         }
-        let scale = self.particle_scale(total);
-        for &(node, w) in &self.neighbours {
-            let start = node as usize * N;
-            add_weighted::<N>(&mut self.acc[start..start + N], w * scale, v);
-        }
-    }
-
-    /// Factor on a particle's weights: thesis SPH spreads the value (weights normalised to sum 1
-    /// over the particle's nodes); preserving mode keeps the raw kernel weights.
-    #[inline(always)]
-    fn particle_scale(&self, total: f32) -> f32 {
-        match self.config.mode {
+        let scale = match self.config.mode {
             Mode::Sph if total > 0.0 => 1.0 / total,
             Mode::Sph => 0.0,
             Mode::Preserving => 1.0,
-        }
-    }
-
-    /// Node-major accumulators -> channel-major output (divided by the weights in preserving
-    /// mode), one output channel at a time so that the writes are sequential.
-    fn finish(&mut self, c_count: usize, stride: usize, out: &mut [f32]) {
-        let nodes = self.geometry.nodes();
-        let empty = EMPTY_WEIGHT_FRACTION * self.kernel.eval(0.0);
-        // The per-node factor goes into the scratch `wbuf`, free between frames.
-        self.wbuf.clear();
-        self.wbuf.extend(self.acc.chunks_exact(stride).map(|acc| {
-            let w = acc[c_count];
-            match self.config.mode {
-                Mode::Sph => 1.0,
-                Mode::Preserving if w > empty => 1.0 / w,
-                Mode::Preserving => 0.0,
-            }
-        }));
-        for (c, out_c) in out.chunks_exact_mut(nodes).enumerate().take(c_count) {
-            for ((o, acc), &f) in out_c.iter_mut().zip(self.acc.chunks_exact(stride)).zip(&self.wbuf) {
-                *o = acc[c] * f;
-            }
-        }
-        if self.config.weight_channel {
-            let out_w = &mut out[c_count * nodes..(c_count + 1) * nodes];
-            for (o, acc) in out_w.iter_mut().zip(self.acc.chunks_exact(stride)) {
-                *o = acc[c_count];
-            }
+        };
+        for &(node, w) in &self.neighbours {
+            let start = node as usize * N;
+            scatter::add_row::<N, false>(&mut self.acc[start..start + N], &[w], scale, v);
         }
     }
 
