@@ -9,10 +9,15 @@
 //! - [`join::Steps`]: what the trainer reads: a recording (one file or a folder of files) as steps
 //!   joined per (run, simulation, step): bodies + contacts (+ solver statistics).
 //! - [`info::Info`] (`dc-record info`) and [`recover::recover`] (`dc-record recover`).
+//! - [`bench`]: the recorder's end-of-run counts and a recording's missing steps, for
+//!   `dc-record bench` (a 10,000-body simulator recorded live: drops, MB/s, msgs/s, CPU time).
 //!
-//! Compression: the `mcap` crate (0.24) sets one compression per writer, not per channel, so every
-//! chunk is zstd (float grids compress less, but still gain from zstd's entropy stage).
+//! Compression: the `mcap` crate (0.24) sets one compression per writer, not per channel or chunk
+//! (no setter after `create`; see [`write::RecordingWriter`] for what per-channel compression would
+//! take), so every chunk is zstd (float grids compress less, but still gain from zstd's entropy
+//! stage).
 
+pub mod bench;
 pub mod info;
 pub mod join;
 pub mod kind;

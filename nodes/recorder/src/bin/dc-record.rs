@@ -10,6 +10,10 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+// In a folder of its own: a file directly in src/bin would be taken for a binary.
+#[path = "dc-record/bench.rs"]
+mod bench;
+
 #[derive(Parser, Debug)]
 #[command(about = "Record a Deep Contact graph to MCAP; inspect and repair recordings")]
 struct Args {
@@ -27,6 +31,9 @@ struct Args {
     /// Longest time between chunk flushes, in milliseconds (a kill loses at most this much).
     #[arg(long, default_value_t = 1000)]
     flush_ms: u64,
+    /// At the end, write the counts (received, dropped, bytes, active time, CPU time) as JSON here.
+    #[arg(long)]
+    stats_json: Option<PathBuf>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -35,6 +42,9 @@ enum Command {
     Info { file: PathBuf },
     /// Rewrite a recording whose writer was killed into a valid indexed file.
     Recover { input: PathBuf, output: PathBuf },
+    /// Record a live simulator (dc-sim + dc-record through `dc launch`, 10,000 bodies by default)
+    /// and print drops, msgs/s, MB/s, the recorder's CPU time and the compression ratio.
+    Bench(bench::BenchArgs),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -61,6 +71,7 @@ fn main() -> anyhow::Result<()> {
             );
             Ok(())
         }
+        Some(Command::Bench(bench_args)) => bench::run(bench_args),
         None => record(&args),
     }
 }
@@ -238,6 +249,8 @@ fn record(args: &Args) -> anyhow::Result<()> {
     let mut write_failed = 0u64;
     let started = Instant::now();
     let mut bytes = 0u64;
+    let mut first_frame: Option<Instant> = None;
+    let mut last_frame = started;
     loop {
         let stopping = node.is_shutdown();
         let mut got = 0;
@@ -245,6 +258,10 @@ fn record(args: &Args) -> anyhow::Result<()> {
             batch.clear();
             sub.poll(64, &mut batch)?;
             got += batch.len();
+            if !batch.is_empty() {
+                last_frame = Instant::now();
+                first_frame.get_or_insert(last_frame);
+            }
             let log_time = now_ns();
             for (step, data) in batch.drain(..) {
                 bytes += data.len() as u64;
@@ -319,6 +336,18 @@ fn record(args: &Args) -> anyhow::Result<()> {
         println!("recorded {n} messages to {}", path.display());
     }
     println!("received {received}, undecodable {undecodable}, dropped {write_failed}");
+    if let Some(path) = &args.stats_json {
+        let stats = recorder::bench::RecorderStats {
+            received,
+            undecodable,
+            write_failed,
+            payload_bytes: bytes,
+            active_s: first_frame.map_or(0.0, |first| (last_frame - first).as_secs_f64()),
+            wall_s: elapsed,
+            cpu_s: recorder::bench::process_cpu_seconds(),
+        };
+        std::fs::write(path, serde_json::to_string_pretty(&stats)?).with_context(|| format!("writing {}", path.display()))?;
+    }
     Ok(())
 }
 
