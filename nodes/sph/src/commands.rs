@@ -111,6 +111,10 @@ pub struct BenchArgs {
     /// Least wall time per measurement, seconds.
     #[arg(long, default_value_t = 0.3)]
     min_time_s: f64,
+    /// Threads of the index-window scatter (0: every available core; it uses one per 2,000
+    /// particles at most).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
 }
 
 /// Runs a subcommand.
@@ -250,13 +254,14 @@ fn run_bench(args: BenchArgs) -> Result<()> {
     let build = Instant::now();
     Transfer::new(TransferConfig { search: Search::KdTree, ..base }, geometry)?;
     println!(
-        "grid {}x{}, kernel {}, h {}, mode {}, 7 channels; k-d tree of the nodes built once per geometry in {:.2} ms",
+        "grid {}x{}, kernel {}, h {}, mode {}, 7 channels; k-d tree of the nodes built once per geometry in {:.2} ms; window scatter on up to {} threads",
         geometry.width,
         geometry.height,
         base.kernel,
         base.h,
         base.mode,
-        1e3 * build.elapsed().as_secs_f64()
+        1e3 * build.elapsed().as_secs_f64(),
+        if args.threads > 0 { args.threads } else { std::thread::available_parallelism().map_or(1, |n| n.get()) }
     );
     // Minimum and median over repeats: on a shared machine (this VM shows ~50% steal time) the
     // minimum is the run least disturbed by other tenants, the median what a node would see.
@@ -266,6 +271,9 @@ fn run_bench(args: BenchArgs) -> Result<()> {
         let mut times = Vec::new();
         for search in [Search::KdTree, Search::IndexWindow] {
             let mut t = Transfer::new(TransferConfig { search, ..base }, geometry)?;
+            if args.threads > 0 {
+                t.set_threads(args.threads);
+            }
             let mut out = vec![0.0; t.output_len(channels.len())];
             t.splat(&set, &mut out)?; // warm-up: buffers sized
             let mut samples = Vec::new();
