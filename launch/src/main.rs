@@ -44,6 +44,11 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
     },
+    /// Train a U-Net warm-start model from recordings (runs `dc-unet train`; `dc train --help`).
+    Train {
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
     /// The thesis protocol: every warm-start model on the same seeds, one report comparing them.
     Eval(EvalArgs),
     /// Benchmarks.
@@ -56,8 +61,11 @@ enum Command {
 #[derive(clap::Args, Debug)]
 struct EvalArgs {
     /// Warm-start models to compare.
-    #[arg(long, value_delimiter = ',', default_value = "none,builtin,copy,copy2,bad,random,grid,copy-grid")]
+    #[arg(long, value_delimiter = ',', default_value = "none,builtin,copy,copy2,bad,random,grid,copy-grid,unet")]
     models: Vec<String>,
+    /// Model file of the `unet` model (`dc train` writes one; the repository ships a demo model).
+    #[arg(long, default_value = "models/unet-demo.dcu")]
+    unet_model: PathBuf,
     /// Evaluation seeds (simulation ids), the same for every model.
     #[arg(long, default_value = "0..30")]
     seeds: String,
@@ -147,6 +155,7 @@ fn real_main(cli: Cli) -> Result<()> {
         }
         Command::Run { node, args } => exec_node(&node, &args),
         Command::Record { args } => exec_node("record", &args),
+        Command::Train { args } => exec_node("unet", &std::iter::once("train".to_string()).chain(args).collect::<Vec<_>>()),
         Command::List { file } => {
             let graph = Graph::load(&file)?;
             print_graph(&graph, None);
@@ -306,14 +315,34 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
         vec![format!("--runs={}", args.models.len()), format!("--out={}", out.display()), format!("--title={title}")],
     )];
     // Grid-based models need the SPH node (it turns each step's contacts into the next step's
-    // warm-start grid); it serves every simulator of the graph.
-    if args.models.iter().any(|m| m == "grid") {
+    // warm-start grid); it serves every simulator of the graph. The U-Net reads the SPH node's
+    // bodies grid with the step's impulses (temporal, padded to 128); padding leaves the `grid`
+    // model's samples unchanged (the extra nodes lie outside the box).
+    let uses_unet = args.models.iter().any(|m| m == "unet");
+    let grid_based = uses_unet || args.models.iter().any(|m| m == "grid");
+    if grid_based {
         let sph = find("dc-sph")?;
-        let mut sph_node = node("sph".into(), &sph, "dc-sph", vec!["--mode=preserving".into()]);
+        let mut sph_args = vec!["--mode=preserving".to_string()];
+        if uses_unet {
+            sph_args.extend(["--temporal".to_string(), "--pad-to=128".to_string()]);
+        }
+        let mut sph_node = node("sph".into(), &sph, "dc-sph", sph_args);
         sph_node.daemon = true;
         graph.nodes.push(sph_node);
     }
-    if jobs > 1 && args.models.iter().any(|m| m == "grid") {
+    if uses_unet {
+        if !args.unet_model.is_file() {
+            bail!(
+                "the unet model needs a model file: {} does not exist (train one with `dc train`, see the README, or pass --unet-model)",
+                args.unet_model.display()
+            );
+        }
+        let unet = find("dc-unet")?;
+        let mut unet_node = node("unet".into(), &unet, "dc-unet", vec![format!("--model={}", args.unet_model.display())]);
+        unet_node.daemon = true;
+        graph.nodes.push(unet_node);
+    }
+    if jobs > 1 && grid_based {
         bail!("--jobs > 1 with the grid model: one SPH node cannot tell interleaved simulators apart yet");
     }
     for j in 0..jobs {

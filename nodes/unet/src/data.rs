@@ -1,0 +1,371 @@
+//! Training samples made on the fly from recordings: for two consecutive recorded steps k, k+1 of
+//! one simulation, the input is the bodies grid of step k (with step k's impulses in the temporal
+//! variant) and the target is the impulse grid of step k+1 — exactly what `dc-sph` publishes and
+//! what the simulator asks for at step k+1. Nothing is written to disk but the split.
+//!
+//! The split is by simulation, never by frame (frames of one simulation are near copies of each
+//! other), and a simulation's first step never takes "previous" data from another simulation.
+
+use crate::{Result, UnetError};
+use msgs::{Body, Contact, StepHeader};
+use recorder::Steps;
+use serde::{Deserialize, Serialize};
+use sph::{Bounds, GridGeometry, KernelKind, Mode, Search, Transfer, TransferConfig};
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// How grids are made: the parameters `dc-sph` must be started with for a model to fit its input.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GridSpec {
+    pub kernel: String,
+    pub h: f32,
+    /// Node spacing.
+    pub res: f32,
+    pub mode: String,
+    /// Grid sides rounded up to a multiple of this.
+    pub pad_to: usize,
+    /// Whether the input carries the step's impulses (`prev_normal`, `prev_tangent`).
+    pub temporal: bool,
+}
+
+impl Default for GridSpec {
+    fn default() -> Self {
+        GridSpec { kernel: "poly6".into(), h: 0.5, res: 0.125, mode: "preserving".into(), pad_to: 128, temporal: true }
+    }
+}
+
+impl GridSpec {
+    /// The transfer these parameters describe.
+    pub fn transfer_config(&self) -> Result<TransferConfig> {
+        let bad = |e: sph::SphError| UnetError::Config(format!("grid spec: {e}"));
+        Ok(TransferConfig {
+            kernel: self.kernel.parse::<KernelKind>().map_err(bad)?,
+            h: self.h,
+            mode: self.mode.parse::<Mode>().map_err(bad)?,
+            search: Search::IndexWindow,
+            weight_channel: false,
+        })
+    }
+
+    /// The grid over a scene whose bodies (walls included) are `bodies`, as `dc-sph --bounds auto`
+    /// chooses it.
+    pub fn geometry(&self, bodies: &[Body]) -> Result<GridGeometry> {
+        let bounds = Bounds::from_walls(bodies).unwrap_or(Bounds::THESIS_BOX);
+        GridGeometry::from_bounds(bounds, self.res, self.pad_to).map_err(|e| UnetError::Config(format!("grid spec: {e}")))
+    }
+
+    /// Input channel names, in order.
+    pub fn input_channels(&self) -> Vec<String> {
+        let mut c: Vec<String> = sph::BODY_CHANNELS.iter().map(|s| s.to_string()).collect();
+        if self.temporal {
+            c.extend(sph::TEMPORAL_CHANNELS.iter().map(|s| s.to_string()));
+        }
+        c
+    }
+
+    /// `dc-sph` arguments producing this model's input.
+    pub fn sph_args(&self) -> Vec<String> {
+        let mut a = vec![
+            format!("--kernel={}", self.kernel),
+            format!("--h={}", self.h),
+            format!("--res={}", self.res),
+            format!("--mode={}", self.mode),
+            format!("--pad-to={}", self.pad_to),
+        ];
+        if self.temporal {
+            a.push("--temporal".into());
+        }
+        a
+    }
+}
+
+/// A (run id, simulation) pair: the unit of the split.
+pub type SimKey = (u64, u32);
+
+/// Which simulations train, validate and test. Saved beside the model.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Split {
+    pub train: BTreeSet<SimKey>,
+    pub validation: BTreeSet<SimKey>,
+    pub test: BTreeSet<SimKey>,
+}
+
+/// Part of a split.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Part {
+    Train,
+    Validation,
+    Test,
+}
+
+impl Split {
+    /// Shuffles `simulations` with `seed` and cuts them by fraction; with 3 or more simulations
+    /// validation and test get at least one each.
+    pub fn by_simulation(simulations: &BTreeSet<SimKey>, validation: f64, test: f64, seed: u64) -> Split {
+        let mut keys: Vec<SimKey> = simulations.iter().copied().collect();
+        let mut rng = SplitMix64(seed);
+        for i in (1..keys.len()).rev() {
+            keys.swap(i, (rng.next() % (i as u64 + 1)) as usize);
+        }
+        let n = keys.len();
+        let at_least = |f: f64| if n >= 3 { ((f * n as f64).round() as usize).max(1) } else { 0 };
+        let (n_val, n_test) = (at_least(validation), at_least(test));
+        Split {
+            validation: keys[..n_val].iter().copied().collect(),
+            test: keys[n_val..n_val + n_test].iter().copied().collect(),
+            train: keys[n_val + n_test..].iter().copied().collect(),
+        }
+    }
+
+    /// The part holding `key`, if any.
+    pub fn part(&self, key: SimKey) -> Option<Part> {
+        if self.train.contains(&key) {
+            Some(Part::Train)
+        } else if self.validation.contains(&key) {
+            Some(Part::Validation)
+        } else if self.test.contains(&key) {
+            Some(Part::Test)
+        } else {
+            None
+        }
+    }
+
+    /// The simulations of `part`.
+    pub fn of(&self, part: Part) -> &BTreeSet<SimKey> {
+        match part {
+            Part::Train => &self.train,
+            Part::Validation => &self.validation,
+            Part::Test => &self.test,
+        }
+    }
+}
+
+/// A tiny seeded generator for shuffles (SplitMix64): deterministic across platforms and builds.
+#[derive(Debug, Clone)]
+pub struct SplitMix64(pub u64);
+
+impl SplitMix64 {
+    pub fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+}
+
+/// The simulations in a recording (file or folder), read from its steps.
+pub fn list_simulations(path: &Path) -> Result<BTreeSet<SimKey>> {
+    let mut out = BTreeSet::new();
+    for file in recorder::recording_files(path)? {
+        let info = recorder::Info::read(&file)?;
+        out.extend(info.simulations.keys().copied());
+    }
+    if out.is_empty() {
+        return Err(UnetError::Data(format!("{}: no simulation steps recorded", path.display())));
+    }
+    Ok(out)
+}
+
+/// One training example, channel-major (`[channels][height][width]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sample {
+    /// The input step (the target is the step after it).
+    pub key: StepHeader,
+    pub input: Vec<f32>,
+    pub target: Vec<f32>,
+    pub height: usize,
+    pub width: usize,
+}
+
+/// The samples of one part of a split, streamed from recordings in recorded order.
+pub struct SampleStream {
+    steps: Steps,
+    spec: GridSpec,
+    config: TransferConfig,
+    split: Split,
+    part: Part,
+    transfer: Option<(SimKey, Transfer)>,
+    previous: Option<(StepHeader, Vec<Body>, Vec<Contact>)>,
+    path: PathBuf,
+}
+
+impl SampleStream {
+    /// Samples of `part` from the recording(s) at `path`.
+    pub fn open(path: &Path, spec: &GridSpec, split: &Split, part: Part) -> Result<SampleStream> {
+        Ok(SampleStream {
+            steps: Steps::open(path)?,
+            config: spec.transfer_config()?,
+            spec: spec.clone(),
+            split: split.clone(),
+            part,
+            transfer: None,
+            previous: None,
+            path: path.to_path_buf(),
+        })
+    }
+
+    fn make(&mut self, prev: &(StepHeader, Vec<Body>, Vec<Contact>), next_contacts: &[Contact]) -> Result<Sample> {
+        let (key, bodies, contacts) = prev;
+        let sim = (key.run_id, key.simulation);
+        if self.transfer.as_ref().map(|(k, _)| *k) != Some(sim) {
+            let geometry = self.spec.geometry(bodies)?;
+            self.transfer = Some((sim, Transfer::new(self.config, geometry).map_err(|e| UnetError::Config(e.to_string()))?));
+        }
+        let (_, transfer) = self.transfer.as_mut().expect("set above");
+        let context = |e: sph::SphError| {
+            UnetError::Data(format!("{}: simulation {} step {}: {e}", self.path.display(), key.simulation, key.step))
+        };
+        let temporal = self.spec.temporal.then_some(contacts.as_slice());
+        let (input, _) = transfer.bodies_grid(*key, bodies, temporal).map_err(context)?;
+        let (target, _) = transfer.contacts_grid(*key, next_contacts).map_err(context)?;
+        let g = transfer.geometry();
+        Ok(Sample { key: *key, input: input.items, target: target.items, height: g.height, width: g.width })
+    }
+}
+
+impl Iterator for SampleStream {
+    type Item = Result<Sample>;
+
+    fn next(&mut self) -> Option<Result<Sample>> {
+        loop {
+            let step = match self.steps.next()? {
+                Ok(s) => s,
+                Err(e) => return Some(Err(e.into())),
+            };
+            let key = step.key;
+            if self.split.part((key.run_id, key.simulation)) != Some(self.part) {
+                continue;
+            }
+            let current = (key, step.bodies.items, step.contacts.items);
+            // Only a direct predecessor of the same run and simulation pairs with this step.
+            let pair = self.previous.take().filter(|(p, _, _)| {
+                p.run_id == key.run_id && p.simulation == key.simulation && p.step + 1 == key.step
+            });
+            let out = pair.map(|p| self.make(&p, &current.2));
+            self.previous = Some(current);
+            if let Some(sample) = out {
+                return Some(sample);
+            }
+        }
+    }
+}
+
+/// Per-channel mean and standard deviation of inputs and targets over the training samples,
+/// stored with the model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Normalization {
+    pub input_mean: Vec<f32>,
+    pub input_std: Vec<f32>,
+    pub target_mean: Vec<f32>,
+    pub target_std: Vec<f32>,
+}
+
+impl Normalization {
+    /// Statistics of `samples`. With `residual` (the input channels holding the previous
+    /// impulses) those channels share the target's statistics, so that "previous + correction"
+    /// is the same sum in normalised units.
+    pub fn compute<I: IntoIterator<Item = Result<Sample>>>(
+        samples: I,
+        in_channels: usize,
+        out_channels: usize,
+        residual: Option<[usize; 2]>,
+    ) -> Result<(Normalization, usize)> {
+        let mut input = vec![Moments::default(); in_channels];
+        let mut target = vec![Moments::default(); out_channels];
+        let mut n = 0;
+        for s in samples {
+            let s = s?;
+            let nodes = s.height * s.width;
+            if s.input.len() != in_channels * nodes || s.target.len() != out_channels * nodes {
+                return Err(UnetError::Data(format!(
+                    "sample of step {} has {} input / {} target values, expected {} / {} channels of {nodes}",
+                    s.key.step,
+                    s.input.len(),
+                    s.target.len(),
+                    in_channels,
+                    out_channels
+                )));
+            }
+            for (c, m) in input.iter_mut().enumerate() {
+                m.add(&s.input[c * nodes..(c + 1) * nodes]);
+            }
+            for (c, m) in target.iter_mut().enumerate() {
+                m.add(&s.target[c * nodes..(c + 1) * nodes]);
+            }
+            n += 1;
+        }
+        if n == 0 {
+            return Err(UnetError::Data("no training samples".into()));
+        }
+        let mut norm = Normalization {
+            input_mean: input.iter().map(Moments::mean).collect(),
+            input_std: input.iter().map(Moments::std).collect(),
+            target_mean: target.iter().map(Moments::mean).collect(),
+            target_std: target.iter().map(Moments::std).collect(),
+        };
+        if let Some(r) = residual {
+            for (t, &c) in r.iter().enumerate() {
+                norm.input_mean[c] = norm.target_mean[t];
+                norm.input_std[c] = norm.target_std[t];
+            }
+        }
+        Ok((norm, n))
+    }
+
+    /// Normalises a channel-major input in place.
+    pub fn normalize_input(&self, values: &mut [f32]) {
+        apply(values, &self.input_mean, &self.input_std, |v, m, s| (v - m) / s);
+    }
+
+    /// Normalises a channel-major target in place.
+    pub fn normalize_target(&self, values: &mut [f32]) {
+        apply(values, &self.target_mean, &self.target_std, |v, m, s| (v - m) / s);
+    }
+
+    /// Turns a normalised network output back into impulses, in place.
+    pub fn denormalize_target(&self, values: &mut [f32]) {
+        apply(values, &self.target_mean, &self.target_std, |v, m, s| v * s + m);
+    }
+}
+
+fn apply(values: &mut [f32], mean: &[f32], std: &[f32], f: impl Fn(f32, f32, f32) -> f32) {
+    let nodes = values.len() / mean.len().max(1);
+    for (c, chunk) in values.chunks_mut(nodes.max(1)).enumerate().take(mean.len()) {
+        let (m, s) = (mean[c], std[c]);
+        for v in chunk {
+            *v = f(*v, m, s);
+        }
+    }
+}
+
+/// Running sums in f64 (a million nodes per sample would lose f32 precision).
+#[derive(Debug, Clone, Default)]
+struct Moments {
+    n: f64,
+    sum: f64,
+    sum_sq: f64,
+}
+
+impl Moments {
+    fn add(&mut self, values: &[f32]) {
+        for &v in values {
+            self.sum += v as f64;
+            self.sum_sq += (v as f64) * (v as f64);
+        }
+        self.n += values.len() as f64;
+    }
+    fn mean(&self) -> f32 {
+        (self.sum / self.n.max(1.0)) as f32
+    }
+    fn std(&self) -> f32 {
+        let m = self.sum / self.n.max(1.0);
+        let var = (self.sum_sq / self.n.max(1.0) - m * m).max(0.0);
+        // A constant channel (e.g. a scene of equal masses seen nowhere) must not divide by zero.
+        if var.sqrt() > 1e-8 {
+            var.sqrt() as f32
+        } else {
+            1.0
+        }
+    }
+}

@@ -1,0 +1,396 @@
+//! dc-unet: the U-Net inference node (subscribes `grid/bodies`, publishes the predicted impulse
+//! grid on `grid/unet` for the simulator's next step) and its tools: `train`, `lr-find`, `info`,
+//! `bench`.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use msgs::{topics, ControlKind, Grid, GridHeader};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+use unet::schedule::Schedule;
+use unet::train::{OptimizerKind, TrainOptions};
+use unet::{GridSpec, ModelFile, Predictor, UNetConfig};
+
+#[derive(Parser, Debug)]
+#[command(name = "dc-unet", about = "U-Net warm-start node; `train`, `lr-find`, `info`, `bench` subcommands", args_conflicts_with_subcommands = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    #[command(flatten)]
+    node: NodeArgs,
+}
+
+#[derive(Args, Debug)]
+struct NodeArgs {
+    /// Model file (written by `dc-unet train`).
+    #[arg(long, default_value = "models/unet-demo.dcu")]
+    model: PathBuf,
+    /// Backend: flex (CPU); with the `tch` feature also libtorch, cuda.
+    #[arg(long, default_value = "flex")]
+    device: String,
+    /// Most grids predicted in one batch (grids of several simulators waiting at once).
+    #[arg(long, default_value_t = 16)]
+    max_batch: usize,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Train a model from recordings.
+    Train(TrainArgs),
+    /// Learning-rate finder: exponential sweep, loss-vs-rate PNG and CSV, a suggested rate.
+    LrFind(LrFindArgs),
+    /// What a model file holds.
+    Info { model: PathBuf },
+    /// Inference and training-step timings per backend.
+    Bench(BenchArgs),
+}
+
+#[derive(Args, Debug, Clone)]
+struct NetArgs {
+    /// Downsampling levels (grid sides must be multiples of 2^levels).
+    #[arg(long, default_value_t = 3)]
+    levels: usize,
+    /// Channels of the first level (doubling per level).
+    #[arg(long, default_value_t = 8)]
+    base_width: usize,
+    /// Dilations of the bottom's parallel convolutions.
+    #[arg(long, value_delimiter = ',', default_value = "2,4,8")]
+    dilations: Vec<usize>,
+    /// Bodies only (5 channels) instead of bodies + the step's impulses (7).
+    #[arg(long)]
+    no_temporal: bool,
+    /// Predict impulses directly instead of a correction to the previous step's (temporal only).
+    #[arg(long)]
+    no_residual: bool,
+    /// Grid: kernel.
+    #[arg(long, default_value = "poly6")]
+    kernel: String,
+    /// Grid: kernel support radius.
+    #[arg(long, default_value_t = 0.5)]
+    h: f32,
+    /// Grid: node spacing.
+    #[arg(long, default_value_t = 0.125)]
+    res: f32,
+    /// Grid: preserving or sph.
+    #[arg(long, default_value = "preserving")]
+    mode: String,
+    /// Grid: sides rounded up to a multiple of this.
+    #[arg(long, default_value_t = 128)]
+    pad_to: usize,
+}
+
+impl NetArgs {
+    fn grid(&self) -> GridSpec {
+        GridSpec { kernel: self.kernel.clone(), h: self.h, res: self.res, mode: self.mode.clone(), pad_to: self.pad_to, temporal: !self.no_temporal }
+    }
+    fn net(&self) -> UNetConfig {
+        let temporal = !self.no_temporal;
+        UNetConfig {
+            in_channels: if temporal { 7 } else { 5 },
+            out_channels: 2,
+            levels: self.levels,
+            base_width: self.base_width,
+            dilations: self.dilations.clone(),
+            residual: (temporal && !self.no_residual).then_some([5, 6]),
+        }
+    }
+}
+
+#[derive(Args, Debug)]
+struct TrainArgs {
+    /// A recording (.mcap) or a folder of recordings.
+    #[arg(long)]
+    data: PathBuf,
+    /// The model file to write.
+    #[arg(long, default_value = "models/unet.dcu")]
+    out: PathBuf,
+    #[command(flatten)]
+    net: NetArgs,
+    #[arg(long, default_value_t = 4)]
+    epochs: usize,
+    #[arg(long, default_value_t = 8)]
+    batch: usize,
+    /// adam or sgd (momentum 0.9).
+    #[arg(long, default_value = "adam")]
+    optimizer: OptimizerKind,
+    /// constant:LR, triangular:MIN:MAX:HALF_CYCLE_STEPS, cosine:MIN:MAX:PERIOD_STEPS[:MULT].
+    #[arg(long, default_value = "cosine:1e-5:1e-3:200:2", value_parser = Schedule::parse)]
+    schedule: Schedule,
+    /// Extra loss weight where the target impulse is non-zero (0 = plain MSE).
+    #[arg(long, default_value_t = 0.0)]
+    contact_weight: f32,
+    /// Share of simulations held out for validation / test.
+    #[arg(long, default_value_t = 0.1)]
+    validation: f64,
+    #[arg(long, default_value_t = 0.1)]
+    test: f64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Samples held for shuffling.
+    #[arg(long, default_value_t = 256)]
+    shuffle_buffer: usize,
+    /// Batches per epoch at most (0 = all).
+    #[arg(long, default_value_t = 0)]
+    max_batches: usize,
+    /// Continue from `<out>.checkpoints/`.
+    #[arg(long)]
+    resume: bool,
+    #[arg(long, default_value = "flex")]
+    device: String,
+}
+
+impl TrainArgs {
+    fn options(&self) -> TrainOptions {
+        TrainOptions {
+            data: self.data.clone(),
+            out: self.out.clone(),
+            net: self.net.net(),
+            grid: self.net.grid(),
+            epochs: self.epochs,
+            batch: self.batch.max(1),
+            optimizer: self.optimizer,
+            schedule: self.schedule.clone(),
+            contact_weight: self.contact_weight,
+            validation_fraction: self.validation,
+            test_fraction: self.test,
+            seed: self.seed,
+            shuffle_buffer: self.shuffle_buffer,
+            max_batches: self.max_batches,
+            resume: self.resume,
+            progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+            command: std::env::args().collect::<Vec<_>>().join(" "),
+        }
+    }
+}
+
+#[derive(Args, Debug)]
+struct LrFindArgs {
+    #[command(flatten)]
+    train: TrainArgs,
+    #[arg(long, default_value_t = 1e-6)]
+    start: f64,
+    #[arg(long, default_value_t = 1.0)]
+    end: f64,
+    #[arg(long, default_value_t = 100)]
+    steps: usize,
+}
+
+#[derive(Args, Debug)]
+struct BenchArgs {
+    /// Repetitions per measurement (median reported).
+    #[arg(long, default_value_t = 10)]
+    reps: usize,
+    /// Backends to time (default: every one this build has).
+    #[arg(long, value_delimiter = ',')]
+    devices: Vec<String>,
+    /// Networks: `demo` (this repo's model shape) and/or `thesis` (levels 4, width 32, ~3M parameters).
+    #[arg(long, value_delimiter = ',', default_value = "demo,thesis")]
+    nets: Vec<String>,
+}
+
+fn main() -> Result<()> {
+    let cli: Cli = runtime::parse_args();
+    runtime::init_logging();
+    match cli.command {
+        None => run_node(cli.node),
+        Some(Command::Train(a)) => {
+            let device = unet::device(&a.device)?;
+            let meta = unet::train::train(&a.options(), &device)?;
+            print_summary(&a.out, &meta);
+            Ok(())
+        }
+        Some(Command::LrFind(a)) => {
+            let device = unet::device(&a.train.device)?;
+            let opts = a.train.options();
+            let (curve, suggestion) = unet::train::find_lr(&opts, a.start, a.end, a.steps, &device)?;
+            println!(
+                "lr finder: {} steps, curve in {} and {}",
+                curve.len(),
+                opts.out.with_extension("lr.csv").display(),
+                opts.out.with_extension("lr.png").display()
+            );
+            match suggestion {
+                Some(lr) => println!("suggested learning rate: {lr:.3e} (steepest descent of the smoothed loss)"),
+                None => println!("no suggestion: the loss never fell; try a lower --start"),
+            }
+            Ok(())
+        }
+        Some(Command::Info { model }) => {
+            let meta = ModelFile::read_meta(&model)?;
+            print_summary(&model, &meta);
+            Ok(())
+        }
+        Some(Command::Bench(a)) => bench(&a),
+    }
+}
+
+fn print_summary(path: &std::path::Path, meta: &unet::ModelMeta) {
+    let t = &meta.training;
+    println!("model {}", path.display());
+    println!("  network: {:?}", meta.config);
+    println!("  grid: {:?}, shape {:?}, inputs {:?}", meta.grid, meta.grid_shape, meta.input_channels);
+    println!("  data: {} ({} training samples, {} validation samples)", t.data, t.train_samples, t.validation_samples);
+    println!(
+        "  split: {} train / {} validation / {} test simulations",
+        t.split.train.len(),
+        t.split.validation.len(),
+        t.split.test.len()
+    );
+    println!("  epochs: {}, {:.0} s", t.epochs, t.seconds);
+    println!("  train loss per epoch: {:?}", t.train_loss.iter().map(|l| format!("{l:.4}")).collect::<Vec<_>>());
+    println!("  validation loss per epoch: {:?}", t.validation_loss.iter().map(|l| format!("{l:.4}")).collect::<Vec<_>>());
+    if let Some(p) = t.validation_loss_previous {
+        println!("  validation loss of the previous step's impulses (the `grid` model): {p:.4}");
+    }
+}
+
+/// The node: one prediction per received bodies grid, batched when several wait.
+fn run_node(args: NodeArgs) -> Result<()> {
+    let device = unet::device(&args.device)?;
+    let predictor = Predictor::load(&args.model, &device).with_context(|| format!("loading the model {}", args.model.display()))?;
+    let node = runtime::Node::from_env("dc-unet")?;
+    let mut grids_in = node.subscriber::<GridHeader, f32>(topics::GRID_BODIES)?;
+    let mut control = node.subscriber(topics::CONTROL)?;
+    let mut grids_out = node.publisher(topics::GRID_UNET)?;
+    if !node.ready()? {
+        return Ok(());
+    }
+    tracing::info!(model = %args.model.display(), device = args.device, inputs = ?predictor.meta().input_channels, "dc-unet ready");
+    let (mut predicted, mut rejected, mut batches) = (0u64, 0u64, 0u64);
+    let mut busy = Duration::ZERO;
+    let mut pending: Vec<Grid> = Vec::new();
+    let mut run_uses_unet: std::collections::HashMap<u64, bool> = Default::default();
+    let mut skipped = 0u64;
+    while !node.is_shutdown() {
+        match grids_in.recv_timeout(Duration::from_millis(50)) {
+            Ok(Some(g)) => pending.push(g.into_frame()),
+            Ok(None) => {}
+            Err(_) if node.is_shutdown() => break,
+            Err(e) => return Err(e.into()),
+        }
+        while pending.len() < args.max_batch.max(1) {
+            match grids_in.try_recv()? {
+                Some(g) => pending.push(g.into_frame()),
+                None => break,
+            }
+        }
+        // Read control after the grids: a run's start is published before its first bodies, so
+        // every grid in hand belongs to a run already announced (or to one started without us).
+        while let Some(c) = control.try_recv()? {
+            node.observe_control(c.header());
+            if c.header().kind() == Some(ControlKind::RunStart) {
+                let details: serde_json::Value = serde_json::from_str(&String::from_utf8_lossy(c.items())).unwrap_or_default();
+                let model = details.get("model").and_then(|m| m.as_str()).unwrap_or("");
+                run_uses_unet.insert(c.header().step.run_id, model == "unet");
+            }
+        }
+        // Grids of runs with another warm-start model (an evaluation runs several) are drained
+        // unread: predicting them would only slow those runs down. Unknown runs are served.
+        let before = pending.len();
+        pending.retain(|g| run_uses_unet.get(&g.header.step.run_id).copied().unwrap_or(true));
+        skipped += (before - pending.len()) as u64;
+        if pending.is_empty() {
+            continue;
+        }
+        let t = Instant::now();
+        // A grid the model cannot take is answered with an empty grid, so that a simulator in
+        // lockstep falls back for that step at once instead of waiting for ever.
+        let (good, bad): (Vec<&Grid>, Vec<&Grid>) = pending.iter().partition(|g| predictor.check(g).is_ok());
+        for g in &bad {
+            rejected += 1;
+            if let Err(e) = predictor.check(g) {
+                tracing::error!(topic = topics::GRID_BODIES.name, "{e}");
+            }
+            let empty = GridHeader { channels: 0, ..g.header };
+            grids_out.publish(&empty, &[])?;
+        }
+        for out in predictor.predict_batch(&good)? {
+            grids_out.publish_frame(&out)?;
+            predicted += 1;
+        }
+        batches += 1;
+        busy += t.elapsed();
+        pending.clear();
+    }
+    tracing::info!(
+        predicted,
+        rejected,
+        skipped,
+        batches,
+        mean_batch_ms = busy.as_secs_f64() * 1e3 / batches.max(1) as f64,
+        "dc-unet done"
+    );
+    Ok(())
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn bench(args: &BenchArgs) -> Result<()> {
+    use burn::module::Module;
+    use burn::optim::{AdamConfig, GradientsParams};
+    use burn::tensor::{Distribution, Tensor};
+    let devices: Vec<String> =
+        if args.devices.is_empty() { unet::backends().iter().filter(|d| **d != "cuda").map(|d| d.to_string()).collect() } else { args.devices.clone() };
+    let reps = args.reps.max(1);
+    println!("dc-unet bench: median of {reps} runs after one warm-up; input 128 x 128, 5 channels (thesis input)");
+    println!("| net | params | device | infer b=1 ms | infer b=16 ms | train step b=8 ms |");
+    println!("|---|---|---|---|---|---|");
+    let mut rows: Vec<(String, String, f64)> = Vec::new();
+    for net_name in &args.nets {
+        let config = match net_name.as_str() {
+            "demo" => UNetConfig { in_channels: 5, residual: None, ..UNetConfig::default() },
+            "thesis" => UNetConfig { in_channels: 5, out_channels: 2, levels: 4, base_width: 32, dilations: vec![2, 4, 8], residual: None },
+            other => bail!("unknown net `{other}` (demo, thesis)"),
+        };
+        for name in &devices {
+            let device = unet::device(name)?;
+            device.seed(0);
+            let model = config.init(&device).valid();
+            let time = |batch: usize| -> Result<f64> {
+                let mut times = Vec::new();
+                for i in 0..=reps {
+                    let x = Tensor::<4>::random([batch, 5, 128, 128], Distribution::Default, &device);
+                    device.sync().ok();
+                    let t = Instant::now();
+                    let y = model.forward(x);
+                    let _: Vec<f32> = y.into_data().try_into_vec().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+                    if i > 0 {
+                        times.push(t.elapsed().as_secs_f64() * 1e3);
+                    }
+                }
+                Ok(median(times))
+            };
+            let b1 = time(1)?;
+            let b16 = time(16)?;
+            let ad = device.clone().autodiff();
+            let mut train_model = config.init(&ad);
+            let mut optim = AdamConfig::new().init();
+            let mut times = Vec::new();
+            for i in 0..=reps.min(5) {
+                let x = Tensor::<4>::random([8, 5, 128, 128], Distribution::Default, &ad);
+                let y = Tensor::<4>::random([8, 2, 128, 128], Distribution::Default, &ad);
+                let t = Instant::now();
+                let loss = (train_model.forward(x) - y).square().mean();
+                let grads = GradientsParams::from_grads(loss.backward(), &train_model);
+                train_model = optim.step(1e-4, train_model, grads);
+                ad.sync().ok();
+                if i > 0 {
+                    times.push(t.elapsed().as_secs_f64() * 1e3);
+                }
+            }
+            let step = median(times);
+            println!("| {net_name} | {} | {name} | {b1:.2} | {b16:.1} | {step:.0} |", model.num_params());
+            rows.push((net_name.clone(), name.clone(), b1));
+        }
+    }
+    for net in &args.nets {
+        let get = |d: &str| rows.iter().find(|r| &r.0 == net && r.1 == d).map(|r| r.2);
+        if let (Some(f), Some(t)) = (get("flex"), get("libtorch")) {
+            println!("{net}: flex / libtorch CPU at batch 1 = {:.2}x (target <= 2x)", f / t);
+        }
+    }
+    Ok(())
+}

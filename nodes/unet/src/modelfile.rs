@@ -1,0 +1,145 @@
+//! One model file holds everything inference needs: the network's shape, its weights, the
+//! normalisation, the grid parameters and a training summary.
+//!
+//! Layout: `DCUNET` magic + format version (8 bytes), little-endian u64 length + JSON metadata,
+//! little-endian u64 length + burnpack weights (burn's own tensor format).
+
+use crate::data::{GridSpec, Normalization, Split};
+use crate::model::{UNet, UNetConfig};
+use crate::{Result, UnetError};
+use burn::module::Module;
+use burn::store::ModuleRecord;
+use burn::tensor::{Bytes, Device};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+const MAGIC: &[u8; 6] = b"DCUNET";
+const FORMAT_VERSION: u16 = 1;
+
+/// What a model file says about itself besides the weights.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelMeta {
+    pub config: UNetConfig,
+    pub grid: GridSpec,
+    pub normalization: Normalization,
+    /// Input channel names, in order (checked against received grids).
+    pub input_channels: Vec<String>,
+    /// Output channel names (`normal`, `tangent`).
+    pub output_channels: Vec<String>,
+    /// Grid size the model was trained on: `[height, width]`.
+    pub grid_shape: [usize; 2],
+    #[serde(default)]
+    pub training: TrainingSummary,
+}
+
+/// How the model came to be.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TrainingSummary {
+    pub data: String,
+    pub epochs: usize,
+    pub train_samples: usize,
+    pub validation_samples: usize,
+    /// Mean training loss per epoch (normalised MSE).
+    pub train_loss: Vec<f64>,
+    /// Validation loss per epoch.
+    pub validation_loss: Vec<f64>,
+    /// Validation loss of the untrained model's answer "the previous impulses" (residual models),
+    /// the bar to beat.
+    pub validation_loss_previous: Option<f64>,
+    pub split: Split,
+    pub seconds: f64,
+    pub command: String,
+}
+
+/// A model with its metadata.
+#[derive(Debug)]
+pub struct ModelFile {
+    pub meta: ModelMeta,
+    pub model: UNet,
+}
+
+impl ModelFile {
+    /// Writes the model to `path` (atomically: a temporary file renamed over it).
+    pub fn save(meta: &ModelMeta, model: &UNet, path: &Path) -> Result<()> {
+        let io = |e: std::io::Error| UnetError::Io(path.display().to_string(), e);
+        let json = serde_json::to_vec(meta).map_err(|e| UnetError::Model(path.display().to_string(), e.to_string()))?;
+        let weights = model
+            .clone()
+            .into_record()
+            .into_bytes()
+            .map_err(|e| UnetError::Model(path.display().to_string(), format!("serialising weights: {e:?}")))?;
+        let mut out = Vec::with_capacity(24 + json.len() + weights.len());
+        out.extend_from_slice(MAGIC);
+        out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+        out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+        out.extend_from_slice(&json);
+        out.extend_from_slice(&(weights.len() as u64).to_le_bytes());
+        out.extend_from_slice(&weights);
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(io)?;
+        }
+        let tmp = path.with_extension("partial");
+        std::fs::write(&tmp, &out).map_err(io)?;
+        std::fs::rename(&tmp, path).map_err(io)
+    }
+
+    /// Reads a model file onto `device`. A file that is not a model, is cut short, or whose weights
+    /// do not fit its configuration is an error naming the file.
+    pub fn load(path: &Path, device: &Device) -> Result<ModelFile> {
+        let bytes = std::fs::read(path).map_err(|e| UnetError::Io(path.display().to_string(), e))?;
+        Self::from_bytes(&bytes, device).map_err(|what| UnetError::Model(path.display().to_string(), what))
+    }
+
+    /// Only the metadata (no weights are built).
+    pub fn read_meta(path: &Path) -> Result<ModelMeta> {
+        let bytes = std::fs::read(path).map_err(|e| UnetError::Io(path.display().to_string(), e))?;
+        parse(&bytes).map(|(m, _)| m).map_err(|what| UnetError::Model(path.display().to_string(), what))
+    }
+
+    fn from_bytes(bytes: &[u8], device: &Device) -> std::result::Result<ModelFile, String> {
+        let (meta, weights) = parse(bytes)?;
+        let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(weights.to_vec()))
+            .map_err(|e| format!("weights are not a valid burnpack: {e:?}"))?;
+        let model = meta
+            .config
+            .init(device)
+            .try_load_record(record)
+            .map_err(|e| format!("weights do not fit the configuration {:?}: {e:?}", meta.config))?;
+        Ok(ModelFile { meta, model })
+    }
+}
+
+fn parse(bytes: &[u8]) -> std::result::Result<(ModelMeta, &[u8]), String> {
+    if bytes.len() < 8 || &bytes[..6] != MAGIC {
+        return Err("not a Deep Contact U-Net model file (no DCUNET header)".into());
+    }
+    let version = u16::from_le_bytes([bytes[6], bytes[7]]);
+    if version != FORMAT_VERSION {
+        return Err(format!("model format version {version}, this build reads version {FORMAT_VERSION}"));
+    }
+    let mut at = 8;
+    let mut section = |what: &str| -> std::result::Result<&[u8], String> {
+        let len = bytes
+            .get(at..at + 8)
+            .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize)
+            .ok_or_else(|| format!("file ends before the {what} length (truncated?)"))?;
+        let body = bytes
+            .get(at + 8..at + 8 + len)
+            .ok_or_else(|| format!("{what} announces {len} bytes, the file holds {} (truncated?)", bytes.len().saturating_sub(at + 8)))?;
+        at += 8 + len;
+        Ok(body)
+    };
+    let json = section("metadata")?;
+    let weights = section("weights")?;
+    let meta: ModelMeta = serde_json::from_slice(json).map_err(|e| format!("metadata: {e}"))?;
+    meta.config.validate().map_err(|e| format!("configuration: {e}"))?;
+    let nodes = meta.grid_shape[0] * meta.grid_shape[1];
+    if meta.input_channels.len() != meta.config.in_channels
+        || meta.normalization.input_mean.len() != meta.config.in_channels
+        || meta.normalization.target_mean.len() != meta.config.out_channels
+        || nodes == 0
+    {
+        return Err("metadata is inconsistent: channel lists, normalisation and configuration disagree".into());
+    }
+    Ok((meta, weights))
+}

@@ -1,0 +1,536 @@
+//! Training by replaying recordings: normalisation pass, shuffled mini-batches, Adam or SGD under
+//! a schedule, validation each epoch, checkpoints with resume, loss curves as PNG, and the
+//! learning-rate finder.
+
+use crate::data::{GridSpec, Normalization, Part, Sample, SampleStream, Split, SplitMix64};
+use crate::model::{UNet, UNetConfig};
+use crate::modelfile::{ModelFile, ModelMeta, TrainingSummary};
+use crate::schedule::{self, Schedule};
+use crate::{Result, UnetError};
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer, SgdConfig, momentum::MomentumConfig};
+use burn::tensor::{Bytes, Device, Tensor, TensorData};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Optimiser choice.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OptimizerKind {
+    Adam,
+    /// SGD with momentum 0.9.
+    Sgd,
+}
+
+impl std::str::FromStr for OptimizerKind {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "adam" => Ok(OptimizerKind::Adam),
+            "sgd" => Ok(OptimizerKind::Sgd),
+            _ => Err(format!("unknown optimiser `{s}` (adam, sgd)")),
+        }
+    }
+}
+
+/// Everything a training run is given.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TrainOptions {
+    /// A recording or a folder of recordings.
+    pub data: PathBuf,
+    /// The model file to write; checkpoints go to `<out>.checkpoints/`.
+    pub out: PathBuf,
+    pub net: UNetConfig,
+    pub grid: GridSpec,
+    pub epochs: usize,
+    pub batch: usize,
+    pub optimizer: OptimizerKind,
+    pub schedule: Schedule,
+    /// Extra loss weight on nodes where the target impulse is non-zero (0 = plain MSE).
+    pub contact_weight: f32,
+    pub validation_fraction: f64,
+    pub test_fraction: f64,
+    pub seed: u64,
+    pub shuffle_buffer: usize,
+    /// Stop an epoch after this many batches (0 = the whole training set).
+    pub max_batches: usize,
+    /// Continue from the last checkpoint.
+    pub resume: bool,
+    /// Show progress bars.
+    pub progress: bool,
+    /// The command line, kept in the model file.
+    pub command: String,
+}
+
+/// Where a run is, saved after every epoch.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct CheckpointState {
+    epoch: usize,
+    optimizer_step: usize,
+    meta: ModelMeta,
+}
+
+fn checkpoint_dir(out: &Path) -> PathBuf {
+    let mut s = out.as_os_str().to_owned();
+    s.push(".checkpoints");
+    PathBuf::from(s)
+}
+
+/// A mini-batch as tensors: normalised input, target, and loss weights.
+struct Batch {
+    input: Tensor<4>,
+    target: Tensor<4>,
+    weight: Option<Tensor<4>>,
+    /// For the residual baseline: normalised previous impulses.
+    previous: Option<Tensor<4>>,
+    len: usize,
+}
+
+fn make_batch(samples: &[Sample], meta: &ModelMeta, contact_weight: f32, device: &Device) -> Batch {
+    let [h, w] = meta.grid_shape;
+    let (c_in, c_out) = (meta.config.in_channels, meta.config.out_channels);
+    let b = samples.len();
+    let mut input = Vec::with_capacity(b * c_in * h * w);
+    let mut target = Vec::with_capacity(b * c_out * h * w);
+    let mut weight = Vec::new();
+    for s in samples {
+        let start = input.len();
+        input.extend_from_slice(&s.input);
+        meta.normalization.normalize_input(&mut input[start..]);
+        if contact_weight > 0.0 {
+            weight.extend(s.target.iter().map(|&t| if t != 0.0 { 1.0 + contact_weight } else { 1.0 }));
+        }
+        let start = target.len();
+        target.extend_from_slice(&s.target);
+        meta.normalization.normalize_target(&mut target[start..]);
+    }
+    let previous = meta.config.residual.map(|r| {
+        let nodes = h * w;
+        let mut prev = Vec::with_capacity(b * 2 * nodes);
+        for i in 0..b {
+            for &c in &r {
+                let at = (i * c_in + c) * nodes;
+                prev.extend_from_slice(&input[at..at + nodes]);
+            }
+        }
+        Tensor::<4>::from_data(TensorData::new(prev, [b, 2, h, w]), device)
+    });
+    Batch {
+        input: Tensor::from_data(TensorData::new(input, [b, c_in, h, w]), device),
+        target: Tensor::from_data(TensorData::new(target, [b, c_out, h, w]), device),
+        weight: (!weight.is_empty()).then(|| Tensor::from_data(TensorData::new(weight, [b, c_out, h, w]), device)),
+        previous,
+        len: b,
+    }
+}
+
+fn loss(prediction: Tensor<4>, batch: &Batch) -> Tensor<1> {
+    let sq = (prediction - batch.target.clone()).square();
+    match &batch.weight {
+        Some(w) => (sq * w.clone()).mean(),
+        None => sq.mean(),
+    }
+}
+
+/// Yields shuffled batches from a sample stream through a shuffle buffer.
+struct Batcher {
+    stream: SampleStream,
+    buffer: Vec<Sample>,
+    capacity: usize,
+    rng: SplitMix64,
+    exhausted: bool,
+}
+
+impl Batcher {
+    fn new(stream: SampleStream, capacity: usize, seed: u64) -> Batcher {
+        Batcher { stream, buffer: Vec::new(), capacity: capacity.max(1), rng: SplitMix64(seed), exhausted: false }
+    }
+
+    /// The next batch of up to `size` samples; empty at the end.
+    fn next_batch(&mut self, size: usize) -> Result<Vec<Sample>> {
+        while !self.exhausted && self.buffer.len() < self.capacity {
+            match self.stream.next() {
+                Some(s) => self.buffer.push(s?),
+                None => self.exhausted = true,
+            }
+        }
+        let mut out = Vec::with_capacity(size);
+        while out.len() < size && !self.buffer.is_empty() {
+            let i = (self.rng.next() % self.buffer.len() as u64) as usize;
+            out.push(self.buffer.swap_remove(i));
+            if !self.exhausted {
+                match self.stream.next() {
+                    Some(s) => self.buffer.push(s?),
+                    None => self.exhausted = true,
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// In recorded order (validation needs no shuffle).
+fn batches_in_order(stream: SampleStream, size: usize) -> impl Iterator<Item = Result<Vec<Sample>>> {
+    let mut stream = stream.peekable();
+    std::iter::from_fn(move || {
+        let mut out = Vec::with_capacity(size);
+        while out.len() < size {
+            match stream.next() {
+                Some(Ok(s)) => out.push(s),
+                Some(Err(e)) => return Some(Err(e)),
+                None => break,
+            }
+        }
+        (!out.is_empty()).then_some(Ok(out))
+    })
+}
+
+fn optimizer(kind: OptimizerKind) -> ModuleOptimizer {
+    match kind {
+        OptimizerKind::Adam => AdamConfig::new().init(),
+        OptimizerKind::Sgd => SgdConfig::new().with_momentum(Some(MomentumConfig::new())).init(),
+    }
+}
+
+/// Validation losses: the model's (normalised MSE, unweighted) and, for residual models, the
+/// loss of answering "the previous impulses".
+pub fn evaluate(model: &UNet, meta: &ModelMeta, data: &Path, part: Part, split: &Split, batch: usize, device: &Device) -> Result<(f64, Option<f64>, usize)> {
+    let model = model.valid();
+    let stream = SampleStream::open(data, &meta.grid, split, part)?;
+    let (mut sum, mut sum_prev, mut n) = (0.0f64, 0.0f64, 0usize);
+    for samples in batches_in_order(stream, batch) {
+        let samples = samples?;
+        check_shapes(&samples, meta)?;
+        let b = make_batch(&samples, meta, 0.0, device);
+        let l: f32 = (model.forward(b.input.clone()) - b.target.clone()).square().mean().into_scalar();
+        sum += l as f64 * b.len as f64;
+        if let Some(prev) = &b.previous {
+            let lp: f32 = (prev.clone() - b.target.clone()).square().mean().into_scalar();
+            sum_prev += lp as f64 * b.len as f64;
+        }
+        n += b.len;
+    }
+    if n == 0 {
+        return Ok((f64::NAN, None, 0));
+    }
+    Ok((sum / n as f64, meta.config.residual.map(|_| sum_prev / n as f64), n))
+}
+
+fn check_shapes(samples: &[Sample], meta: &ModelMeta) -> Result<()> {
+    for s in samples {
+        if [s.height, s.width] != meta.grid_shape {
+            return Err(UnetError::Data(format!(
+                "simulation {} step {}: grid is {} x {}, the model trains on {} x {} (scenes of one size per model)",
+                s.key.simulation, s.key.step, s.height, s.width, meta.grid_shape[0], meta.grid_shape[1]
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Splits the data, computes the normalisation, and returns the metadata of a fresh model.
+fn prepare(opts: &TrainOptions) -> Result<(ModelMeta, usize)> {
+    let simulations = crate::data::list_simulations(&opts.data)?;
+    let split = Split::by_simulation(&simulations, opts.validation_fraction, opts.test_fraction, opts.seed);
+    if split.train.is_empty() {
+        return Err(UnetError::Data(format!("{}: no simulation left for training", opts.data.display())));
+    }
+    tracing::info!(train = split.train.len(), validation = split.validation.len(), test = split.test.len(), "split by simulation");
+    let stream = SampleStream::open(&opts.data, &opts.grid, &split, Part::Train)?;
+    let mut shape = None;
+    let shaped = stream.map(|s| {
+        let s = s?;
+        shape.get_or_insert([s.height, s.width]);
+        Ok(s)
+    });
+    let (normalization, train_samples) = Normalization::compute(shaped, opts.net.in_channels, opts.net.out_channels, opts.net.residual)?;
+    let grid_shape = shape.expect("at least one sample");
+    if grid_shape.iter().any(|&n| n % opts.net.size_multiple() != 0) {
+        return Err(UnetError::Config(format!(
+            "grid {} x {} is not a multiple of 2^levels = {}: set the grid's pad_to to a multiple of it",
+            grid_shape[0],
+            grid_shape[1],
+            opts.net.size_multiple()
+        )));
+    }
+    let meta = ModelMeta {
+        config: opts.net.clone(),
+        grid: opts.grid.clone(),
+        normalization,
+        input_channels: opts.grid.input_channels(),
+        output_channels: sph::CONTACT_CHANNELS.iter().map(|s| s.to_string()).collect(),
+        grid_shape,
+        training: TrainingSummary {
+            data: opts.data.display().to_string(),
+            train_samples,
+            split,
+            command: opts.command.clone(),
+            ..Default::default()
+        },
+    };
+    Ok((meta, train_samples))
+}
+
+fn progress_bar(len: u64, enabled: bool, prefix: String) -> ProgressBar {
+    if !enabled {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} batches {msg} ({elapsed}, eta {eta})")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(prefix);
+    bar
+}
+
+/// Trains a model as `opts` says and writes the model file; returns its metadata.
+pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
+    opts.net.validate().map_err(UnetError::Config)?;
+    if opts.net.in_channels != opts.grid.input_channels().len() {
+        return Err(UnetError::Config(format!(
+            "the network takes {} input channels, the grid spec makes {} ({:?})",
+            opts.net.in_channels,
+            opts.grid.input_channels().len(),
+            opts.grid.input_channels()
+        )));
+    }
+    let started = Instant::now();
+    let dir = checkpoint_dir(&opts.out);
+    let train_device = device.clone().autodiff();
+    let (mut meta, mut model, mut optim, first_epoch, mut step) = match resume_state(opts, &dir, &train_device)? {
+        Some(r) => r,
+        None => {
+            let (meta, _) = prepare(opts)?;
+            device.seed(opts.seed);
+            train_device.seed(opts.seed);
+            let model = meta.config.init(&train_device);
+            (meta, model, optimizer(opts.optimizer), 0, 0)
+        }
+    };
+    let split = meta.training.split.clone();
+    let batches_per_epoch = {
+        let full = meta.training.train_samples.div_ceil(opts.batch.max(1));
+        if opts.max_batches > 0 { full.min(opts.max_batches) } else { full }
+    };
+    tracing::info!(
+        params = model.num_params(),
+        train_samples = meta.training.train_samples,
+        batches_per_epoch,
+        grid = ?meta.grid_shape,
+        "training"
+    );
+    if meta.training.validation_loss_previous.is_none() && !split.validation.is_empty() {
+        let (_, prev, n) = evaluate(&model, &meta, &opts.data, Part::Validation, &split, opts.batch, device)?;
+        meta.training.validation_loss_previous = prev;
+        meta.training.validation_samples = n;
+        if let Some(p) = prev {
+            tracing::info!(validation_loss = p, "answering the previous step's impulses (the bar to beat)");
+        }
+    }
+    std::fs::create_dir_all(&dir).map_err(|e| UnetError::Io(dir.display().to_string(), e))?;
+    let mut step_losses: Vec<(f64, f64)> = Vec::new();
+    for epoch in first_epoch..opts.epochs {
+        let stream = SampleStream::open(&opts.data, &meta.grid, &split, Part::Train)?;
+        let mut batcher = Batcher::new(stream, opts.shuffle_buffer, opts.seed ^ (epoch as u64 + 1).wrapping_mul(0x9E37_79B9));
+        let bar = progress_bar(batches_per_epoch as u64, opts.progress, format!("epoch {}/{}", epoch + 1, opts.epochs));
+        let (mut sum, mut seen) = (0.0f64, 0usize);
+        let epoch_start = Instant::now();
+        for _ in 0..batches_per_epoch {
+            let samples = batcher.next_batch(opts.batch)?;
+            if samples.is_empty() {
+                break;
+            }
+            check_shapes(&samples, &meta)?;
+            let batch = make_batch(&samples, &meta, opts.contact_weight, &train_device);
+            let l = loss(model.forward(batch.input.clone()), &batch);
+            let value: f32 = l.clone().into_scalar();
+            if !value.is_finite() {
+                return Err(UnetError::Diverged { epoch: epoch + 1, step, lr: opts.schedule.lr(step) });
+            }
+            let grads = GradientsParams::from_grads(l.backward(), &model);
+            model = optim.step(opts.schedule.lr(step), model, grads);
+            step += 1;
+            sum += value as f64 * batch.len as f64;
+            seen += batch.len;
+            step_losses.push((step as f64, value as f64));
+            bar.set_message(format!(
+                "loss {:.4} lr {:.2e} {:.1} samples/s",
+                sum / seen as f64,
+                opts.schedule.lr(step),
+                seen as f64 / epoch_start.elapsed().as_secs_f64()
+            ));
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        let train_loss = sum / seen.max(1) as f64;
+        let (val_loss, _, _) = evaluate(&model, &meta, &opts.data, Part::Validation, &split, opts.batch, device)?;
+        meta.training.train_loss.push(train_loss);
+        meta.training.validation_loss.push(val_loss);
+        meta.training.epochs = epoch + 1;
+        meta.training.seconds += epoch_start.elapsed().as_secs_f64();
+        tracing::info!(
+            epoch = epoch + 1,
+            train_loss,
+            validation_loss = val_loss,
+            previous_baseline = meta.training.validation_loss_previous,
+            secs = epoch_start.elapsed().as_secs_f32(),
+            "epoch done"
+        );
+        save_checkpoint(&dir, epoch, step, &meta, &model, &optim)?;
+    }
+    ModelFile::save(&meta, &model.valid(), &opts.out)?;
+    write_loss_plot(&opts.out, &meta, &step_losses)?;
+    tracing::info!(out = %opts.out.display(), secs = started.elapsed().as_secs_f32(), "model written");
+    Ok(meta)
+}
+
+fn save_checkpoint(dir: &Path, epoch: usize, step: usize, meta: &ModelMeta, model: &UNet, optim: &ModuleOptimizer) -> Result<()> {
+    let io = |p: &Path, e: std::io::Error| UnetError::Io(p.display().to_string(), e);
+    ModelFile::save(meta, model, &dir.join("model.dcu"))?;
+    let bytes = optim.into_bytes().map_err(|e| UnetError::Model(dir.display().to_string(), format!("optimiser state: {e:?}")))?;
+    let opt_path = dir.join("optimizer.bpk");
+    std::fs::write(&opt_path, &*bytes).map_err(|e| io(&opt_path, e))?;
+    let state = CheckpointState { epoch, optimizer_step: step, meta: meta.clone() };
+    let state_path = dir.join("state.json");
+    let json = serde_json::to_vec_pretty(&state).expect("state serialises");
+    // Written last: a checkpoint counts only once its state names it.
+    std::fs::write(&state_path, json).map_err(|e| io(&state_path, e))
+}
+
+type Resumed = (ModelMeta, UNet, ModuleOptimizer, usize, usize);
+
+fn resume_state(opts: &TrainOptions, dir: &Path, device: &Device) -> Result<Option<Resumed>> {
+    if !opts.resume {
+        return Ok(None);
+    }
+    let state_path = dir.join("state.json");
+    let Ok(text) = std::fs::read(&state_path) else {
+        tracing::warn!(dir = %dir.display(), "no checkpoint to resume from; starting afresh");
+        return Ok(None);
+    };
+    let state: CheckpointState =
+        serde_json::from_slice(&text).map_err(|e| UnetError::Model(state_path.display().to_string(), e.to_string()))?;
+    if state.meta.config != opts.net || state.meta.grid != opts.grid {
+        return Err(UnetError::Config(format!(
+            "{}: the checkpoint was made with another network or grid ({:?}, {:?}); remove it or match the options",
+            dir.display(),
+            state.meta.config,
+            state.meta.grid
+        )));
+    }
+    let file = ModelFile::load(&dir.join("model.dcu"), device)?;
+    let opt_path = dir.join("optimizer.bpk");
+    let bytes = std::fs::read(&opt_path).map_err(|e| UnetError::Io(opt_path.display().to_string(), e))?;
+    let optim = optimizer(opts.optimizer)
+        .from_bytes(Bytes::from_bytes_vec(bytes))
+        .map_err(|e| UnetError::Model(opt_path.display().to_string(), format!("{e:?}")))?;
+    tracing::info!(epoch = state.epoch + 1, step = state.optimizer_step, "resuming");
+    Ok(Some((state.meta, file.model.train(), optim, state.epoch + 1, state.optimizer_step)))
+}
+
+fn write_loss_plot(out: &Path, meta: &ModelMeta, step_losses: &[(f64, f64)]) -> Result<()> {
+    use metrics::plot::{line_chart, Series, YScale};
+    let per_epoch = |v: &[f64]| v.iter().enumerate().map(|(i, &l)| ((i + 1) as f64, l)).collect::<Vec<_>>();
+    let mut series = vec![
+        Series { name: "train".into(), points: per_epoch(&meta.training.train_loss), band: None },
+        Series { name: "validation".into(), points: per_epoch(&meta.training.validation_loss), band: None },
+    ];
+    if let Some(p) = meta.training.validation_loss_previous {
+        series.push(Series {
+            name: "validation: previous impulses".into(),
+            points: vec![(1.0, p), (meta.training.epochs.max(1) as f64, p)],
+            band: None,
+        });
+    }
+    let path = out.with_extension("loss.png");
+    line_chart(&path, "U-Net loss per epoch (normalised MSE)", "epoch", "loss", &series, YScale::Log)
+        .map_err(|e| UnetError::Data(e.to_string()))?;
+    if !step_losses.is_empty() {
+        let smooth = schedule::smoothed(step_losses, 0.98);
+        let path = out.with_extension("steps.png");
+        line_chart(
+            &path,
+            "U-Net training loss per optimiser step",
+            "step",
+            "loss",
+            &[
+                Series { name: "batch loss".into(), points: step_losses.to_vec(), band: None },
+                Series { name: "smoothed".into(), points: smooth, band: None },
+            ],
+            YScale::Log,
+        )
+        .map_err(|e| UnetError::Data(e.to_string()))?;
+    }
+    Ok(())
+}
+
+/// The learning-rate finder: trains a fresh model for `steps` batches with the rate growing
+/// exponentially from `start` to `end`, stops when the loss blows up, writes the curve as CSV and
+/// PNG beside `opts.out`, and returns the curve and the suggested rate.
+pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: &Device) -> Result<(Vec<(f64, f64)>, Option<f64>)> {
+    let (meta, _) = prepare(opts)?;
+    let train_device = device.clone().autodiff();
+    train_device.seed(opts.seed);
+    let mut model = meta.config.init(&train_device);
+    let mut optim = optimizer(opts.optimizer);
+    let mut curve = Vec::new();
+    let mut best = f64::INFINITY;
+    let bar = progress_bar(steps as u64, opts.progress, "lr finder".into());
+    let mut epoch = 0u64;
+    let mut batcher = Batcher::new(SampleStream::open(&opts.data, &meta.grid, &meta.training.split, Part::Train)?, opts.shuffle_buffer, opts.seed);
+    for i in 0..steps {
+        let mut samples = batcher.next_batch(opts.batch)?;
+        if samples.is_empty() {
+            epoch += 1;
+            batcher = Batcher::new(
+                SampleStream::open(&opts.data, &meta.grid, &meta.training.split, Part::Train)?,
+                opts.shuffle_buffer,
+                opts.seed + epoch,
+            );
+            samples = batcher.next_batch(opts.batch)?;
+        }
+        let lr = schedule::sweep_lr(start, end, steps, i);
+        let batch = make_batch(&samples, &meta, opts.contact_weight, &train_device);
+        let l = loss(model.forward(batch.input.clone()), &batch);
+        let value: f32 = l.clone().into_scalar();
+        curve.push((lr, value as f64));
+        bar.inc(1);
+        let smooth = schedule::smoothed(&curve, 0.9).last().map(|p| p.1).unwrap_or(f64::NAN);
+        if !smooth.is_finite() || smooth > 4.0 * best {
+            break;
+        }
+        best = best.min(smooth);
+        let grads = GradientsParams::from_grads(l.backward(), &model);
+        model = optim.step(lr, model, grads);
+    }
+    bar.finish_and_clear();
+    let suggestion = schedule::suggest_lr(&curve);
+    let csv_path = opts.out.with_extension("lr.csv");
+    let mut csv = String::from("lr,loss,smoothed\n");
+    for ((lr, l), (_, s)) in curve.iter().zip(schedule::smoothed(&curve, 0.9)) {
+        csv.push_str(&format!("{lr},{l},{s}\n"));
+    }
+    if let Some(dir) = csv_path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| UnetError::Io(dir.display().to_string(), e))?;
+    }
+    std::fs::write(&csv_path, csv).map_err(|e| UnetError::Io(csv_path.display().to_string(), e))?;
+    use metrics::plot::{line_chart, Series, YScale};
+    let log_x = |c: &[(f64, f64)]| c.iter().map(|&(lr, l)| (lr.log10(), l)).collect::<Vec<_>>();
+    line_chart(
+        &opts.out.with_extension("lr.png"),
+        &format!("LR finder (suggested {})", suggestion.map(|s| format!("{s:.2e}")).unwrap_or("none".into())),
+        "log10 learning rate",
+        "loss",
+        &[
+            Series { name: "batch loss".into(), points: log_x(&curve), band: None },
+            Series { name: "smoothed".into(), points: log_x(&schedule::smoothed(&curve, 0.9)), band: None },
+        ],
+        YScale::Log,
+    )
+    .map_err(|e| UnetError::Data(e.to_string()))?;
+    Ok((curve, suggestion))
+}

@@ -1,0 +1,345 @@
+//! The U-Net crate: network shapes, learning, model files, normalisation, the dataset from real
+//! recorded simulations, and bad input.
+
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::{Device, Distribution, Tensor};
+use msgs::{ControlKind, ControlMsg, StepHeader};
+use recorder::{FrameKind, RecordingWriter};
+use std::path::{Path, PathBuf};
+use unet::data::{list_simulations, Normalization, Part, SampleStream, Split};
+use unet::schedule::Schedule;
+use unet::train::{OptimizerKind, TrainOptions};
+use unet::{GridSpec, ModelFile, Predictor, UNetConfig, UnetError};
+
+fn device() -> Device {
+    Device::flex()
+}
+
+fn scratch(test: &str) -> PathBuf {
+    deep_contact::scratch_dir(&format!("unet-{test}"))
+}
+
+fn values(t: Tensor<4>) -> Vec<f32> {
+    t.into_data().try_into_vec::<f32>().unwrap()
+}
+
+/// A recording of real simulations (the sim library, ball-box with 20 balls in the thesis box),
+/// laid out as `dc-record` writes it.
+fn record_simulations(path: &Path, run_id: u64, seeds: &[u64], steps: u32) {
+    use sim::{ModelKind, SceneConfig, WarmStarter, World, WorldParams};
+    let mut w = RecordingWriter::create(path).unwrap();
+    let mut t = 1_000_000_000u64;
+    let mut put = |w: &mut RecordingWriter, topic: &str, data: Vec<u8>| {
+        t += 1_000;
+        w.write(topic, FrameKind::of_topic(topic).unwrap(), t, t, &data).unwrap();
+    };
+    let run = StepHeader { run_id, simulation: 0, step: 0 };
+    put(&mut w, "control", msgs::encode(&ControlMsg::control(run, ControlKind::RunStart, seeds.len() as u32, "{}")).unwrap());
+    let (mut bodies, mut contacts) = (Vec::new(), Vec::new());
+    for &seed in seeds {
+        let config = SceneConfig { n: 20, seed, side: Some(15.0), ..SceneConfig::default() };
+        let mut world = World::new(&config, WorldParams::default()).unwrap();
+        world.set_ids(run_id, seed as u32);
+        let mut warm = WarmStarter::new(ModelKind::Builtin.build(seed).unwrap(), ModelKind::None.build(seed).unwrap());
+        warm.begin_simulation(seed as u32, seed);
+        for step in 0..steps {
+            world.step(&mut warm);
+            world.body_msgs(&mut bodies);
+            world.contact_msgs(&mut contacts);
+            let h = StepHeader { run_id, simulation: seed as u32, step };
+            put(&mut w, "bodies", msgs::encode(&msgs::Frame::new(h, bodies.clone())).unwrap());
+            put(&mut w, "contacts", msgs::encode(&msgs::Frame::new(h, contacts.clone())).unwrap());
+        }
+    }
+    w.finish().unwrap();
+}
+
+fn small_spec() -> GridSpec {
+    // 15 / 0.25 + 1 = 61 nodes, padded to 64: a quarter of the thesis grid's cost.
+    GridSpec { res: 0.25, pad_to: 64, ..GridSpec::default() }
+}
+
+fn small_net() -> UNetConfig {
+    UNetConfig { levels: 2, base_width: 4, ..UNetConfig::default() }
+}
+
+#[test]
+fn shapes_hold_for_several_sizes_levels_and_batches() {
+    let d = device();
+    for (levels, [h, w], batch, c_in) in [(1, [8, 8], 1, 5), (2, [32, 64], 3, 7), (3, [64, 32], 2, 7), (4, [128, 128], 1, 5)] {
+        let config = UNetConfig { in_channels: c_in, levels, base_width: 4, residual: (c_in == 7).then_some([5, 6]), ..UNetConfig::default() };
+        let model = config.init(&d);
+        let y = model.forward(Tensor::<4>::random([batch, c_in, h, w], Distribution::Default, &d));
+        assert_eq!(y.dims(), [batch, 2, h, w], "levels {levels}, {h} x {w}");
+    }
+}
+
+#[test]
+fn an_untrained_residual_model_answers_the_previous_impulses_exactly() {
+    let d = device();
+    let model = UNetConfig { levels: 2, base_width: 4, ..UNetConfig::default() }.init(&d);
+    let x = Tensor::<4>::random([2, 7, 16, 16], Distribution::Default, &d);
+    let prev = values(x.clone().slice([0..2, 5..7, 0..16, 0..16]));
+    assert_eq!(values(model.valid().forward(x)), prev);
+}
+
+#[test]
+fn overfitting_a_tiny_batch_cuts_the_loss_a_hundredfold() {
+    let d = device().autodiff();
+    d.seed(1);
+    let config = UNetConfig { in_channels: 5, levels: 2, base_width: 8, residual: None, ..UNetConfig::default() };
+    let mut model = config.init(&d);
+    // A target the input determines: a smooth function of two input channels.
+    let x = Tensor::<4>::random([2, 5, 16, 16], Distribution::Default, &d);
+    let y = Tensor::cat(vec![x.clone().slice([0..2, 0..1, 0..16, 0..16]) * 0.5, x.clone().slice([0..2, 1..2, 0..16, 0..16]).tanh()], 1);
+    let mut optim = AdamConfig::new().init();
+    let mut first = None;
+    let mut last = f32::NAN;
+    for _ in 0..300 {
+        let loss = (model.forward(x.clone()) - y.clone()).square().mean();
+        last = loss.clone().into_scalar();
+        first.get_or_insert(last);
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        model = optim.step(3e-3, model, grads);
+    }
+    let first = first.unwrap();
+    assert!(last < first / 100.0, "loss {first} -> {last}");
+}
+
+fn meta_for(config: &UNetConfig, shape: [usize; 2]) -> unet::ModelMeta {
+    let c = config.in_channels;
+    unet::ModelMeta {
+        config: config.clone(),
+        grid: small_spec(),
+        normalization: Normalization { input_mean: vec![0.1; c], input_std: vec![2.0; c], target_mean: vec![0.2, -0.1], target_std: vec![3.0, 0.5] },
+        input_channels: small_spec().input_channels(),
+        output_channels: vec!["normal".into(), "tangent".into()],
+        grid_shape: shape,
+        training: Default::default(),
+    }
+}
+
+#[test]
+fn a_saved_model_loads_with_identical_outputs() {
+    let d = device();
+    let config = UNetConfig { residual: None, ..small_net() };
+    let model = config.init(&d);
+    // Move the batch-norm running statistics away from their defaults, so they must be saved too.
+    let ad = d.clone().autodiff();
+    let trained = {
+        let mut m = config.init(&ad);
+        let mut optim = AdamConfig::new().init();
+        for _ in 0..3 {
+            let x = Tensor::<4>::random([2, 7, 16, 16], Distribution::Default, &ad) * 3.0 + 1.0;
+            let loss = m.forward(x).square().mean();
+            let grads = GradientsParams::from_grads(loss.backward(), &m);
+            m = optim.step(1e-2, m, grads);
+        }
+        m.valid()
+    };
+    drop(model);
+    let dir = scratch("save-load");
+    let path = dir.join("m.dcu");
+    let meta = meta_for(&config, [16, 16]);
+    ModelFile::save(&meta, &trained, &path).unwrap();
+    let loaded = ModelFile::load(&path, &d).unwrap();
+    assert_eq!(loaded.meta, meta);
+    let x = Tensor::<4>::random([1, 7, 16, 16], Distribution::Default, &d);
+    assert_eq!(values(trained.forward(x.clone())), values(loaded.model.valid().forward(x)));
+}
+
+#[test]
+fn corrupt_and_mismatched_model_files_are_clear_errors() {
+    let d = device();
+    let dir = scratch("bad-model");
+    let config = small_net();
+    let path = dir.join("m.dcu");
+    ModelFile::save(&meta_for(&config, [16, 16]), &config.init(&d), &path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+
+    let not_model = dir.join("notes.dcu");
+    std::fs::write(&not_model, b"hello, not a model").unwrap();
+    let e = ModelFile::load(&not_model, &d).unwrap_err().to_string();
+    assert!(e.contains("notes.dcu") && e.contains("not a Deep Contact U-Net model"), "{e}");
+
+    let truncated = dir.join("truncated.dcu");
+    std::fs::write(&truncated, &bytes[..bytes.len() - 100]).unwrap();
+    let e = ModelFile::load(&truncated, &d).unwrap_err().to_string();
+    assert!(e.contains("truncated.dcu") && e.contains("truncated"), "{e}");
+
+    // Weights of one configuration under the metadata of another.
+    let other = UNetConfig { base_width: 8, ..config.clone() };
+    let mixed = dir.join("mixed.dcu");
+    let json_len = u64::from_le_bytes(bytes[8..16].try_into().unwrap()) as usize;
+    let mut meta: serde_json::Value = serde_json::from_slice(&bytes[16..16 + json_len]).unwrap();
+    meta["config"] = serde_json::to_value(&other).unwrap();
+    let json = serde_json::to_vec(&meta).unwrap();
+    let mut out = bytes[..8].to_vec();
+    out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    out.extend_from_slice(&json);
+    out.extend_from_slice(&bytes[16 + json_len..]);
+    std::fs::write(&mixed, out).unwrap();
+    let e = ModelFile::load(&mixed, &d).unwrap_err().to_string();
+    assert!(e.contains("mixed.dcu") && e.contains("do not fit the configuration"), "{e}");
+}
+
+#[test]
+fn a_grid_of_the_wrong_size_or_channels_is_rejected_with_both_shapes() {
+    let d = device();
+    let config = small_net();
+    let predictor = Predictor::new(&config.init(&d), meta_for(&config, [64, 64]), &d);
+    let names: Vec<String> = small_spec().input_channels();
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    let good = msgs::Grid::zeros(StepHeader { run_id: 1, simulation: 3, step: 9 }, [0.0, 0.0], 0.25, 64, 64, &names);
+    let out = predictor.predict(&good).unwrap();
+    assert_eq!((out.header.width, out.header.height, out.header.channels), (64, 64, 2));
+    assert_eq!(out.header.step, good.header.step);
+
+    let small = msgs::Grid::zeros(StepHeader { run_id: 1, simulation: 3, step: 9 }, [0.0, 0.0], 0.25, 61, 61, &names);
+    let e = predictor.predict(&small).unwrap_err().to_string();
+    assert!(e.contains("7 x 64 x 64") && e.contains("7 x 61 x 61") && e.contains("step 9"), "{e}");
+    let five = msgs::Grid::zeros(StepHeader::default(), [0.0, 0.0], 0.25, 64, 64, &names[..5]);
+    let e = predictor.predict(&five).unwrap_err().to_string();
+    assert!(e.contains("5 x 64 x 64"), "{e}");
+}
+
+#[test]
+fn normalisation_round_trips_and_residual_channels_share_the_target_statistics() {
+    let n = Normalization { input_mean: vec![1.0, -2.0], input_std: vec![0.5, 4.0], target_mean: vec![0.3, 0.0], target_std: vec![2.0, 1.0] };
+    let original: Vec<f32> = (0..8).map(|i| i as f32 * 0.7 - 1.0).collect();
+    let mut v = original.clone();
+    n.normalize_target(&mut v);
+    assert!((v[0] - (original[0] - 0.3) / 2.0).abs() < 1e-6);
+    n.denormalize_target(&mut v);
+    for (a, b) in v.iter().zip(&original) {
+        assert!((a - b).abs() < 1e-5);
+    }
+    let sample = |k: u32| unet::Sample {
+        key: StepHeader { step: k, ..Default::default() },
+        input: vec![k as f32, 1.0, 5.0, 5.0, 2.0, 2.0],
+        target: vec![10.0, 10.0, 0.0, 4.0],
+        height: 1,
+        width: 2,
+    };
+    let (norm, count) = Normalization::compute((0..4).map(|k| Ok(sample(k))), 3, 2, Some([1, 2])).unwrap();
+    assert_eq!(count, 4);
+    assert_eq!(norm.input_mean[1], norm.target_mean[0]);
+    assert_eq!(norm.input_std[2], norm.target_std[1]);
+    assert_eq!(norm.target_mean, vec![10.0, 2.0]);
+    assert_eq!(norm.target_std, vec![1.0, 2.0], "a constant channel gets std 1, not 0");
+}
+
+#[test]
+fn samples_pair_consecutive_steps_of_one_simulation_and_the_split_is_by_simulation() {
+    let dir = scratch("dataset");
+    let file = dir.join("sims.mcap");
+    let seeds: Vec<u64> = (1000..1010).collect();
+    record_simulations(&file, 5, &seeds, 6);
+    let sims = list_simulations(&file).unwrap();
+    assert_eq!(sims.len(), 10);
+    let split = Split::by_simulation(&sims, 0.2, 0.1, 7);
+    assert_eq!((split.train.len(), split.validation.len(), split.test.len()), (7, 2, 1));
+    assert!(split.train.is_disjoint(&split.validation) && split.train.is_disjoint(&split.test));
+    assert_eq!(split, Split::by_simulation(&sims, 0.2, 0.1, 7), "same seed, same split");
+    let spec = small_spec();
+    let mut total = 0;
+    for part in [Part::Train, Part::Validation, Part::Test] {
+        for s in SampleStream::open(&file, &spec, &split, part).unwrap() {
+            let s = s.unwrap();
+            assert!(split.of(part).contains(&(s.key.run_id, s.key.simulation)));
+            // Steps 0..4 are inputs (5 is only a target): 5 samples per simulation, none across.
+            assert!(s.key.step < 5, "{:?}", s.key);
+            assert_eq!((s.height, s.width), (64, 64));
+            assert_eq!(s.input.len(), 7 * 64 * 64);
+            assert_eq!(s.target.len(), 2 * 64 * 64);
+            total += 1;
+        }
+    }
+    assert_eq!(total, 10 * 5);
+    // The first sample of each simulation: its "previous impulses" are that simulation's step 0.
+    let first = SampleStream::open(&file, &spec, &split, Part::Train).unwrap().next().unwrap().unwrap();
+    assert_eq!(first.key.step, 0);
+}
+
+fn train_options(data: &Path, out: &Path) -> TrainOptions {
+    TrainOptions {
+        data: data.to_path_buf(),
+        out: out.to_path_buf(),
+        net: small_net(),
+        grid: small_spec(),
+        epochs: 2,
+        batch: 4,
+        optimizer: OptimizerKind::Adam,
+        schedule: Schedule::Constant { lr: 1e-3 },
+        contact_weight: 0.0,
+        validation_fraction: 0.25,
+        test_fraction: 0.0,
+        seed: 3,
+        shuffle_buffer: 16,
+        max_batches: 3,
+        resume: false,
+        progress: false,
+        command: "test".into(),
+    }
+}
+
+#[test]
+fn training_writes_a_usable_model_and_resume_continues_where_it_stopped() {
+    let dir = scratch("train");
+    let data = dir.join("data.mcap");
+    record_simulations(&data, 9, &[1000, 1001, 1002, 1003], 8);
+    let out = dir.join("model.dcu");
+    let d = device();
+    let mut opts = train_options(&data, &out);
+    opts.epochs = 1;
+    let meta = unet::train::train(&opts, &d).unwrap();
+    assert_eq!(meta.training.epochs, 1);
+    assert_eq!(meta.training.split.train.len(), 3);
+    assert!(meta.training.validation_loss_previous.is_some());
+    assert!(out.with_extension("loss.png").is_file() && out.with_extension("steps.png").is_file());
+    let first_train_loss = meta.training.train_loss.clone();
+
+    opts.epochs = 2;
+    opts.resume = true;
+    let meta = unet::train::train(&opts, &d).unwrap();
+    assert_eq!(meta.training.epochs, 2);
+    assert_eq!(meta.training.train_loss[..1], first_train_loss[..], "epoch 1 kept, epoch 2 added");
+    assert_eq!(meta.training.train_loss.len(), 2);
+
+    // The written model predicts a recorded frame's grid.
+    let predictor = Predictor::load(&out, &d).unwrap();
+    let sample = SampleStream::open(&data, &small_spec(), &meta.training.split, Part::Validation).unwrap().next().unwrap().unwrap();
+    let names = small_spec().input_channels();
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    let mut grid = msgs::Grid::zeros(sample.key, [0.0, 0.0], 0.25, 64, 64, &names);
+    grid.items.copy_from_slice(&sample.input);
+    let out = predictor.predict(&grid).unwrap();
+    assert!(out.items.iter().all(|v| v.is_finite()));
+
+    // Resuming with another network is refused, naming the checkpoint.
+    opts.net.base_width = 8;
+    let e = unet::train::train(&opts, &d).unwrap_err();
+    assert!(matches!(e, UnetError::Config(_)) && e.to_string().contains("checkpoints"), "{e}");
+}
+
+#[test]
+fn the_lr_finder_writes_its_curve() {
+    let dir = scratch("lr-find");
+    let data = dir.join("data.mcap");
+    record_simulations(&data, 2, &[1000, 1001, 1002], 5);
+    let out = dir.join("model.dcu");
+    let (curve, _) = unet::train::find_lr(&train_options(&data, &out), 1e-5, 1.0, 12, &device()).unwrap();
+    assert!(!curve.is_empty() && curve.len() <= 12);
+    assert!(curve.windows(2).all(|w| w[1].0 > w[0].0), "rates grow");
+    assert!(out.with_extension("lr.png").is_file() && out.with_extension("lr.csv").is_file());
+}
+
+#[test]
+fn training_data_that_is_not_a_recording_is_a_clear_error() {
+    let dir = scratch("bad-data");
+    let file = dir.join("x.mcap");
+    std::fs::write(&file, b"not mcap").unwrap();
+    let e = unet::train::train(&train_options(&file, &dir.join("m.dcu")), &device()).unwrap_err().to_string();
+    assert!(e.contains("x.mcap"), "{e}");
+}
