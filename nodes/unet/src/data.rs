@@ -99,8 +99,8 @@ pub enum Part {
 }
 
 impl Split {
-    /// Shuffles `simulations` with `seed` and cuts them by fraction; with 3 or more simulations
-    /// validation and test get at least one each.
+    /// Shuffles `simulations` with `seed` and cuts them by fraction; with 3 or more simulations a
+    /// non-zero fraction gets at least one simulation.
     pub fn by_simulation(simulations: &BTreeSet<SimKey>, validation: f64, test: f64, seed: u64) -> Split {
         let mut keys: Vec<SimKey> = simulations.iter().copied().collect();
         let mut rng = SplitMix64(seed);
@@ -108,7 +108,7 @@ impl Split {
             keys.swap(i, (rng.next() % (i as u64 + 1)) as usize);
         }
         let n = keys.len();
-        let at_least = |f: f64| if n >= 3 { ((f * n as f64).round() as usize).max(1) } else { 0 };
+        let at_least = |f: f64| if n >= 3 && f > 0.0 { ((f * n as f64).round() as usize).max(1) } else { 0 };
         let (n_val, n_test) = (at_least(validation), at_least(test));
         Split {
             validation: keys[..n_val].iter().copied().collect(),

@@ -10,7 +10,7 @@
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::nn::pool::{AvgPool2d, AvgPool2dConfig};
-use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
+use burn::nn::{BatchNorm, BatchNormConfig, Initializer, PaddingConfig2d};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
@@ -85,12 +85,13 @@ impl UNetConfig {
             up.push(StdUpsample::new(self.width(l), self.width(l - 1), device));
             decoder.push(block(2 * self.width(l - 1), self.width(l - 1)));
         }
-        let mut head = Conv2dConfig::new([self.width(0), self.out_channels], [1, 1]).init(device);
+        let mut head = Conv2dConfig::new([self.width(0), self.out_channels], [1, 1]);
         if self.residual.is_some() {
-            // Start as the identity on the previous impulses: the `grid` model.
-            head.weight = head.weight.map(|w| w.zeros_like());
-            head.bias = head.bias.map(|b| b.map(|b| b.zeros_like()));
+            // Start as the identity on the previous impulses: the `grid` model. (Zeroing an
+            // initialised parameter with `map` would make it a constant that never trains.)
+            head = head.with_initializer(Initializer::Zeros);
         }
+        let head = head.init(device);
         UNet { encoder, down, bottom, up, decoder, head, residual: self.residual.map(|r| r.to_vec()) }
     }
 }
