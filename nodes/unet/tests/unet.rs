@@ -85,6 +85,21 @@ fn an_untrained_residual_model_answers_the_previous_impulses_exactly() {
 }
 
 #[test]
+fn a_residual_model_leaves_the_previous_impulses_after_one_training_step() {
+    // The zero-initialised head must be a trainable parameter, not a constant.
+    let d = device().autodiff();
+    d.seed(2);
+    let mut model = UNetConfig { levels: 1, base_width: 4, ..UNetConfig::default() }.init(&d);
+    let x = Tensor::<4>::random([1, 7, 8, 8], Distribution::Default, &d);
+    let prev = values(x.clone().slice([0..1, 5..7, 0..8, 0..8]));
+    let target = Tensor::<4>::ones([1, 2, 8, 8], &d);
+    let loss = (model.forward(x.clone()) - target).square().mean();
+    let grads = GradientsParams::from_grads(loss.backward(), &model);
+    model = AdamConfig::new().init().step(1e-2, model, grads);
+    assert_ne!(values(model.valid().forward(x.inner())), prev);
+}
+
+#[test]
 fn overfitting_a_tiny_batch_cuts_the_loss_a_hundredfold() {
     let d = device().autodiff();
     d.seed(1);
