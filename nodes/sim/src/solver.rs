@@ -188,10 +188,17 @@ impl ContactSolver {
             }
         }));
         self.impulses.clear();
-        self.impulses.extend_from_slice(warm_start);
+        // A guess outside the friction cone (a learned model may predict a negative normal
+        // impulse, or NaN) is projected onto it first: the sweeps assume normal >= 0.
+        self.impulses.extend(self.prepared.iter().zip(warm_start).map(|(c, w)| {
+            let normal = if w.normal.is_finite() { w.normal.max(0.0) } else { 0.0 };
+            let max_t = c.mu * normal;
+            let tangent = if w.tangent.is_finite() { w.tangent.clamp(-max_t, max_t) } else { 0.0 };
+            Impulse { normal, tangent }
+        }));
         self.residuals.clear();
 
-        // Box2D's WarmStart: the guess is applied as it is; the first sweep projects it.
+        // Box2D's WarmStart: the (projected) guess is applied as it is.
         for (c, l) in self.prepared.iter().zip(&self.impulses) {
             let p = c.n * l.normal + c.t * l.tangent;
             apply(bodies, c, p);
@@ -417,6 +424,21 @@ mod tests {
 
     fn ball(v: Vec2) -> SolverBody {
         SolverBody { v, w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 }
+    }
+
+    #[test]
+    fn a_warm_start_outside_the_friction_cone_is_projected_not_a_panic() {
+        // A learned model may predict a negative normal impulse (or NaN); the solve must still
+        // converge to the same answer as from zero.
+        let row = ContactRow { body_a: 0, body_b: 1, ra: Vec2::ZERO, rb: Vec2::new(0.0, -0.5), normal: Vec2::Y, friction: 0.5 };
+        for guess in [Impulse { normal: -0.3, tangent: 0.2 }, Impulse { normal: f32::NAN, tangent: 1.0 }, Impulse { normal: 0.1, tangent: -9.0 }] {
+            let mut bodies = [SolverBody::default(), ball(Vec2::new(-5.0, -1.0))];
+            let mut s = ContactSolver::new();
+            let rep = s.solve(&[row], &mut bodies, &[guess], &SolveParams::default());
+            assert!(rep.converged, "{guess:?}");
+            let l = s.impulses()[0];
+            assert!((l.normal - 1.0).abs() < 1e-3 && (l.tangent.abs() - 0.5 * l.normal).abs() < 1e-4, "{guess:?} -> {l:?}");
+        }
     }
 
     #[test]
