@@ -71,6 +71,7 @@ impl Predictor {
         if grids.is_empty() {
             return Ok(Vec::new());
         }
+        // `check` is cheap (names and sizes), so callers that already checked pay little here.
         for g in grids {
             self.check(g)?;
         }

@@ -295,14 +295,16 @@ fn run_node(args: NodeArgs) -> Result<()> {
         let t = Instant::now();
         // A grid the model cannot take is answered with an empty grid, so that a simulator in
         // lockstep falls back for that step at once instead of waiting for ever.
-        let (good, bad): (Vec<&Grid>, Vec<&Grid>) = pending.iter().partition(|g| predictor.check(g).is_ok());
-        for g in &bad {
-            rejected += 1;
-            if let Err(e) = predictor.check(g) {
-                tracing::error!(topic = topics::GRID_BODIES.name, "{e}");
+        let mut good: Vec<&Grid> = Vec::with_capacity(pending.len());
+        for g in &pending {
+            match predictor.check(g) {
+                Ok(()) => good.push(g),
+                Err(e) => {
+                    rejected += 1;
+                    tracing::error!(topic = topics::GRID_BODIES.name, "{e}");
+                    grids_out.publish(&GridHeader { channels: 0, ..g.header }, &[])?;
+                }
             }
-            let empty = GridHeader { channels: 0, ..g.header };
-            grids_out.publish(&empty, &[])?;
         }
         for out in predictor.predict_batch(&good)? {
             grids_out.publish_frame(&out)?;

@@ -186,15 +186,14 @@ impl UNet {
         }
         let out = self.head.forward(x);
         match &self.residual {
-            Some(r) => {
-                let [b, _, h, w] = input.dims();
-                let prev = Tensor::cat(
-                    r.iter().map(|&c| input.clone().slice([0..b, c..c + 1, 0..h, 0..w])).collect(),
-                    1,
-                );
-                out + prev
-            }
+            Some(r) => out + select_channels(&input, r),
             None => out,
         }
     }
+}
+
+/// Channels `channels` of `x`, in that order.
+pub fn select_channels(x: &Tensor<4>, channels: &[usize]) -> Tensor<4> {
+    let [b, _, h, w] = x.dims();
+    Tensor::cat(channels.iter().map(|&c| x.clone().slice([0..b, c..c + 1, 0..h, 0..w])).collect(), 1)
 }

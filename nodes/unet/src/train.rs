@@ -83,8 +83,6 @@ struct Batch {
     input: Tensor<4>,
     target: Tensor<4>,
     weight: Option<Tensor<4>>,
-    /// For the residual baseline: normalised previous impulses.
-    previous: Option<Tensor<4>>,
     len: usize,
 }
 
@@ -106,22 +104,10 @@ fn make_batch(samples: &[Sample], meta: &ModelMeta, contact_weight: f32, device:
         target.extend_from_slice(&s.target);
         meta.normalization.normalize_target(&mut target[start..]);
     }
-    let previous = meta.config.residual.map(|r| {
-        let nodes = h * w;
-        let mut prev = Vec::with_capacity(b * 2 * nodes);
-        for i in 0..b {
-            for &c in &r {
-                let at = (i * c_in + c) * nodes;
-                prev.extend_from_slice(&input[at..at + nodes]);
-            }
-        }
-        Tensor::<4>::from_data(TensorData::new(prev, [b, 2, h, w]), device)
-    });
     Batch {
         input: Tensor::from_data(TensorData::new(input, [b, c_in, h, w]), device),
         target: Tensor::from_data(TensorData::new(target, [b, c_out, h, w]), device),
         weight: (!weight.is_empty()).then(|| Tensor::from_data(TensorData::new(weight, [b, c_out, h, w]), device)),
-        previous,
         len: b,
     }
 }
@@ -148,24 +134,28 @@ impl Batcher {
         Batcher { stream, buffer: Vec::new(), capacity: capacity.max(1), rng: SplitMix64(seed), exhausted: false }
     }
 
-    /// The next batch of up to `size` samples; empty at the end.
-    fn next_batch(&mut self, size: usize) -> Result<Vec<Sample>> {
+    /// Tops the buffer up to capacity from the stream.
+    fn fill(&mut self) -> Result<()> {
         while !self.exhausted && self.buffer.len() < self.capacity {
             match self.stream.next() {
                 Some(s) => self.buffer.push(s?),
                 None => self.exhausted = true,
             }
         }
+        Ok(())
+    }
+
+    /// The next batch of up to `size` samples, each drawn at random from a full buffer; empty at
+    /// the end.
+    fn next_batch(&mut self, size: usize) -> Result<Vec<Sample>> {
         let mut out = Vec::with_capacity(size);
-        while out.len() < size && !self.buffer.is_empty() {
+        while out.len() < size {
+            self.fill()?;
+            if self.buffer.is_empty() {
+                break;
+            }
             let i = (self.rng.next() % self.buffer.len() as u64) as usize;
             out.push(self.buffer.swap_remove(i));
-            if !self.exhausted {
-                match self.stream.next() {
-                    Some(s) => self.buffer.push(s?),
-                    None => self.exhausted = true,
-                }
-            }
         }
         Ok(out)
     }
@@ -173,7 +163,7 @@ impl Batcher {
 
 /// In recorded order (validation needs no shuffle).
 fn batches_in_order(stream: SampleStream, size: usize) -> impl Iterator<Item = Result<Vec<Sample>>> {
-    let mut stream = stream.peekable();
+    let mut stream = stream;
     std::iter::from_fn(move || {
         let mut out = Vec::with_capacity(size);
         while out.len() < size {
@@ -206,8 +196,8 @@ pub fn evaluate(model: &UNet, meta: &ModelMeta, data: &Path, part: Part, split: 
         let b = make_batch(&samples, meta, 0.0, device);
         let l: f32 = (model.forward(b.input.clone()) - b.target.clone()).square().mean().into_scalar();
         sum += l as f64 * b.len as f64;
-        if let Some(prev) = &b.previous {
-            let lp: f32 = (prev.clone() - b.target.clone()).square().mean().into_scalar();
+        if let Some(prev) = previous_impulses(&b.input, meta.config.residual) {
+            let lp: f32 = (prev - b.target.clone()).square().mean().into_scalar();
             sum_prev += lp as f64 * b.len as f64;
         }
         n += b.len;
@@ -216,6 +206,11 @@ pub fn evaluate(model: &UNet, meta: &ModelMeta, data: &Path, part: Part, split: 
         return Ok((f64::NAN, None, 0));
     }
     Ok((sum / n as f64, meta.config.residual.map(|_| sum_prev / n as f64), n))
+}
+
+/// The normalised previous impulses of a residual model's input (the `grid` model's answer).
+fn previous_impulses(input: &Tensor<4>, residual: Option<[usize; 2]>) -> Option<Tensor<4>> {
+    residual.map(|r| crate::model::select_channels(input, &r))
 }
 
 fn check_shapes(samples: &[Sample], meta: &ModelMeta) -> Result<()> {
