@@ -107,3 +107,31 @@ fn dc_record_forwards_to_the_recorder_and_names_a_bad_file() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("README.md: not an MCAP file"), "{stderr}");
 }
+
+#[test]
+fn eval_feeds_the_unet_the_grids_its_model_file_asks_for_and_refuses_a_non_model() {
+    let dc = deep_contact::bin("dc");
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let out = std::process::Command::new(&dc)
+        .current_dir(root)
+        .args(["eval", "--models", "grid,unet", "--seeds", "0..2", "--dry-run"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let sph = stdout.lines().find(|l| l.trim_start().starts_with("sph")).expect("an sph node");
+    // The demo model is temporal, padded to 128, preserving transfer at the thesis's spacing.
+    for arg in ["--temporal", "--pad-to=128", "--res=0.125", "--mode=preserving"] {
+        assert!(sph.contains(arg), "{sph}");
+    }
+    assert!(stdout.contains("dc-unet --model=models/unet-demo.dcu"), "{stdout}");
+
+    let out = std::process::Command::new(&dc)
+        .current_dir(root)
+        .args(["eval", "--models", "unet", "--unet-model", "README.md", "--seeds", "0..2", "--dry-run"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("README.md") && stderr.contains("not a Deep Contact U-Net model"), "{stderr}");
+}

@@ -315,21 +315,12 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
         vec![format!("--runs={}", args.models.len()), format!("--out={}", out.display()), format!("--title={title}")],
     )];
     // Grid-based models need the SPH node (it turns each step's contacts into the next step's
-    // warm-start grid); it serves every simulator of the graph. The U-Net reads the SPH node's
-    // bodies grid with the step's impulses (temporal, padded to 128); padding leaves the `grid`
-    // model's samples unchanged (the extra nodes lie outside the box).
+    // warm-start grid); it serves every simulator of the graph. With `unet` it makes the model's
+    // input grids (e.g. temporal, padded to 128); padding leaves the `grid` model's samples
+    // unchanged (the extra nodes lie outside the box).
     let uses_unet = args.models.iter().any(|m| m == "unet");
     let grid_based = uses_unet || args.models.iter().any(|m| m == "grid");
-    if grid_based {
-        let sph = find("dc-sph")?;
-        let mut sph_args = vec!["--mode=preserving".to_string()];
-        if uses_unet {
-            sph_args.extend(["--temporal".to_string(), "--pad-to=128".to_string()]);
-        }
-        let mut sph_node = node("sph".into(), &sph, "dc-sph", sph_args);
-        sph_node.daemon = true;
-        graph.nodes.push(sph_node);
-    }
+    let mut sph_args = vec!["--mode=preserving".to_string()];
     if uses_unet {
         if !args.unet_model.is_file() {
             bail!(
@@ -337,6 +328,27 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
                 args.unet_model.display()
             );
         }
+        // The SPH node must make exactly the grids the model was trained on: the model file says how.
+        let out = std::process::Command::new(find("dc-unet")?)
+            .arg("sph-args")
+            .arg(&args.unet_model)
+            .output()
+            .context("running dc-unet sph-args")?;
+        if !out.status.success() {
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            // The first line is the error; a backtrace may follow.
+            let why = stderr.lines().next().unwrap_or("").trim_start_matches("Error: ");
+            bail!("--unet-model: {why}");
+        }
+        sph_args = String::from_utf8_lossy(&out.stdout).lines().map(str::to_string).collect();
+    }
+    if grid_based {
+        let sph = find("dc-sph")?;
+        let mut sph_node = node("sph".into(), &sph, "dc-sph", sph_args);
+        sph_node.daemon = true;
+        graph.nodes.push(sph_node);
+    }
+    if uses_unet {
         let unet = find("dc-unet")?;
         let mut unet_node = node("unet".into(), &unet, "dc-unet", vec![format!("--model={}", args.unet_model.display())]);
         unet_node.daemon = true;

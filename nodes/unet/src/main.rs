@@ -41,6 +41,8 @@ enum Command {
     LrFind(LrFindArgs),
     /// What a model file holds.
     Info { model: PathBuf },
+    /// The `dc-sph` arguments that make this model's input grids, one per line (`dc eval` uses them).
+    SphArgs { model: PathBuf },
     /// Inference and training-step timings per backend.
     Bench(BenchArgs),
 }
@@ -218,6 +220,12 @@ fn main() -> Result<()> {
         Some(Command::Info { model }) => {
             let meta = ModelFile::read_meta(&model)?;
             print_summary(&model, &meta);
+            Ok(())
+        }
+        Some(Command::SphArgs { model }) => {
+            for arg in ModelFile::read_meta(&model)?.grid.sph_args() {
+                println!("{arg}");
+            }
             Ok(())
         }
         Some(Command::Bench(a)) => bench(&a),
