@@ -185,7 +185,7 @@ struct BenchArgs {
     /// Backends to time (default: every one this build has).
     #[arg(long, value_delimiter = ',')]
     devices: Vec<String>,
-    /// Networks: `demo` (this repo's model shape) and/or `thesis` (levels 4, width 32, ~3M parameters).
+    /// Networks: `demo` (this repo's model shape) and/or `thesis` (levels 4, width 16: 2.7M parameters, the size of the thesis network).
     #[arg(long, value_delimiter = ',', default_value = "demo,thesis")]
     nets: Vec<String>,
 }
@@ -352,7 +352,7 @@ fn bench(args: &BenchArgs) -> Result<()> {
     for net_name in &args.nets {
         let config = match net_name.as_str() {
             "demo" => UNetConfig { in_channels: 5, residual: None, ..UNetConfig::default() },
-            "thesis" => UNetConfig { in_channels: 5, out_channels: 2, levels: 4, base_width: 32, dilations: vec![2, 4, 8], residual: None },
+            "thesis" => UNetConfig { in_channels: 5, out_channels: 2, levels: 4, base_width: 16, dilations: vec![2, 4, 8], residual: None },
             other => bail!("unknown net `{other}` (demo, thesis)"),
         };
         for name in &devices {
