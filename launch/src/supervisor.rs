@@ -87,6 +87,8 @@ fn free_port(address: &str) -> u16 {
 enum Event {
     Ready(usize),
     Connected(usize),
+    /// The node finished its work and keeps its publishers alive until released.
+    Done(usize),
     Line(usize, String),
 }
 
@@ -95,6 +97,14 @@ struct Running {
     child: Child,
     stdin: Option<ChildStdin>,
     exited: Option<ExitStatus>,
+    /// Said it is done (see [`runtime::DONE_MARKER`]); exits once its stdin closes.
+    done: bool,
+}
+
+impl Running {
+    fn finished(&self) -> bool {
+        self.done || self.exited.is_some()
+    }
 }
 
 /// What a finished run leaves: per node, its captured stdout lines (with [`Output::Capture`]).
@@ -157,6 +167,8 @@ pub fn run(
                     let _ = tx_out.send(Event::Ready(i));
                 } else if line == runtime::CONNECTED_MARKER {
                     let _ = tx_out.send(Event::Connected(i));
+                } else if line == runtime::DONE_MARKER {
+                    let _ = tx_out.send(Event::Done(i));
                 } else {
                     if forward {
                         println!("{p} {line}");
@@ -172,7 +184,7 @@ pub fn run(
             drop(tx_err);
         });
         let stdin = child.stdin.take();
-        nodes.push(Running { spec: spec.clone(), child, stdin, exited: None });
+        nodes.push(Running { spec: spec.clone(), child, stdin, exited: None, done: false });
     }
     drop(tx);
 
@@ -193,14 +205,15 @@ pub fn run(
             match ev {
                 Event::Ready(i) => ready[i] = true,
                 Event::Connected(i) => connected[i] = true,
+                Event::Done(i) => nodes[i].done = true,
                 Event::Line(i, line) => capture(&mut report, i, line, &nodes),
             }
         }
-        if !connecting && ready.iter().zip(&nodes).all(|(r, n)| *r || n.exited.is_some()) {
+        if !connecting && ready.iter().zip(&nodes).all(|(r, n)| *r || n.finished()) {
             connecting = true;
             tell_all(&mut nodes, runtime::CONNECT_LINE);
         }
-        if connecting && !started && connected.iter().zip(&nodes).all(|(c, n)| *c || n.exited.is_some()) {
+        if connecting && !started && connected.iter().zip(&nodes).all(|(c, n)| *c || n.finished()) {
             started = true;
             tell_all(&mut nodes, runtime::START_LINE);
             tracing::debug!("all {} nodes connected: started", nodes.len());
@@ -226,17 +239,18 @@ pub fn run(
                 }
             }
         }
-        let workers_done = nodes.iter().filter(|n| !n.spec.daemon).all(|n| n.exited.is_some());
+        let workers_done = nodes.iter().filter(|n| !n.spec.daemon).all(Running::finished);
         if workers_done {
-            if nodes.iter().any(|n| n.exited.is_none()) {
-                stop_all(&mut nodes);
-                // A daemon that fails while being stopped is still a failure worth reporting.
-                if let Some(n) = nodes.iter().find(|n| n.exited.is_some_and(|s| !s.success() && s.code().is_some())) {
-                    let status = describe(n.exited.unwrap());
-                    return Err(RunError::NodeFailed { node: n.spec.name.clone(), status });
-                }
-            }
+            // Daemons first (they drain what the finished workers sent, whose publishers are
+            // still alive), then the lingering workers.
+            stop_where(&mut nodes, |n| !n.done);
+            stop_all(&mut nodes);
             drain_lines(&rx, &mut report, &nodes, &output);
+            // A node that fails while being stopped is still a failure worth reporting.
+            if let Some(n) = nodes.iter().find(|n| n.exited.is_some_and(|s| !s.success() && s.code().is_some())) {
+                let status = describe(n.exited.unwrap());
+                return Err(RunError::NodeFailed { node: n.spec.name.clone(), status });
+            }
             return Ok(report);
         }
     }
@@ -272,16 +286,22 @@ fn describe(status: ExitStatus) -> String {
 
 /// SIGTERM to every running node, then SIGKILL after the grace period.
 fn stop_all(nodes: &mut [Running]) {
-    for n in nodes.iter_mut() {
-        n.stdin.take(); // a node still waiting for `start` sees EOF and leaves
-        if n.exited.is_none() {
+    stop_where(nodes, |_| true)
+}
+
+/// Stops the running nodes `which` selects: stdin closed (a node waiting for `start`, or lingering
+/// after its work, sees EOF and leaves), SIGTERM to those not done, SIGKILL after the grace period.
+fn stop_where(nodes: &mut [Running], which: impl Fn(&Running) -> bool) {
+    for n in nodes.iter_mut().filter(|n| which(n)) {
+        n.stdin.take();
+        if n.exited.is_none() && !n.done {
             unsafe { libc::kill(n.child.id() as i32, libc::SIGTERM) };
         }
     }
     let deadline = Instant::now() + STOP_GRACE;
     loop {
         let mut alive = false;
-        for n in nodes.iter_mut().filter(|n| n.exited.is_none()) {
+        for n in nodes.iter_mut().filter(|n| n.exited.is_none() && which(n)) {
             match n.child.try_wait() {
                 Ok(Some(s)) => n.exited = Some(s),
                 _ => alive = true,
@@ -291,7 +311,7 @@ fn stop_all(nodes: &mut [Running]) {
             return;
         }
         if Instant::now() >= deadline {
-            for n in nodes.iter_mut().filter(|n| n.exited.is_none()) {
+            for n in nodes.iter_mut().filter(|n| n.exited.is_none() && which(n)) {
                 eprintln!("[dc] node `{}` ignored SIGTERM for {STOP_GRACE:?}: killing it", n.spec.name);
                 let _ = n.child.kill();
                 n.exited = n.child.wait().ok();

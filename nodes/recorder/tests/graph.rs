@@ -238,12 +238,13 @@ fn info_and_replay_refuse_bad_input_naming_the_file() {
 #[test]
 fn bench_records_a_live_simulator_without_drops_and_reports_throughput() {
     // The 10,000-body benchmark at a tiny size: it completes, finds every step in the file, and
-    // prints its figures (no timing is asserted). Not fewer steps: a simulator that publishes a
-    // dozen steps in ~1 ms and exits loses all its step frames (the bench reports 36 drops at
-    // --steps 12, control messages arrive), an open problem of short runs on iceoryx2.
+    // prints its figures (no timing is asserted). A dozen steps on purpose: such a simulator
+    // publishes them in ~1 ms and is done before the recorder takes the first one; it lost them
+    // all (36 drops, only control arrived) until launched nodes kept their publishers alive until
+    // the graph's readers were done.
     let dir = scratch("record-bench");
     let out = Command::new(DC_RECORD)
-        .args(["bench", "--n", "40", "--steps", "60", "--dir"])
+        .args(["bench", "--n", "40", "--steps", "12", "--dir"])
         .arg(&dir)
         .output()
         .expect("run dc-record bench");

@@ -42,6 +42,9 @@ pub const CONNECT_LINE: &str = "connect";
 pub const CONNECTED_MARKER: &str = "\u{1e}dc-connected";
 /// Line the launcher writes to a node's stdin once every node is connected.
 pub const START_LINE: &str = "start";
+/// Line a launched node prints when its work is done but its shared-memory publishers must stay
+/// alive until the graph's readers have taken what it sent (see [`Node`]'s drop).
+pub const DONE_MARKER: &str = "\u{1e}dc-done";
 
 /// Errors of the runtime.
 #[derive(Debug, thiserror::Error)]
@@ -154,6 +157,37 @@ pub struct Node {
     zenoh: OnceLock<zenoh::Session>,
     /// The node's iceoryx2 subscribers, attached to their publishers at start (see [`Node::ready`]).
     iox_subscribers: std::cell::RefCell<Vec<std::rc::Weak<dyn iox::Attach>>>,
+    /// The node's iceoryx2 publishers, kept alive until the node is dropped (see `Drop`).
+    iox_publishers: std::cell::RefCell<Vec<std::rc::Rc<dyn std::any::Any>>>,
+}
+
+/// A launched node outlives its work: iceoryx2 maps a publisher's data segment into a subscriber
+/// lazily, at the first sample it takes, and the segment disappears with the publisher. A source
+/// that sent a dozen frames and exited before a slower reader (the recorder) took the first one
+/// lost them all. So the publishers stay alive until the launcher, which knows when the graph's
+/// readers are done, closes our stdin (or a signal arrives).
+impl Drop for Node {
+    fn drop(&mut self) {
+        if !self.launched || self.iox_publishers.borrow().is_empty() || std::thread::panicking() {
+            return;
+        }
+        if say(DONE_MARKER).is_err() {
+            return;
+        }
+        let stdin_closed = self.shutdown.clone();
+        // stdin is read on a thread so that a signal (the launcher's SIGTERM) also ends the wait.
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            while std::io::stdin().lock().read_line(&mut line).is_ok_and(|n| n > 0) {
+                line.clear();
+            }
+            stdin_closed.set();
+        });
+        while !self.shutdown.is_set() {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        self.iox_publishers.borrow_mut().clear();
+    }
 }
 
 impl Node {
@@ -184,6 +218,7 @@ impl Node {
             iox: OnceLock::new(),
             zenoh: OnceLock::new(),
             iox_subscribers: Default::default(),
+            iox_publishers: Default::default(),
         }
     }
 
@@ -234,7 +269,9 @@ impl Node {
     ) -> Result<Publisher<H, T>> {
         let transport = self.bus.transport(topic);
         let iox = if transport.uses_iceoryx2() {
-            Some(self.iox()?.publisher::<H, T>(&self.bus, topic)?)
+            let publisher = std::rc::Rc::new(self.iox()?.publisher::<H, T>(&self.bus, topic)?);
+            self.iox_publishers.borrow_mut().push(publisher.clone());
+            Some(publisher)
         } else {
             None
         };

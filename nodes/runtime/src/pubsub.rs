@@ -9,14 +9,14 @@ use std::time::{Duration, Instant};
 /// Publishes frames of one topic.
 pub struct Publisher<H: FrameHeader, T: FrameItem> {
     topic: String,
-    iox: Option<IoxPublisher<H, T>>,
+    iox: Option<std::rc::Rc<IoxPublisher<H, T>>>,
     zen: Option<ZenPublisher>,
     scratch: Vec<T>,
     sent: u64,
 }
 
 impl<H: FrameHeader, T: FrameItem> Publisher<H, T> {
-    pub(crate) fn new(topic: &str, iox: Option<IoxPublisher<H, T>>, zen: Option<ZenPublisher>) -> Self {
+    pub(crate) fn new(topic: &str, iox: Option<std::rc::Rc<IoxPublisher<H, T>>>, zen: Option<ZenPublisher>) -> Self {
         Publisher { topic: topic.to_string(), iox, zen, scratch: Vec::new(), sent: 0 }
     }
 
