@@ -59,3 +59,23 @@ pub fn text(out: &Output) -> String {
         String::from_utf8_lossy(&out.stderr)
     )
 }
+
+/// Per-step rows of a metrics report (`steps.csv`): `(simulation, step) -> (sweeps, fallback,
+/// used model)`.
+pub fn report_steps(dir: &Path) -> std::collections::BTreeMap<(u32, u32), (u32, bool, String)> {
+    let file = dir.join("steps.csv");
+    let text = std::fs::read_to_string(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("no column {name}"));
+    let (sim, step, sweeps, fallback, used) = (col("simulation"), col("step"), col("sweeps"), col("fallback"), col("used_model"));
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (
+                (f[sim].parse().unwrap(), f[step].parse().unwrap()),
+                (f[sweeps].parse().unwrap(), f[fallback] == "true", f[used].to_string()),
+            )
+        })
+        .collect()
+}

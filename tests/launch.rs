@@ -89,12 +89,17 @@ params = {{ role = "sink", kind = "grid", timeout-s = 1 }}
 
 #[test]
 fn dry_run_and_list_show_the_graph_without_starting_it() {
-    let graph = "[topics]\n\"bench/bodies\" = \"zenoh\"\n[[nodes]]\nname = \"s\"\nbinary = \"dc-bench-bus\"\nparams = { role = \"sink\" }\n";
+    let graph = "[topics]\n\"bench/bodies\" = \"zenoh\"\n\
+                 [[nodes]]\nname = \"s\"\nbinary = \"dc-bench-bus\"\nparams = { role = \"sink\" }\n\
+                 [[nodes]]\nname = \"src\"\nbinary = \"dc-bench-bus\"\nparams = { role = \"source\" }\n";
     let (file, out) = launch("dry", graph, &["--dry-run"]);
     assert!(out.status.success(), "{}", text(&out));
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("s: ") && stdout.contains("--role=sink"), "{stdout}");
-    assert!(stdout.contains("bench/bodies: zenoh"), "{stdout}");
+    // The ports come from the node binaries; the forced topic travels over zenoh.
+    assert!(stdout.contains("publishes -; subscribes bench/bodies"), "{stdout}");
+    let route = stdout.lines().find(|l| l.trim_start().starts_with("bench/bodies")).unwrap_or_default();
+    assert!(route.contains("src -> s") && route.contains("[zenoh on local]"), "{stdout}");
     let list = std::process::Command::new(deep_contact::bin("dc")).arg("list").arg(&file).output().unwrap();
     assert!(list.status.success(), "{}", text(&list));
 }

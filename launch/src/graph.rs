@@ -17,8 +17,18 @@
 //! binary = "dc-bench-bus"
 //! host = "local"             # optional for one-host graphs
 //! daemon = false             # daemons run until the other nodes are done, then are stopped
+//! on_failure = "stop-graph"  # or "restart" (at most `max_restarts` times, default 3)
 //! params = { role = "source", count = 100 }
 //! ```
+//!
+//! Topics need no `[topics]` entry: the launcher asks every node which topics it publishes and
+//! subscribes (`DC_DESCRIBE=1`) and routes each one over iceoryx2 within a host and over zenoh
+//! between hosts (both, when a topic has readers on its own host and on others). `[topics]`
+//! forces a transport for every port of a topic (benchmarks: everything over zenoh).
+//!
+//! Several hosts: every host gives `address` and a `zenoh_port` (its zenoh endpoints are
+//! `tcp/<address>:<zenoh_port + i>`, the same on every machine reading the file), or one host is
+//! the zenoh `router = true` (at `tcp/<address>:<zenoh_port>`) that every node connects to.
 
 use runtime::Transport;
 use serde::Deserialize;
@@ -85,6 +95,9 @@ struct RawHost {
     /// Extra zenoh endpoints to connect to (e.g. a router).
     #[serde(default)]
     zenoh_connect: Vec<String>,
+    /// This host's launcher runs the graph's zenoh router; every node connects to it.
+    #[serde(default)]
+    router: bool,
 }
 
 fn default_address() -> String {
@@ -99,6 +112,8 @@ struct RawNode {
     host: Option<Spanned<String>>,
     #[serde(default)]
     daemon: bool,
+    on_failure: Option<Spanned<String>>,
+    max_restarts: Option<u32>,
     #[serde(default)]
     params: toml::Table,
     #[serde(default)]
@@ -112,6 +127,17 @@ pub struct Host {
     pub address: String,
     pub zenoh_port: u16,
     pub zenoh_connect: Vec<String>,
+    pub router: bool,
+}
+
+/// What the launcher does when a node exits with a failure.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum OnFailure {
+    /// Stop every node of the graph (on this host) and report the failure.
+    #[default]
+    StopGraph,
+    /// Start the node again, at most `max` times over the run.
+    Restart { max: u32 },
 }
 
 /// One node of a graph, checked.
@@ -124,6 +150,7 @@ pub struct NodeSpec {
     pub program: PathBuf,
     pub host: String,
     pub daemon: bool,
+    pub on_failure: OnFailure,
     /// Command-line arguments built from the parameters.
     pub args: Vec<String>,
     pub env: BTreeMap<String, String>,
@@ -221,14 +248,29 @@ impl Graph {
                     address: h.address.clone(),
                     zenoh_port: h.zenoh_port,
                     zenoh_connect: h.zenoh_connect.clone(),
+                    router: h.router,
                 },
             );
         }
         if hosts.is_empty() {
             hosts.insert(
                 DEFAULT_HOST.to_string(),
-                Host { name: DEFAULT_HOST.into(), address: default_address(), zenoh_port: 0, zenoh_connect: vec![] },
+                Host { name: DEFAULT_HOST.into(), address: default_address(), zenoh_port: 0, zenoh_connect: vec![], router: false },
             );
+        }
+        let routers: Vec<_> = raw.hosts.iter().filter(|(_, h)| h.get_ref().router).collect();
+        if routers.len() > 1 {
+            problem(routers[1].1.span().start, format!("hosts `{}` and `{}` both say `router = true`: a graph has one zenoh router", routers[0].0, routers[1].0));
+        }
+        if raw.hosts.len() > 1 {
+            // Every machine computes the same endpoints from the file, so ports cannot be picked
+            // at random: each host needs its first port (only the router's, with a router).
+            for (name, h) in &raw.hosts {
+                let needs_port = if routers.is_empty() { true } else { h.get_ref().router };
+                if needs_port && h.get_ref().zenoh_port == 0 {
+                    problem(h.span().start, format!("host `{name}`: a graph with several hosts needs `zenoh_port` (its zenoh endpoints must be known to the other hosts)"));
+                }
+            }
         }
 
         let mut topics = BTreeMap::new();
@@ -290,6 +332,19 @@ impl Graph {
                     continue;
                 }
             };
+            let on_failure = match (node.on_failure.as_ref().map(|p| p.get_ref().as_str()), node.max_restarts) {
+                (None | Some("stop-graph"), None) => OnFailure::StopGraph,
+                (Some("restart"), max) => OnFailure::Restart { max: max.unwrap_or(3) },
+                (None | Some("stop-graph"), Some(_)) => {
+                    problem(start, format!("node `{label}`: `max_restarts` needs `on_failure = \"restart\"`"));
+                    continue;
+                }
+                (Some(other), _) => {
+                    let at = node.on_failure.as_ref().map(|p| p.span().start).unwrap_or(start);
+                    problem(at, format!("node `{label}`: unknown on_failure `{other}` (stop-graph or restart)"));
+                    continue;
+                }
+            };
             let args = match params_to_args(&node.params) {
                 Ok(a) => a,
                 Err(e) => {
@@ -303,6 +358,7 @@ impl Graph {
                 program,
                 host,
                 daemon: node.daemon,
+                on_failure,
                 args,
                 env: node.env.clone(),
                 line,

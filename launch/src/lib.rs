@@ -1,5 +1,6 @@
-//! The `dc` command's library: launch-file parsing and checking ([`graph`]) and the process
-//! supervisor ([`supervisor`]).
+//! The `dc` command's library: launch-file parsing and checking ([`graph`]), routing topics over
+//! the transports ([`plan`]) and the process supervisor ([`supervisor`]).
 
 pub mod graph;
+pub mod plan;
 pub mod supervisor;

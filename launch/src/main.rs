@@ -146,8 +146,7 @@ fn real_main(cli: Cli) -> Result<()> {
             let host = pick_host(&graph, host)?;
             graph.check_params()?;
             if dry_run {
-                print_graph(&graph, Some(&host));
-                return Ok(());
+                return print_graph(&graph, Some(&host));
             }
             let flag = interrupt_flag();
             supervisor::run(&graph, &host, Output::Forward, &flag)?;
@@ -158,8 +157,7 @@ fn real_main(cli: Cli) -> Result<()> {
         Command::Train { args } => exec_node("unet", &std::iter::once("train".to_string()).chain(args).collect::<Vec<_>>()),
         Command::List { file } => {
             let graph = Graph::load(&file)?;
-            print_graph(&graph, None);
-            Ok(())
+            print_graph(&graph, None)
         }
         Command::Eval(args) => eval(args),
         Command::Bench { what: BenchWhat::Bus { count, latency_count } } => bench_bus(count, latency_count),
@@ -179,28 +177,54 @@ fn pick_host(graph: &Graph, host: Option<String>) -> Result<String> {
     }
 }
 
-fn print_graph(graph: &Graph, only: Option<&str>) {
+/// What would start where, and how each topic travels (asks the node binaries for their ports).
+fn print_graph(graph: &Graph, only: Option<&str>) -> Result<()> {
+    let ports = launch::plan::describe_ports(graph)?;
+    let plan = launch::plan::Plan::new(graph, &ports);
     println!("graph `{}` ({}), bus namespace `{}`", graph.name, graph.file, graph.namespace);
+    if let Some((endpoint, host)) = &plan.router {
+        println!("zenoh router: {endpoint} (run by the launcher on `{host}`)");
+    }
     for (name, host) in &graph.hosts {
         if only.is_some_and(|h| h != name) {
             continue;
         }
-        let port = if host.zenoh_port == 0 { "auto".to_string() } else { host.zenoh_port.to_string() };
-        println!("host `{name}` (address {}, zenoh ports from {port})", host.address);
+        println!("host `{name}` (address {})", host.address);
         for n in graph.nodes_on(name) {
-            let daemon = if n.daemon { " [daemon]" } else { "" };
-            println!("  {}{daemon}: {} {}", n.name, n.program.display(), n.args.join(" "));
+            let mut flags = Vec::new();
+            if n.daemon {
+                flags.push("daemon".to_string());
+            }
+            if let launch::graph::OnFailure::Restart { max } = n.on_failure {
+                flags.push(format!("restart <= {max}"));
+            }
+            let flags = if flags.is_empty() { String::new() } else { format!(" [{}]", flags.join(", ")) };
+            println!("  {}{flags}: {} {}", n.name, n.program.display(), n.args.join(" "));
+            let p = &ports[&n.name];
+            let list = |set: &std::collections::BTreeSet<String>| if set.is_empty() { "-".to_string() } else { set.iter().cloned().collect::<Vec<_>>().join(", ") };
+            println!("      publishes {}; subscribes {}", list(&p.publishes), list(&p.subscribes));
+            if let Some(e) = plan.endpoints.get(&n.name) {
+                println!("      zenoh {e}");
+            }
+        }
+        let launcher = launch::plan::launcher_name(name);
+        if let Some(e) = plan.endpoints.get(&launcher) {
+            println!("  (launcher: zenoh {e})");
         }
     }
-    println!("topics (others: iceoryx2 within a host):");
-    for (topic, t) in &graph.topics {
-        let how = match t {
-            Transport::Iceoryx2 => "iceoryx2 (shared memory, this host)",
-            Transport::Zenoh => "zenoh (CBOR, across hosts)",
-            Transport::Both => "iceoryx2 + zenoh",
+    println!("topics:");
+    for r in plan.routes() {
+        let show = |v: &[(String, String)]| {
+            if v.is_empty() {
+                "nobody".to_string()
+            } else {
+                v.iter().map(|(n, h)| if plan.multi_host { format!("{n}@{h}") } else { n.clone() }).collect::<Vec<_>>().join(", ")
+            }
         };
-        println!("  {topic}: {how}");
+        let links = if r.links.is_empty() { "no link".to_string() } else { r.links.join("; ") };
+        println!("  {:<14} {} -> {}  [{links}]", r.topic, show(&r.writers), show(&r.readers));
     }
+    Ok(())
 }
 
 fn bench_bus(count: u32, latency_count: u32) -> Result<()> {
@@ -257,6 +281,7 @@ fn bench_graph(program: &std::path::Path, args: &[String], zenoh: bool) -> Graph
         program: program.to_path_buf(),
         host: DEFAULT_HOST.into(),
         daemon: false,
+        on_failure: Default::default(),
         args: std::iter::once(format!("--role={role}")).chain(args.iter().cloned()).collect(),
         env: [("RUST_LOG".to_string(), "warn,zenoh::net::runtime::orchestrator=error".to_string())].into(),
         line: 0,
@@ -300,6 +325,7 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
         program: program.to_path_buf(),
         host: DEFAULT_HOST.into(),
         daemon: false,
+        on_failure: Default::default(),
         args,
         env: Default::default(),
         line: 0,
@@ -381,8 +407,7 @@ fn eval(args: EvalArgs) -> Result<()> {
     let graph = eval_graph(&args, &out)?;
     graph.check_params()?;
     if args.dry_run {
-        print_graph(&graph, None);
-        return Ok(());
+        return print_graph(&graph, None);
     }
     let flag = interrupt_flag();
     supervisor::run(&graph, DEFAULT_HOST, Output::Forward, &flag)?;

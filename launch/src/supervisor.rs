@@ -1,9 +1,10 @@
 //! Starts one host's part of a graph as child processes, forwards their logs prefixed with the node
-//! name, releases them together once every node's ports exist, and stops the whole graph on Ctrl-C
-//! or when a node fails.
+//! name, releases them together once every node's ports exist (on every host of the graph),
+//! restarts nodes whose policy says so and tells the graph (control: node down / up), and stops
+//! the whole graph on Ctrl-C or when a node fails.
 
-use crate::graph::{Graph, NodeSpec};
-use runtime::{BusConfig, ZenohConfig};
+use crate::graph::{Graph, NodeSpec, OnFailure};
+use crate::plan::{self, Plan};
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
@@ -12,18 +13,28 @@ use std::time::{Duration, Instant};
 
 /// How long nodes get to finish after SIGTERM before SIGKILL.
 const STOP_GRACE: Duration = Duration::from_secs(5);
+/// How long a launcher waits for the other hosts' launchers to have their nodes connected.
+const HOSTS_TIMEOUT: Duration = Duration::from_secs(120);
 
 /// How a graph run ended.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
     #[error("node `{node}` exited with {status}")]
     NodeFailed { node: String, status: String },
+    #[error("node `{node}` exited with {status} after {restarts} restarts (its bound): stopping the graph")]
+    RestartsExhausted { node: String, status: String, restarts: u32 },
     #[error("node `{node}` could not start: {what}")]
     Spawn { node: String, what: String },
     #[error("interrupted")]
     Interrupted,
     #[error("no node of the graph is placed on host `{0}`")]
     NoNodes(String),
+    #[error(transparent)]
+    Graph(#[from] crate::graph::GraphError),
+    #[error("launcher bus: {0}")]
+    Bus(String),
+    #[error("hosts {missing} did not get their nodes connected within {secs} s (is `dc launch --host` running there, and can this host reach them?)")]
+    HostsMissing { missing: String, secs: u64 },
 }
 
 /// Where captured node output goes.
@@ -35,61 +46,21 @@ pub enum Output {
     Capture,
 }
 
-/// The bus configuration every node of `graph` on `host` receives, with zenoh endpoints assigned.
-pub fn bus_configs(graph: &Graph, host: &str) -> BTreeMap<String, BusConfig> {
-    // Every zenoh node listens on its own endpoint and connects to all others (a full mesh: since
-    // zenoh 1.9 peers do not relay for third parties).
-    let mut endpoints: BTreeMap<String, String> = BTreeMap::new();
-    if graph.uses_zenoh() {
-        for (h, spec) in &graph.hosts {
-            for (i, node) in graph.nodes_on(h).enumerate() {
-                let port = if spec.zenoh_port == 0 { free_port(&spec.address) } else { spec.zenoh_port + i as u16 };
-                endpoints.insert(node.name.clone(), format!("tcp/{}:{port}", spec.address));
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    for node in graph.nodes_on(host) {
-        let zenoh = match endpoints.get(&node.name) {
-            Some(own) => ZenohConfig {
-                listen: vec![own.clone()],
-                connect: endpoints
-                    .iter()
-                    .filter(|(n, _)| *n != &node.name)
-                    .map(|(_, e)| e.clone())
-                    .chain(graph.hosts[host].zenoh_connect.iter().cloned())
-                    .collect(),
-                mode: None,
-            },
-            None => ZenohConfig::default(),
-        };
-        out.insert(
-            node.name.clone(),
-            BusConfig {
-                namespace: graph.namespace.clone(),
-                default_transport: runtime::Transport::Iceoryx2,
-                topics: graph.topics.clone(),
-                zenoh,
-                queue_depth: graph.queue_depth,
-            },
-        );
-    }
-    out
-}
-
-fn free_port(address: &str) -> u16 {
-    std::net::TcpListener::bind((address, 0))
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .unwrap_or(7447)
-}
-
 enum Event {
     Ready(usize),
     Connected(usize),
     /// The node finished its work and keeps its publishers alive until released.
     Done(usize),
     Line(usize, String),
+}
+
+/// Where a node is in its start-up handshake.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Phase {
+    Starting,
+    Ready,
+    Connected,
+    Started,
 }
 
 struct Running {
@@ -99,6 +70,8 @@ struct Running {
     exited: Option<ExitStatus>,
     /// Said it is done (see [`runtime::DONE_MARKER`]); exits once its stdin closes.
     done: bool,
+    phase: Phase,
+    restarts: u32,
 }
 
 impl Running {
@@ -107,14 +80,59 @@ impl Running {
     }
 }
 
-/// What a finished run leaves: per node, its captured stdout lines (with [`Output::Capture`]).
+/// What a finished run leaves: per node, its captured stdout lines (with [`Output::Capture`]) and
+/// how often it was restarted.
 #[derive(Debug, Default)]
 pub struct RunReport {
     pub stdout: BTreeMap<String, Vec<String>>,
+    pub restarts: BTreeMap<String, u32>,
+}
+
+/// The launcher's own place on the bus: it publishes node down / up notices on `control` and,
+/// on a graph of several hosts, meets the other launchers (liveliness tokens).
+struct LauncherBus {
+    // Field order is drop order: ports before the node, the router last.
+    control: runtime::Publisher<msgs::Control, u8>,
+    sync: Option<runtime::HostSync>,
+    _node: runtime::Node,
+    _router: Option<runtime::zenoh::Session>,
+}
+
+impl LauncherBus {
+    fn open(graph: &Graph, plan: &Plan, host: &str) -> Result<LauncherBus, RunError> {
+        let bus_err = |e: String| RunError::Bus(e);
+        // The router first: every node of the graph connects to it.
+        let router = match &plan.router {
+            Some((endpoint, router_host)) if router_host == host => {
+                tracing::info!(endpoint, "zenoh router for the graph");
+                Some(runtime::open_router(endpoint).map_err(bus_err)?)
+            }
+            _ => None,
+        };
+        let name = plan::launcher_name(host);
+        let node = runtime::Node::new(name.clone(), plan.bus(&name, host), false);
+        let control = node.publisher(msgs::topics::CONTROL).map_err(|e| bus_err(e.to_string()))?;
+        let sync = if plan.multi_host {
+            let session = node.zenoh_session().map_err(|e| bus_err(e.to_string()))?;
+            Some(runtime::HostSync::new(session, &format!("dc/{}/_launch", graph.namespace)).map_err(bus_err)?)
+        } else {
+            None
+        };
+        Ok(LauncherBus { control, sync, _node: node, _router: router })
+    }
+
+    /// Tells the graph that `node` went down or came back, with the topics it publishes.
+    fn notice(&mut self, kind: msgs::ControlKind, node: &str, host: &str, publishes: &[String], status: &str) {
+        let details = serde_json::json!({ "node": node, "host": host, "publishes": publishes, "status": status });
+        let msg = msgs::ControlMsg::control(msgs::StepHeader::default(), kind, 0, &details.to_string());
+        if let Err(e) = self.control.publish_frame(&msg) {
+            tracing::warn!("could not publish the {kind:?} notice of `{node}`: {e}");
+        }
+    }
 }
 
 /// Runs the nodes of `graph` placed on `host` until they are all done (daemons are stopped when
-/// the others are), a node fails, or `interrupt` fires.
+/// the others are, on every host), a node fails past its policy, or `interrupt` fires.
 pub fn run(
     graph: &Graph,
     host: &str,
@@ -130,51 +148,48 @@ pub fn run(
         Ok(n) => tracing::info!("cleaned shared-memory resources of {n} dead iceoryx2 nodes"),
         Err(e) => tracing::warn!("stale resource cleanup failed: {e}"),
     }
-    let buses = bus_configs(graph, host);
+    let ports = plan::describe_ports(graph)?;
+    let plan = Plan::new(graph, &ports);
+    let mut bus = LauncherBus::open(graph, &plan, host)?;
     let (tx, rx) = mpsc::channel::<Event>();
     let width = specs.iter().map(|s| s.name.len()).max().unwrap_or(0);
+    let forward = matches!(output, Output::Forward);
     let mut nodes: Vec<Running> = Vec::new();
     let mut report = RunReport::default();
 
-    for (i, spec) in specs.iter().enumerate() {
-        let bus = serde_json::to_string(&buses[&spec.name]).expect("bus config serialises");
+    let spawn = |i: usize, spec: &NodeSpec| -> Result<(Child, Option<ChildStdin>), RunError> {
+        let bus_json = serde_json::to_string(&plan.bus(&spec.name, host)).expect("bus config serialises");
         let mut cmd = Command::new(&spec.program);
         cmd.args(&spec.args)
             .envs(&spec.env)
             .env("DC_NODE_NAME", &spec.name)
-            .env("DC_BUS", bus)
+            .env("DC_BUS", bus_json)
             .env("DC_LAUNCHED", "1")
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
         die_with_parent(&mut cmd);
-        let mut child = match cmd.spawn() {
-            Ok(c) => c,
-            Err(e) => {
-                stop_all(&mut nodes);
-                return Err(RunError::Spawn { node: spec.name.clone(), what: e.to_string() });
-            }
-        };
+        let mut child = cmd.spawn().map_err(|e| RunError::Spawn { node: spec.name.clone(), what: e.to_string() })?;
+        eprintln!("[dc] node `{}` started (pid {})", spec.name, child.id());
         let prefix = format!("[{:width$}]", spec.name);
         let stdout = child.stdout.take().expect("piped");
         let stderr = child.stderr.take().expect("piped");
         let (tx_out, tx_err) = (tx.clone(), tx.clone());
         let p = prefix.clone();
-        let forward = matches!(output, Output::Forward);
         std::thread::spawn(move || {
             for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if line == runtime::READY_MARKER {
-                    let _ = tx_out.send(Event::Ready(i));
-                } else if line == runtime::CONNECTED_MARKER {
-                    let _ = tx_out.send(Event::Connected(i));
-                } else if line == runtime::DONE_MARKER {
-                    let _ = tx_out.send(Event::Done(i));
-                } else {
-                    if forward {
-                        println!("{p} {line}");
+                let event = match line.as_str() {
+                    runtime::READY_MARKER => Event::Ready(i),
+                    runtime::CONNECTED_MARKER => Event::Connected(i),
+                    runtime::DONE_MARKER => Event::Done(i),
+                    _ => {
+                        if forward {
+                            println!("{p} {line}");
+                        }
+                        Event::Line(i, line)
                     }
-                    let _ = tx_out.send(Event::Line(i, line));
-                }
+                };
+                let _ = tx_out.send(event);
             }
         });
         std::thread::spawn(move || {
@@ -184,39 +199,83 @@ pub fn run(
             drop(tx_err);
         });
         let stdin = child.stdin.take();
-        nodes.push(Running { spec: spec.clone(), child, stdin, exited: None, done: false });
+        Ok((child, stdin))
+    };
+
+    for (i, spec) in specs.iter().enumerate() {
+        match spawn(i, spec) {
+            Ok((child, stdin)) => {
+                nodes.push(Running { spec: spec.clone(), child, stdin, exited: None, done: false, phase: Phase::Starting, restarts: 0 })
+            }
+            Err(e) => {
+                stop_all(&mut nodes);
+                return Err(e);
+            }
+        }
     }
-    drop(tx);
 
     // Two barriers: every node's ports exist (ready) -> "connect"; every node attached its
-    // subscribers (connected) -> "start".
-    let mut ready = vec![false; nodes.len()];
-    let mut connected = vec![false; nodes.len()];
+    // subscribers (connected) -> "start". With several hosts, "start" waits for every host's
+    // nodes to be connected, so no source publishes into a graph half there.
     let (mut connecting, mut started) = (false, false);
-    let capture = |report: &mut RunReport, i: usize, line: String, nodes: &[Running]| {
-        if matches!(output, Output::Capture) {
-            report.stdout.entry(nodes[i].spec.name.clone()).or_default().push(line);
-        }
-    };
+    let hosts_with_nodes: Vec<String> =
+        graph.hosts.keys().filter(|h| graph.nodes_on(h).next().is_some()).cloned().collect();
+    let barrier_since = Instant::now();
+    let mut working_declared = false;
     loop {
-        // Drain events (ready markers, captured lines) with a short wait, then look at exits.
+        // Drain events (handshake markers, captured lines) with a short wait, then look at exits.
         let mut first = rx.recv_timeout(Duration::from_millis(20)).ok();
         while let Some(ev) = first.take().or_else(|| rx.try_recv().ok()) {
             match ev {
-                Event::Ready(i) => ready[i] = true,
-                Event::Connected(i) => connected[i] = true,
+                Event::Ready(i) => nodes[i].phase = nodes[i].phase.max(Phase::Ready),
+                Event::Connected(i) => nodes[i].phase = nodes[i].phase.max(Phase::Connected),
                 Event::Done(i) => nodes[i].done = true,
-                Event::Line(i, line) => capture(&mut report, i, line, &nodes),
+                Event::Line(i, line) => {
+                    if matches!(output, Output::Capture) {
+                        report.stdout.entry(nodes[i].spec.name.clone()).or_default().push(line);
+                    }
+                }
             }
         }
-        if !connecting && ready.iter().zip(&nodes).all(|(r, n)| *r || n.finished()) {
+        if !connecting && nodes.iter().all(|n| n.phase >= Phase::Ready || n.finished()) {
             connecting = true;
             tell_all(&mut nodes, runtime::CONNECT_LINE);
         }
-        if connecting && !started && connected.iter().zip(&nodes).all(|(c, n)| *c || n.finished()) {
-            started = true;
-            tell_all(&mut nodes, runtime::START_LINE);
-            tracing::debug!("all {} nodes connected: started", nodes.len());
+        if connecting && !started && nodes.iter().all(|n| n.phase >= Phase::Connected || n.finished()) {
+            let all_hosts = match &mut bus.sync {
+                None => true,
+                Some(sync) => {
+                    sync.declare(host, "connected").map_err(RunError::Bus)?;
+                    if !working_declared && specs.iter().any(|s| !s.daemon) {
+                        sync.declare(host, "working").map_err(RunError::Bus)?;
+                        working_declared = true;
+                    }
+                    let alive = sync.alive();
+                    let missing: Vec<&String> =
+                        hosts_with_nodes.iter().filter(|h| !alive.contains(&((*h).clone(), "connected".to_string()))).collect();
+                    if !missing.is_empty() && barrier_since.elapsed() > HOSTS_TIMEOUT {
+                        stop_all(&mut nodes);
+                        let missing = missing.iter().map(|h| format!("`{h}`")).collect::<Vec<_>>().join(", ");
+                        return Err(RunError::HostsMissing { missing, secs: HOSTS_TIMEOUT.as_secs() });
+                    }
+                    missing.is_empty()
+                }
+            };
+            if all_hosts {
+                started = true;
+                tell_all(&mut nodes, runtime::START_LINE);
+                for n in nodes.iter_mut() {
+                    n.phase = n.phase.max(Phase::Started);
+                }
+                tracing::debug!("all {} nodes connected: started", nodes.len());
+            }
+        }
+        // A restarted node was told to connect and start at spawn; once connected it is back.
+        for n in nodes.iter_mut().filter(|n| n.restarts > 0 && n.exited.is_none() && n.phase == Phase::Connected) {
+            n.phase = Phase::Started;
+            eprintln!("[dc] node `{}` is back (restart {})", n.spec.name, n.restarts);
+            let publishes = published(&plan, &n.spec.name);
+            bus.notice(msgs::ControlKind::NodeUp, &n.spec.name, host, &publishes, "running");
         }
         if interrupt.load(std::sync::atomic::Ordering::SeqCst) {
             eprintln!("[dc] interrupted: stopping the graph");
@@ -227,20 +286,60 @@ pub fn run(
             if nodes[i].exited.is_some() {
                 continue;
             }
-            if let Ok(Some(status)) = nodes[i].child.try_wait() {
-                nodes[i].exited = Some(status);
-                if !status.success() {
-                    let name = nodes[i].spec.name.clone();
-                    let status = describe(status);
-                    eprintln!("[dc] node `{name}` exited with {status}: stopping the graph");
+            let Ok(Some(status)) = nodes[i].child.try_wait() else { continue };
+            nodes[i].exited = Some(status);
+            if status.success() {
+                continue;
+            }
+            let name = nodes[i].spec.name.clone();
+            let described = describe(status);
+            // Its shared-memory ports must go at once: publishers would wait on its full queues.
+            if let Err(e) = runtime::cleanup_stale_resources() {
+                tracing::warn!("cleaning the dead node's resources: {e}");
+            }
+            let publishes = published(&plan, &name);
+            match nodes[i].spec.on_failure {
+                OnFailure::Restart { max } if nodes[i].restarts < max => {
+                    nodes[i].restarts += 1;
+                    eprintln!("[dc] node `{name}` exited with {described}: restarting it ({} of at most {max})", nodes[i].restarts);
+                    bus.notice(msgs::ControlKind::NodeDown, &name, host, &publishes, &described);
+                    let spec = nodes[i].spec.clone();
+                    let (child, stdin) = match spawn(i, &spec) {
+                        Ok(c) => c,
+                        Err(e) => {
+                            stop_all(&mut nodes);
+                            return Err(e);
+                        }
+                    };
+                    let n = &mut nodes[i];
+                    (n.child, n.stdin, n.exited, n.done, n.phase) = (child, stdin, None, false, Phase::Starting);
+                    report.restarts.insert(name, n.restarts);
+                    // It reads these lines once its ports exist: the rest of the graph is running.
+                    if connecting {
+                        tell(n, runtime::CONNECT_LINE);
+                    }
+                    if started {
+                        tell(n, runtime::START_LINE);
+                    }
+                }
+                OnFailure::Restart { .. } => {
+                    let restarts = nodes[i].restarts;
+                    eprintln!("[dc] node `{name}` exited with {described} after {restarts} restarts: stopping the graph");
+                    bus.notice(msgs::ControlKind::NodeDown, &name, host, &publishes, &described);
                     stop_all(&mut nodes);
                     drain_lines(&rx, &mut report, &nodes, &output);
-                    return Err(RunError::NodeFailed { node: name, status });
+                    return Err(RunError::RestartsExhausted { node: name, status: described, restarts });
+                }
+                OnFailure::StopGraph => {
+                    eprintln!("[dc] node `{name}` exited with {described}: stopping the graph");
+                    stop_all(&mut nodes);
+                    drain_lines(&rx, &mut report, &nodes, &output);
+                    return Err(RunError::NodeFailed { node: name, status: described });
                 }
             }
         }
-        let workers_done = nodes.iter().filter(|n| !n.spec.daemon).all(Running::finished);
-        if workers_done {
+        let workers_done = started && nodes.iter().filter(|n| !n.spec.daemon).all(Running::finished);
+        if workers_done && other_hosts_done(&mut bus, host, &mut working_declared) {
             // Daemons first (they drain what the finished workers sent, whose publishers are
             // still alive), then the lingering workers.
             stop_where(&mut nodes, |n| !n.done);
@@ -253,6 +352,28 @@ pub fn run(
             }
             return Ok(report);
         }
+    }
+}
+
+/// On a graph of several hosts, this host's workers are done: say so and tell whether every
+/// other host's are too (a host that disappeared loses its token and counts as done).
+fn other_hosts_done(bus: &mut LauncherBus, host: &str, working_declared: &mut bool) -> bool {
+    let Some(sync) = &mut bus.sync else { return true };
+    if *working_declared {
+        sync.withdraw(host, "working");
+        *working_declared = false;
+    }
+    !sync.alive().iter().any(|(_, state)| state == "working")
+}
+
+/// The topics `node` publishes, for the down / up notices.
+fn published(plan: &Plan, node: &str) -> Vec<String> {
+    plan.members.iter().find(|m| m.name == node).map(|m| m.ports.publishes.iter().cloned().collect()).unwrap_or_default()
+}
+
+fn tell(n: &mut Running, line: &str) {
+    if let Some(stdin) = &mut n.stdin {
+        let _ = writeln!(stdin, "{line}").and_then(|_| stdin.flush());
     }
 }
 

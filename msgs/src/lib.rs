@@ -273,6 +273,10 @@ pub enum ControlKind {
     SimulationEnd = 4,
     /// Asks every node of the graph to finish cleanly.
     Shutdown = 5,
+    /// The launcher saw a node die; details: `{"node", "host", "publishes": [topics], "status"}`.
+    NodeDown = 6,
+    /// A restarted node is running again; details as [`ControlKind::NodeDown`].
+    NodeUp = 7,
 }
 
 impl ControlKind {
@@ -283,6 +287,8 @@ impl ControlKind {
             3 => Some(ControlKind::SimulationStart),
             4 => Some(ControlKind::SimulationEnd),
             5 => Some(ControlKind::Shutdown),
+            6 => Some(ControlKind::NodeDown),
+            7 => Some(ControlKind::NodeUp),
             _ => None,
         }
     }

@@ -28,6 +28,13 @@ pub struct Completeness {
 impl Completeness {
     /// Records a control message; `details` is its JSON text (the model name of a run start).
     pub fn control(&mut self, c: &Control, details: &str) {
+        // Launcher notices (node down / up) and shutdowns belong to no run.
+        if !matches!(
+            c.kind(),
+            Some(ControlKind::RunStart | ControlKind::RunEnd | ControlKind::SimulationStart | ControlKind::SimulationEnd)
+        ) {
+            return;
+        }
         let run = self.runs.entry(c.step.run_id).or_default();
         match c.kind() {
             Some(ControlKind::RunStart) => {

@@ -25,7 +25,7 @@ fn err(topic: &str, what: impl std::fmt::Display) -> Error {
 }
 
 fn service_name(bus: &BusConfig, topic: &str, suffix: &str) -> Result<ServiceName> {
-    let name = format!("{}{suffix}", bus.key(topic));
+    let name = format!("{}{suffix}", bus.iox_key(topic));
     ServiceName::new(&name).map_err(|e| err(topic, format!("invalid service name `{name}`: {e:?}")))
 }
 

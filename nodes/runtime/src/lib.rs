@@ -19,13 +19,18 @@
 //! - `DC_NODE_NAME`: the node's name in the graph;
 //! - `DC_BUS`: JSON [`BusConfig`] (namespace, per-topic transport, zenoh endpoints);
 //! - `DC_LAUNCHED=1`: the node reports readiness on stdout and waits for `start` on stdin;
-//! - `DC_VALIDATE=1`: [`parse_args`] only checks the parameters and exits.
+//! - `DC_VALIDATE=1`: [`parse_args`] only checks the parameters and exits;
+//! - `DC_DESCRIBE=1`: the node creates no port; [`Node::ready`] prints the topics it would publish
+//!   and subscribe as JSON ([`Ports`]) and exits, so the launcher can route every topic.
 
 mod iox;
 mod pubsub;
 mod zen;
 
 pub use pubsub::{Publisher, Received, Subscriber};
+pub use zen::{open_router, HostSync};
+/// The zenoh crate, for launchers holding sessions.
+pub use zenoh;
 
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -74,7 +79,8 @@ pub enum Transport {
     Iceoryx2,
     /// CBOR over zenoh (across hosts).
     Zenoh,
-    /// Published on both (a topic consumed locally and remotely); subscribers use iceoryx2.
+    /// Both: a publisher whose topic is consumed locally and remotely publishes once to each; a
+    /// subscriber with publishers on this host and on others reads both.
     Both,
 }
 
@@ -119,7 +125,21 @@ pub struct BusConfig {
     /// Queue depth per subscriber; a full queue holds the publisher back (no loss).
     #[serde(default = "default_queue_depth")]
     pub queue_depth: usize,
+    /// The host of a multi-host graph: iceoryx2 services are then `dc/<namespace>@<host>/<topic>`,
+    /// so two "hosts" sharing one machine's shared memory (network namespaces, tests) stay apart.
+    #[serde(default)]
+    pub host: String,
 }
+
+/// The topics a node publishes and subscribes, as `DC_DESCRIBE=1` reports them.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq, Eq)]
+pub struct Ports {
+    pub publishes: std::collections::BTreeSet<String>,
+    pub subscribes: std::collections::BTreeSet<String>,
+}
+
+/// Line prefix of a described node's [`Ports`] JSON on stdout.
+pub const PORTS_MARKER: &str = "\u{1e}dc-ports ";
 
 fn default_queue_depth() -> usize {
     16
@@ -136,6 +156,15 @@ impl BusConfig {
             format!("dc/{topic}")
         } else {
             format!("dc/{}/{topic}", self.namespace)
+        }
+    }
+
+    /// The iceoryx2 service name of `topic`: the bus key, qualified by the host when one is set.
+    pub fn iox_key(&self, topic: &str) -> String {
+        if self.host.is_empty() {
+            self.key(topic)
+        } else {
+            format!("dc/{}@{}/{topic}", self.namespace, self.host)
         }
     }
 
@@ -159,6 +188,8 @@ pub struct Node {
     iox_subscribers: std::cell::RefCell<Vec<std::rc::Weak<dyn iox::Attach>>>,
     /// The node's iceoryx2 publishers, kept alive until the node is dropped (see `Drop`).
     iox_publishers: std::cell::RefCell<Vec<std::rc::Rc<dyn std::any::Any>>>,
+    /// Under `DC_DESCRIBE=1`: the ports asked for so far (none is created).
+    describe: Option<std::cell::RefCell<Ports>>,
 }
 
 /// A launched node outlives its work: iceoryx2 maps a publisher's data segment into a subscriber
@@ -197,7 +228,11 @@ impl Node {
         let name = std::env::var("DC_NODE_NAME").unwrap_or_else(|_| default_name.to_string());
         let bus = BusConfig::from_env()?;
         let launched = std::env::var("DC_LAUNCHED").is_ok_and(|v| v == "1");
-        Ok(Node::new(name, bus, launched))
+        let mut node = Node::new(name, bus, launched);
+        if std::env::var("DC_DESCRIBE").is_ok_and(|v| v == "1") {
+            node.describe = Some(Default::default());
+        }
+        Ok(node)
     }
 
     /// Builds a node with an explicit configuration (tests, in-process graphs).
@@ -219,6 +254,7 @@ impl Node {
             zenoh: OnceLock::new(),
             iox_subscribers: Default::default(),
             iox_publishers: Default::default(),
+            describe: None,
         }
     }
 
@@ -267,6 +303,10 @@ impl Node {
         &self,
         topic: &str,
     ) -> Result<Publisher<H, T>> {
+        if let Some(ports) = &self.describe {
+            ports.borrow_mut().publishes.insert(topic.to_string());
+            return Ok(Publisher::new(topic, None, None));
+        }
         let transport = self.bus.transport(topic);
         let iox = if transport.uses_iceoryx2() {
             let publisher = std::rc::Rc::new(self.iox()?.publisher::<H, T>(&self.bus, topic)?);
@@ -283,6 +323,15 @@ impl Node {
         Ok(Publisher::new(topic, iox, zen))
     }
 
+    /// Says that the node will subscribe to `topic` later than [`Node::ready`] (a port it opens
+    /// only for part of its run), so that the launcher routes the topic to it. Only matters while
+    /// describing; the port itself is made by [`Node::subscriber`] when needed.
+    pub fn will_subscribe(&self, topic: &str) {
+        if let Some(ports) = &self.describe {
+            ports.borrow_mut().subscribes.insert(topic.to_string());
+        }
+    }
+
     /// A subscriber on `topic`.
     pub fn subscriber<H: msgs::FrameHeader, T: msgs::FrameItem>(
         &self,
@@ -296,19 +345,34 @@ impl Node {
         &self,
         topic: &str,
     ) -> Result<Subscriber<H, T>> {
+        if let Some(ports) = &self.describe {
+            ports.borrow_mut().subscribes.insert(topic.to_string());
+            return Ok(Subscriber::new(topic, pubsub::SubInner::Detached, self.shutdown.clone()));
+        }
         let transport = self.bus.transport(topic);
-        let inner = if transport.uses_iceoryx2() {
+        let iox = if transport.uses_iceoryx2() {
             let sub = std::rc::Rc::new(self.iox()?.subscriber::<H, T>(&self.bus, topic)?);
             let weak: std::rc::Weak<dyn iox::Attach> = std::rc::Rc::downgrade(&sub) as _;
             self.iox_subscribers.borrow_mut().push(weak);
-            pubsub::SubInner::Iox(sub)
+            Some(sub)
         } else {
-            pubsub::SubInner::Zenoh(zen::ZenSubscriber::new(
+            None
+        };
+        let zen = if transport.uses_zenoh() {
+            Some(zen::ZenSubscriber::new(
                 self.zenoh(topic)?,
                 &self.bus.key(topic),
                 topic,
                 self.bus.queue_depth.max(1) * 16,
             )?)
+        } else {
+            None
+        };
+        let inner = match (iox, zen) {
+            (Some(i), Some(z)) => pubsub::SubInner::Both(i, z),
+            (Some(i), None) => pubsub::SubInner::Iox(i),
+            (None, Some(z)) => pubsub::SubInner::Zenoh(z),
+            (None, None) => pubsub::SubInner::Detached,
         };
         Ok(Subscriber::new(topic, inner, self.shutdown.clone()))
     }
@@ -322,6 +386,11 @@ impl Node {
     /// says so; only then do sources start (`start`). Without this a fast source overruns a
     /// subscriber that has not polled yet and iceoryx2 drops samples.
     pub fn ready(&self) -> Result<bool> {
+        if let Some(ports) = &self.describe {
+            let json = serde_json::to_string(&*ports.borrow()).expect("ports serialise");
+            say(&format!("{PORTS_MARKER}{json}"))?;
+            std::process::exit(0);
+        }
         if !self.launched {
             self.attach_subscribers();
             return Ok(true);
@@ -367,6 +436,11 @@ impl Node {
         }
         let node = iox::IoxNode::new(&self.name)?;
         Ok(self.iox.get_or_init(|| node))
+    }
+
+    /// The node's zenoh session (opened on first use from the bus configuration).
+    pub fn zenoh_session(&self) -> Result<&zenoh::Session> {
+        self.zenoh("(session)")
     }
 
     fn zenoh(&self, topic: &str) -> Result<&zenoh::Session> {

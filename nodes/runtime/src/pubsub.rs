@@ -124,6 +124,10 @@ impl<H: FrameHeader, T: FrameItem> Received<H, T> {
 pub(crate) enum SubInner<H: FrameHeader, T: FrameItem> {
     Iox(std::rc::Rc<IoxSubscriber<H, T>>),
     Zenoh(ZenSubscriber),
+    /// Publishers on this host and on others.
+    Both(std::rc::Rc<IoxSubscriber<H, T>>, ZenSubscriber),
+    /// No transport (a node describing its ports): never receives.
+    Detached,
 }
 
 /// Receives frames of one topic, in order.
@@ -160,16 +164,24 @@ impl<H: FrameHeader, T: FrameItem> Subscriber<H, T> {
     /// The next frame if one is waiting.
     pub fn try_recv(&mut self) -> Result<Option<Received<H, T>>> {
         loop {
-            let got = match &self.inner {
-                SubInner::Iox(s) => s.try_recv()?.map(Received::Shared),
-                SubInner::Zenoh(s) => match s.try_recv()? {
-                    None => None,
-                    Some(sample) => match self.decode(&sample) {
-                        Some(frame) => Some(Received::Owned(frame)),
-                        None => continue,
-                    },
-                },
+            let (iox, zen) = match &self.inner {
+                SubInner::Iox(i) => (Some(i), None),
+                SubInner::Zenoh(z) => (None, Some(z)),
+                SubInner::Both(i, z) => (Some(i), Some(z)),
+                SubInner::Detached => (None, None),
             };
+            let mut got = match iox {
+                Some(i) => i.try_recv()?.map(Received::Shared),
+                None => None,
+            };
+            if got.is_none() {
+                if let Some(sample) = zen.map(ZenSubscriber::try_recv).transpose()?.flatten() {
+                    match self.decode(&sample) {
+                        Some(frame) => got = Some(Received::Owned(frame)),
+                        None => continue,
+                    }
+                }
+            }
             if got.is_some() {
                 self.received += 1;
             }
@@ -192,6 +204,9 @@ impl<H: FrameHeader, T: FrameItem> Subscriber<H, T> {
             let left = (deadline - now).min(SHUTDOWN_POLL);
             match &self.inner {
                 SubInner::Iox(s) => s.wait(left)?,
+                // Two sources and no common wait: short naps (this is the bridge case only).
+                SubInner::Both(..) => std::thread::sleep(left.min(Duration::from_millis(1))),
+                SubInner::Detached => std::thread::sleep(left),
                 SubInner::Zenoh(s) => {
                     if let Some(sample) = s.recv_timeout(left)? {
                         if let Some(frame) = self.decode(&sample) {

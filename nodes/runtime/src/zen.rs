@@ -126,3 +126,90 @@ impl ZenSubscriber {
             .map_err(|e| err(&self.topic, format!("receive: {e}")))
     }
 }
+
+/// Opens a zenoh router session listening on `endpoint` (the graph's router, run by a launcher).
+pub fn open_router(endpoint: &str) -> Result<zenoh::Session, String> {
+    let mut config = zenoh::Config::default();
+    let settings = [
+        ("mode", "\"router\"".to_string()),
+        ("listen/endpoints", serde_json::to_string(&[endpoint]).expect("strings serialise")),
+        ("scouting/multicast/enabled", "false".to_string()),
+    ];
+    for (key, value) in settings {
+        config
+            .insert_json5(key, &value)
+            .map_err(|e| format!("config {key} = {value}: {e}"))?;
+    }
+    zenoh::open(config).wait().map_err(|e| format!("open router on {endpoint}: {e}"))
+}
+
+/// Launchers of one graph on several hosts agree through zenoh liveliness tokens
+/// `<prefix>/<host>/<state>`: a token lives while its launcher says so and vanishes when the
+/// launcher's session goes (a host that disappears loses its tokens after zenoh's lease).
+pub struct HostSync {
+    session: zenoh::Session,
+    prefix: String,
+    tokens: std::collections::BTreeMap<String, zenoh::liveliness::LivelinessToken>,
+    watch: zenoh::pubsub::Subscriber<FifoChannelHandler<Sample>>,
+    /// `(host, state)` pairs currently alive.
+    alive: std::collections::BTreeSet<(String, String)>,
+}
+
+impl HostSync {
+    pub fn new(session: &zenoh::Session, prefix: &str) -> Result<HostSync, String> {
+        let watch = session
+            .liveliness()
+            .declare_subscriber(format!("{prefix}/**"))
+            .history(true)
+            .with(zenoh::handlers::FifoChannel::new(256))
+            .wait()
+            .map_err(|e| format!("watch liveliness `{prefix}/**`: {e}"))?;
+        Ok(HostSync {
+            session: session.clone(),
+            prefix: prefix.to_string(),
+            tokens: Default::default(),
+            watch,
+            alive: Default::default(),
+        })
+    }
+
+    /// Declares `state` of `host` alive (idempotent).
+    pub fn declare(&mut self, host: &str, state: &str) -> Result<(), String> {
+        let key = format!("{}/{host}/{state}", self.prefix);
+        if !self.tokens.contains_key(&key) {
+            let token = self
+                .session
+                .liveliness()
+                .declare_token(key.clone())
+                .wait()
+                .map_err(|e| format!("declare liveliness `{key}`: {e}"))?;
+            self.tokens.insert(key, token);
+        }
+        Ok(())
+    }
+
+    /// Withdraws `state` of `host`.
+    pub fn withdraw(&mut self, host: &str, state: &str) {
+        let key = format!("{}/{host}/{state}", self.prefix);
+        if let Some(token) = self.tokens.remove(&key) {
+            if let Err(e) = token.undeclare().wait() {
+                tracing::warn!("undeclare liveliness `{key}`: {e}");
+            }
+        }
+    }
+
+    /// The `(host, state)` pairs alive now, as far as this launcher has heard.
+    pub fn alive(&mut self) -> &std::collections::BTreeSet<(String, String)> {
+        while let Ok(Some(sample)) = self.watch.try_recv() {
+            let key = sample.key_expr().as_str();
+            let Some(rest) = key.strip_prefix(&self.prefix).map(|r| r.trim_start_matches('/')) else { continue };
+            let Some((host, state)) = rest.split_once('/') else { continue };
+            let entry = (host.to_string(), state.to_string());
+            match sample.kind() {
+                zenoh::sample::SampleKind::Put => self.alive.insert(entry),
+                zenoh::sample::SampleKind::Delete => self.alive.remove(&entry),
+            };
+        }
+        &self.alive
+    }
+}

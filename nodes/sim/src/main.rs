@@ -16,6 +16,10 @@ fn positive_f32(s: &str) -> Result<f32, String> {
     }
 }
 
+fn required_duration(s: &str) -> Result<Duration, String> {
+    sim::parse_deadline(s).map_err(|e| e.to_string())?.ok_or_else(|| "a duration is required, not `none`".to_string())
+}
+
 /// A grid deadline; `None` is lockstep. A newtype because clap reads `Option<T>` as "flag may be absent".
 #[derive(Debug, Clone, Copy)]
 struct Deadline(Option<Duration>);
@@ -57,6 +61,15 @@ struct Args {
     /// How long to wait for a grid: `none` (lockstep) or a duration (20ms, 0.5s).
     #[arg(long, default_value = "none", value_parser = |s: &str| sim::parse_deadline(s).map(Deadline))]
     deadline: Deadline,
+    /// In lockstep, how long a grid may take before its producer counts as lost (a host gone
+    /// without a launcher to say so): the step falls back and later steps wait only
+    /// --resume-patience until grids flow again.
+    #[arg(long, default_value = "30s", value_parser = required_duration)]
+    lockstep_timeout: Duration,
+    /// After the grid producer came back (or was lost), how long a step waits for its grid before
+    /// falling back; the wait is unbounded again (lockstep) once a grid arrives.
+    #[arg(long, default_value = "2s", value_parser = required_duration)]
+    resume_patience: Duration,
     /// Initial-world sampler: native or numpy (the original code's worlds, exactly).
     #[arg(long, default_value = "native", value_parser = |s: &str| s.parse::<SamplerKind>())]
     sampler: SamplerKind,
@@ -118,12 +131,89 @@ impl Args {
     }
 }
 
+/// Whether the node producing our grids is there, as the launcher's notices tell.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Producer {
+    /// Running: wait up to the deadline (lockstep: up to `lockstep_timeout`).
+    Up,
+    /// Its node died: no wait, every step falls back.
+    Down,
+    /// Back (or lost without a notice): wait at most `resume_patience` until a grid arrives. Its
+    /// restart may miss the grid of the step in flight, so an unbounded wait could hang forever.
+    Resuming,
+}
+
+/// The launcher's notices about the node that publishes a grid topic, read from the control topic.
+/// Shared by the grid source (while it waits) and the step loop (every step, so that the
+/// simulator's own control messages never pile up in this subscriber and hold it back).
+struct ProducerWatch {
+    control: runtime::Subscriber<msgs::Control, u8>,
+    topic: String,
+    producer: Producer,
+}
+
+impl ProducerWatch {
+    fn read(&mut self) {
+        loop {
+            let c = match self.control.try_recv() {
+                Ok(Some(c)) => c,
+                Ok(None) => return,
+                Err(e) => {
+                    tracing::warn!("control subscriber: {e}");
+                    return;
+                }
+            };
+            let kind = c.header().kind();
+            if !matches!(kind, Some(ControlKind::NodeDown | ControlKind::NodeUp)) {
+                continue;
+            }
+            let details: serde_json::Value = serde_json::from_slice(c.items()).unwrap_or_default();
+            let ours = details["publishes"]
+                .as_array()
+                .is_some_and(|topics| topics.iter().any(|t| t.as_str() == Some(self.topic.as_str())));
+            if !ours {
+                continue;
+            }
+            let node = details["node"].as_str().unwrap_or("?");
+            if kind == Some(ControlKind::NodeDown) {
+                tracing::warn!(node, topic = %self.topic, "grid producer down: falling back until it returns");
+                self.producer = Producer::Down;
+            } else {
+                tracing::info!(node, topic = %self.topic, "grid producer back: resuming");
+                self.producer = Producer::Resuming;
+            }
+        }
+    }
+}
+
+type SharedWatch = std::rc::Rc<std::cell::RefCell<ProducerWatch>>;
+
 /// The grid of a step from the bus, waiting up to the deadline; later grids are kept for their step.
 struct BusGridSource {
     sub: runtime::Subscriber<msgs::GridHeader, f32>,
+    watch: SharedWatch,
     deadline: Option<Duration>,
+    lockstep_timeout: Duration,
+    resume_patience: Duration,
+    /// Simulation ids of this simulator: several simulators may share one grid producer.
+    simulations: std::collections::BTreeSet<u32>,
     pending: Option<msgs::Grid>,
     shutdown: runtime::ShutdownSignal,
+}
+
+impl BusGridSource {
+    fn set_producer(&self, p: Producer) {
+        self.watch.borrow_mut().producer = p;
+    }
+
+    fn wait_limit(&self) -> Option<Duration> {
+        match (self.watch.borrow().producer, self.deadline) {
+            (Producer::Down, _) => Some(Duration::ZERO),
+            (Producer::Resuming, d) => Some(d.map_or(self.resume_patience, |d| d.min(self.resume_patience))),
+            (Producer::Up, Some(d)) => Some(d),
+            (Producer::Up, None) => None,
+        }
+    }
 }
 
 impl GridSource for BusGridSource {
@@ -143,19 +233,29 @@ impl GridSource for BusGridSource {
         }
         let start = Instant::now();
         loop {
-            let wait = match self.deadline {
-                Some(d) => match d.checked_sub(start.elapsed()) {
-                    Some(left) if !left.is_zero() => left,
+            self.watch.borrow_mut().read();
+            let waited = start.elapsed();
+            let slice = match self.wait_limit() {
+                Some(limit) => match limit.checked_sub(waited) {
+                    Some(left) if !left.is_zero() => left.min(Duration::from_millis(20)),
                     _ => return None,
                 },
                 None => {
                     if self.shutdown.is_set() {
                         return None;
                     }
-                    Duration::from_millis(100)
+                    if waited >= self.lockstep_timeout {
+                        tracing::warn!(
+                            simulation, step, waited = ?waited,
+                            "no grid within --lockstep-timeout: its producer counts as lost; falling back"
+                        );
+                        self.set_producer(Producer::Resuming);
+                        return None;
+                    }
+                    Duration::from_millis(20)
                 }
             };
-            let got = match self.sub.recv_timeout(wait) {
+            let got = match self.sub.recv_timeout(slice) {
                 Ok(Some(r)) => r,
                 Ok(None) => continue,
                 Err(e) => {
@@ -164,9 +264,11 @@ impl GridSource for BusGridSource {
                 }
             };
             let h = *got.header();
-            if run_id != 0 && h.step.run_id != run_id {
-                continue; // another run's leftovers
+            if (run_id != 0 && h.step.run_id != run_id) || !self.simulations.contains(&h.step.simulation) {
+                continue; // another run's leftovers, or another simulator's grid
             }
+            // Grids flow again: back to waiting for each one.
+            self.set_producer(Producer::Up);
             match key(&h).cmp(&want) {
                 std::cmp::Ordering::Less => continue, // stale: its step was already solved
                 std::cmp::Ordering::Equal => return Some(got.into_frame()),
@@ -223,6 +325,13 @@ fn main() -> Result<()> {
         stats: node.publisher(msgs::topics::SOLVE_STATS)?,
         control: node.publisher(msgs::topics::CONTROL)?,
     };
+    // Grid-based runs open their grid and control subscribers for the run only (see `run`).
+    for model in &models {
+        if let Some(topic) = grid_topic(*model) {
+            node.will_subscribe(topic.name);
+            node.will_subscribe(msgs::topics::CONTROL.name);
+        }
+    }
     if !node.ready()? {
         return Ok(());
     }
@@ -239,6 +348,15 @@ fn main() -> Result<()> {
         run(&args, &node, &mut pubs, model, first_run_id + i as u64, &seeds, params)?;
     }
     Ok(())
+}
+
+/// The topic a grid-based model reads its warm starts from.
+fn grid_topic(model: ModelKind) -> Option<msgs::topics::Topic<msgs::GridHeader, f32>> {
+    match model {
+        ModelKind::Grid => Some(msgs::topics::GRID_CONTACTS),
+        ModelKind::Unet => Some(msgs::topics::GRID_UNET),
+        _ => None,
+    }
 }
 
 /// The simulator's publishers.
@@ -265,19 +383,28 @@ fn run(
     // back-pressure, and a subscriber nobody reads (another model's run) would fill up and stall
     // the producer, which stalls the simulator in turn (a deadlock seen in `dc eval`). In lockstep
     // at most one grid is outstanding, so the loop cannot fill it.
-    let topic = match model_kind {
-        ModelKind::Grid => Some(msgs::topics::GRID_CONTACTS),
-        ModelKind::Unet => Some(msgs::topics::GRID_UNET),
-        _ => None,
+    let topic = grid_topic(model_kind);
+    let watch: Option<SharedWatch> = match topic {
+        // Our own control messages arrive here too; the step loop drains it every step.
+        Some(topic) => Some(std::rc::Rc::new(std::cell::RefCell::new(ProducerWatch {
+            control: node.subscriber(msgs::topics::CONTROL)?,
+            topic: topic.name.to_string(),
+            producer: Producer::Up,
+        }))),
+        None => None,
     };
-    let source: Option<Box<dyn GridSource>> = match topic {
-        Some(topic) => Some(Box::new(BusGridSource {
+    let source: Option<Box<dyn GridSource>> = match (topic, &watch) {
+        (Some(topic), Some(watch)) => Some(Box::new(BusGridSource {
             sub: node.subscriber(topic)?,
+            watch: watch.clone(),
             deadline: args.deadline.0,
+            lockstep_timeout: args.lockstep_timeout,
+            resume_patience: args.resume_patience,
+            simulations: seeds.iter().map(|&s| s as u32).collect(),
             pending: None,
             shutdown: node.shutdown_signal(),
         })),
-        None => None,
+        _ => None,
     };
     let model = model_kind.build_with_source(args.seed, source)?;
     let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
@@ -308,6 +435,9 @@ fn run(
         for step in 0..args.steps {
             if node.is_shutdown() {
                 break 'run;
+            }
+            if let Some(w) = &watch {
+                w.borrow_mut().read();
             }
             let stats = world.step(&mut warm).clone();
             let header = StepHeader { run_id, simulation, step };

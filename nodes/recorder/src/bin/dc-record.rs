@@ -265,6 +265,16 @@ fn record(args: &Args) -> anyhow::Result<()> {
             let log_time = now_ns();
             for (step, data) in batch.drain(..) {
                 bytes += data.len() as u64;
+                if sub.kind() == FrameKind::Control && is_graph_notice(&data) {
+                    // A launcher's notice (node down / up) belongs to every run in progress.
+                    for open in files.open.values_mut() {
+                        if let Err(e) = open.writer.write(sub.topic(), sub.kind(), log_time, log_time, &data) {
+                            write_failed += 1;
+                            tracing::error!("dropped a message of `{}`: {e}", sub.topic());
+                        }
+                    }
+                    continue;
+                }
                 let open = files.file(step.run_id)?;
                 if let Err(e) = open.writer.write(sub.topic(), sub.kind(), log_time, log_time, &data) {
                     write_failed += 1;
@@ -349,6 +359,12 @@ fn record(args: &Args) -> anyhow::Result<()> {
         std::fs::write(path, serde_json::to_string_pretty(&stats)?).with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
+}
+
+/// A control message about the graph rather than a run (run id 0: node down / up).
+fn is_graph_notice(data: &[u8]) -> bool {
+    msgs::decode_header::<msgs::Control>(data)
+        .is_ok_and(|c| matches!(c.kind(), Some(ControlKind::NodeDown | ControlKind::NodeUp)))
 }
 
 fn now_ns() -> u64 {

@@ -1,0 +1,334 @@
+//! Routing a graph: which topics each node publishes and subscribes (asked of the node binaries),
+//! which transport carries each topic between which nodes, and every node's bus configuration.
+//!
+//! Rule, per port: a publisher uses iceoryx2 when its topic has readers on its own host, zenoh
+//! when it has readers on other hosts, both when both; a subscriber reads iceoryx2 from writers on
+//! its host and zenoh from writers elsewhere. A topic forced in the file's `[topics]` uses the
+//! forced transport on every port. Every host's launcher is a member too: it publishes `control`
+//! (node down / up notices) and, on a graph of several hosts, meets the other launchers over zenoh.
+
+use crate::graph::{Graph, GraphError, Problem};
+use runtime::{BusConfig, Ports, Transport, ZenohConfig};
+use std::collections::BTreeMap;
+
+/// The graph member name of a host's launcher.
+pub fn launcher_name(host: &str) -> String {
+    format!("dc-launch-{host}")
+}
+
+/// One member of the bus: a node, or a host's launcher.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Member {
+    pub name: String,
+    pub host: String,
+    pub ports: Ports,
+}
+
+/// A routed graph.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    pub members: Vec<Member>,
+    /// Transport of each (member, topic) port.
+    pub transports: BTreeMap<(String, String), Transport>,
+    /// zenoh listen endpoint of each member that uses zenoh (peer mesh).
+    pub endpoints: BTreeMap<String, String>,
+    /// The router's endpoint and host, when the graph names one.
+    pub router: Option<(String, String)>,
+    pub multi_host: bool,
+    namespace: String,
+    queue_depth: usize,
+    extra_connect: BTreeMap<String, Vec<String>>,
+}
+
+/// Asks each node binary for its ports (`DC_DESCRIBE=1`: it builds its ports from its
+/// parameters, prints them and exits before touching the bus).
+pub fn describe_ports(graph: &Graph) -> Result<BTreeMap<String, Ports>, GraphError> {
+    let mut out = BTreeMap::new();
+    let mut problems = Vec::new();
+    for node in &graph.nodes {
+        let result = std::process::Command::new(&node.program)
+            .args(&node.args)
+            .envs(&node.env)
+            .env("DC_DESCRIBE", "1")
+            .env("DC_NODE_NAME", &node.name)
+            .env_remove("DC_LAUNCHED")
+            .env_remove("DC_BUS")
+            .stdin(std::process::Stdio::null())
+            .output();
+        let why = match result {
+            Ok(o) => {
+                let stdout = String::from_utf8_lossy(&o.stdout);
+                let ports = stdout.lines().find_map(|l| l.strip_prefix(runtime::PORTS_MARKER)).map(serde_json::from_str::<Ports>);
+                match (o.status.success(), ports) {
+                    (true, Some(Ok(p))) => {
+                        out.insert(node.name.clone(), p);
+                        continue;
+                    }
+                    (true, Some(Err(e))) => format!("unreadable port list: {e}"),
+                    (true, None) => "it exited without saying which topics it uses (it never reached `ready`)".to_string(),
+                    (false, _) => {
+                        let stderr = String::from_utf8_lossy(&o.stderr);
+                        let first = stderr.lines().find(|l| !l.trim().is_empty()).unwrap_or("").trim().to_string();
+                        format!("it failed before starting ({}): {first}", o.status)
+                    }
+                }
+            }
+            Err(e) => format!("cannot run `{}`: {e}", node.program.display()),
+        };
+        problems.push(Problem { line: node.line, message: format!("node `{}` ({}): {why}", node.name, node.binary) });
+    }
+    if problems.is_empty() {
+        Ok(out)
+    } else {
+        Err(GraphError::Invalid { file: graph.file.clone(), problems })
+    }
+}
+
+impl Plan {
+    /// Routes `graph` given every node's ports.
+    pub fn new(graph: &Graph, ports: &BTreeMap<String, Ports>) -> Plan {
+        let multi_host = graph.hosts.len() > 1;
+        let mut members = Vec::new();
+        for host in graph.hosts.keys() {
+            let launcher_ports = Ports { publishes: [msgs::topics::CONTROL.name.to_string()].into(), ..Default::default() };
+            members.push(Member { name: launcher_name(host), host: host.clone(), ports: launcher_ports });
+            for node in graph.nodes_on(host) {
+                members.push(Member { name: node.name.clone(), host: host.clone(), ports: ports.get(&node.name).cloned().unwrap_or_default() });
+            }
+        }
+        let mut transports = BTreeMap::new();
+        for m in &members {
+            for (topic, publishing) in m.ports.publishes.iter().map(|t| (t, true)).chain(m.ports.subscribes.iter().map(|t| (t, false))) {
+                let t = match graph.topics.get(topic) {
+                    Some(forced) => *forced,
+                    None => {
+                        // The other side of this port: readers of what we write, writers of what we read.
+                        let peers = members.iter().filter(|o| {
+                            if publishing { o.ports.subscribes.contains(topic) } else { o.ports.publishes.contains(topic) }
+                        });
+                        let (mut local, mut remote) = (false, false);
+                        for o in peers {
+                            if o.host == m.host { local = true } else { remote = true }
+                        }
+                        match (local, remote) {
+                            (true, true) => Transport::Both,
+                            (false, true) => Transport::Zenoh,
+                            _ => Transport::Iceoryx2,
+                        }
+                    }
+                };
+                transports.insert((m.name.clone(), topic.clone()), t);
+            }
+        }
+        let router = graph.hosts.values().find(|h| h.router).map(|h| (format!("tcp/{}:{}", h.address, h.zenoh_port), h.name.clone()));
+        let mut plan = Plan {
+            members,
+            transports,
+            endpoints: BTreeMap::new(),
+            router,
+            multi_host,
+            namespace: graph.namespace.clone(),
+            queue_depth: graph.queue_depth,
+            extra_connect: graph.hosts.iter().map(|(n, h)| (n.clone(), h.zenoh_connect.clone())).collect(),
+        };
+        if plan.router.is_none() {
+            // Every machine computes the same ports from the file: members in file order per host.
+            for (name, host) in &graph.hosts {
+                let users: Vec<String> =
+                    plan.members.iter().filter(|m| &m.host == name && plan.uses_zenoh(&m.name)).map(|m| m.name.clone()).collect();
+                for (i, member) in users.into_iter().enumerate() {
+                    let port = if host.zenoh_port == 0 { free_port(&host.address) } else { host.zenoh_port + i as u16 };
+                    plan.endpoints.insert(member, format!("tcp/{}:{port}", host.address));
+                }
+            }
+        }
+        plan
+    }
+
+    /// Whether `member` opens a zenoh session: a port over zenoh, or a launcher of a multi-host
+    /// graph (it meets the other launchers).
+    pub fn uses_zenoh(&self, member: &str) -> bool {
+        let launcher = self.members.iter().any(|m| m.name == member && m.name == launcher_name(&m.host));
+        (launcher && self.multi_host) || self.transports.iter().any(|((m, _), t)| m == member && t.uses_zenoh())
+    }
+
+    /// The bus configuration `member` (on `host`) receives.
+    pub fn bus(&self, member: &str, host: &str) -> BusConfig {
+        let topics = self
+            .transports
+            .iter()
+            .filter(|((m, _), _)| m == member)
+            .map(|((_, topic), t)| (topic.clone(), *t))
+            .collect();
+        let zenoh = match (&self.router, self.uses_zenoh(member)) {
+            (_, false) => ZenohConfig::default(),
+            (Some((endpoint, _)), true) => {
+                ZenohConfig { listen: vec![], connect: vec![endpoint.clone()], mode: Some("client".into()) }
+            }
+            (None, true) => ZenohConfig {
+                listen: self.endpoints.get(member).cloned().into_iter().collect(),
+                // A full mesh: zenoh peers do not relay for third parties.
+                connect: self
+                    .endpoints
+                    .iter()
+                    .filter(|(m, _)| m.as_str() != member)
+                    .map(|(_, e)| e.clone())
+                    .chain(self.extra_connect.get(host).into_iter().flatten().cloned())
+                    .collect(),
+                mode: None,
+            },
+        };
+        BusConfig {
+            namespace: self.namespace.clone(),
+            default_transport: Transport::Iceoryx2,
+            topics,
+            zenoh,
+            queue_depth: self.queue_depth,
+            host: if self.multi_host { host.to_string() } else { String::new() },
+        }
+    }
+
+    /// Every topic with its writers and readers (`member@host`) and how each link travels.
+    pub fn routes(&self) -> Vec<Route> {
+        let mut topics: BTreeMap<&str, Route> = BTreeMap::new();
+        for m in &self.members {
+            for t in &m.ports.publishes {
+                topics.entry(t).or_insert_with(|| Route::new(t)).writers.push((m.name.clone(), m.host.clone()));
+            }
+            for t in &m.ports.subscribes {
+                topics.entry(t).or_insert_with(|| Route::new(t)).readers.push((m.name.clone(), m.host.clone()));
+            }
+        }
+        for r in topics.values_mut() {
+            let mut links = std::collections::BTreeSet::new();
+            for (w, wh) in &r.writers {
+                for (rd, rh) in &r.readers {
+                    let wt = self.transports[&(w.clone(), r.topic.clone())];
+                    let rt = self.transports[&(rd.clone(), r.topic.clone())];
+                    let link = if wh == rh && wt.uses_iceoryx2() && rt.uses_iceoryx2() {
+                        format!("iceoryx2 on {wh}")
+                    } else if wt.uses_zenoh() && rt.uses_zenoh() {
+                        if wh == rh { format!("zenoh on {wh}") } else { format!("zenoh {wh} -> {rh}") }
+                    } else {
+                        continue;
+                    };
+                    links.insert(link);
+                }
+            }
+            r.links = links.into_iter().collect();
+        }
+        topics.into_values().collect()
+    }
+}
+
+/// One topic of a routed graph.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Route {
+    pub topic: String,
+    pub writers: Vec<(String, String)>,
+    pub readers: Vec<(String, String)>,
+    /// How the topic travels: `iceoryx2 on a`, `zenoh a -> b`, ...
+    pub links: Vec<String>,
+}
+
+impl Route {
+    fn new(topic: &str) -> Route {
+        Route { topic: topic.to_string(), writers: vec![], readers: vec![], links: vec![] }
+    }
+}
+
+fn free_port(address: &str) -> u16 {
+    std::net::TcpListener::bind((address, 0)).and_then(|l| l.local_addr()).map(|a| a.port()).unwrap_or(7447)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ports(publishes: &[&str], subscribes: &[&str]) -> Ports {
+        Ports {
+            publishes: publishes.iter().map(|s| s.to_string()).collect(),
+            subscribes: subscribes.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+
+    fn two_hosts(topics: &str) -> Graph {
+        let text = format!(
+            "[hosts.a]\naddress='10.1.0.1'\nzenoh_port=7600\n[hosts.b]\naddress='10.1.0.2'\nzenoh_port=7700\n{topics}\n\
+             [[nodes]]\nname='sim'\nbinary='sh'\nhost='a'\n\
+             [[nodes]]\nname='rec'\nbinary='sh'\nhost='a'\n\
+             [[nodes]]\nname='sph'\nbinary='sh'\nhost='b'\n"
+        );
+        Graph::parse("g.toml", &text).unwrap()
+    }
+
+    fn node_ports() -> BTreeMap<String, Ports> {
+        [
+            ("sim".to_string(), ports(&["bodies", "control"], &["grid/contacts"])),
+            ("rec".to_string(), ports(&[], &["bodies", "grid/contacts", "control"])),
+            ("sph".to_string(), ports(&["grid/contacts"], &["bodies", "control"])),
+        ]
+        .into()
+    }
+
+    #[test]
+    fn topics_go_over_iceoryx2_within_a_host_zenoh_across_and_both_when_read_on_both() {
+        let plan = Plan::new(&two_hosts(""), &node_ports());
+        let t = |m: &str, topic: &str| plan.transports[&(m.to_string(), topic.to_string())];
+        // bodies: read by rec (same host) and sph (other host): published once on each transport.
+        assert_eq!(t("sim", "bodies"), Transport::Both);
+        assert_eq!(t("rec", "bodies"), Transport::Iceoryx2);
+        assert_eq!(t("sph", "bodies"), Transport::Zenoh);
+        // grid/contacts: written on b only, read on a.
+        assert_eq!(t("sph", "grid/contacts"), Transport::Zenoh);
+        assert_eq!(t("sim", "grid/contacts"), Transport::Zenoh);
+        // control: written by sim and both launchers, read on both hosts.
+        assert_eq!(t("rec", "control"), Transport::Both);
+        assert_eq!(t(&launcher_name("b"), "control"), Transport::Both);
+        let routes = plan.routes();
+        let bodies = routes.iter().find(|r| r.topic == "bodies").unwrap();
+        assert_eq!(bodies.links, ["iceoryx2 on a", "zenoh a -> b"]);
+    }
+
+    #[test]
+    fn endpoints_are_the_same_on_every_host_and_iceoryx2_names_carry_the_host() {
+        let graph = two_hosts("");
+        let a = Plan::new(&graph, &node_ports());
+        let b = Plan::new(&graph, &node_ports());
+        assert_eq!(a.endpoints, b.endpoints);
+        assert_eq!(a.endpoints[&launcher_name("a")], "tcp/10.1.0.1:7600");
+        assert_eq!(a.endpoints["sim"], "tcp/10.1.0.1:7601");
+        // rec reads only local topics... and control from host b: it needs zenoh too.
+        assert_eq!(a.endpoints["rec"], "tcp/10.1.0.1:7602");
+        assert_eq!(a.endpoints["sph"], "tcp/10.1.0.2:7701");
+        let bus = a.bus("sim", "a");
+        assert_eq!(bus.host, "a");
+        assert_eq!(bus.iox_key("bodies"), format!("dc/{}@a/bodies", graph.namespace));
+        assert_eq!(bus.zenoh.listen, ["tcp/10.1.0.1:7601"]);
+        assert_eq!(bus.zenoh.connect.len(), 4);
+    }
+
+    #[test]
+    fn a_forced_transport_applies_to_every_port_and_a_router_replaces_the_mesh() {
+        let mut graph = two_hosts("[topics]\n'bodies' = 'zenoh'");
+        let plan = Plan::new(&graph, &node_ports());
+        assert_eq!(plan.transports[&("rec".to_string(), "bodies".to_string())], Transport::Zenoh);
+        graph.hosts.get_mut("b").unwrap().router = true;
+        let plan = Plan::new(&graph, &node_ports());
+        let bus = plan.bus("sph", "b");
+        assert_eq!(bus.zenoh.mode.as_deref(), Some("client"));
+        assert_eq!(bus.zenoh.connect, ["tcp/10.1.0.2:7700"]);
+        assert!(bus.zenoh.listen.is_empty());
+    }
+
+    #[test]
+    fn a_one_host_graph_stays_on_iceoryx2_with_unqualified_names() {
+        let graph = Graph::parse("g.toml", "[[nodes]]\nname='sim'\nbinary='sh'\n[[nodes]]\nname='rec'\nbinary='sh'\n").unwrap();
+        let p: BTreeMap<String, Ports> =
+            [("sim".to_string(), ports(&["bodies"], &[])), ("rec".to_string(), ports(&[], &["bodies"]))].into();
+        let plan = Plan::new(&graph, &p);
+        assert!(plan.transports.values().all(|t| *t == Transport::Iceoryx2));
+        assert!(plan.endpoints.is_empty());
+        assert_eq!(plan.bus("sim", "local").host, "");
+    }
+}
