@@ -190,6 +190,8 @@ pub struct Node {
     iox_publishers: std::cell::RefCell<Vec<std::rc::Rc<dyn std::any::Any>>>,
     /// Under `DC_DESCRIBE=1`: the ports asked for so far (none is created).
     describe: Option<std::cell::RefCell<Ports>>,
+    /// Past [`Node::ready`]: a subscriber made now attaches at once.
+    running: std::cell::Cell<bool>,
 }
 
 /// A launched node outlives its work: iceoryx2 maps a publisher's data segment into a subscriber
@@ -255,6 +257,7 @@ impl Node {
             iox_subscribers: Default::default(),
             iox_publishers: Default::default(),
             describe: None,
+            running: Default::default(),
         }
     }
 
@@ -352,8 +355,14 @@ impl Node {
         let transport = self.bus.transport(topic);
         let iox = if transport.uses_iceoryx2() {
             let sub = std::rc::Rc::new(self.iox()?.subscriber::<H, T>(&self.bus, topic)?);
-            let weak: std::rc::Weak<dyn iox::Attach> = std::rc::Rc::downgrade(&sub) as _;
-            self.iox_subscribers.borrow_mut().push(weak);
+            if self.running.get() {
+                // Made mid-run (a simulator's grid subscriber): publishers deliver only to
+                // subscribers attached to their connection, so attach before anything is asked.
+                iox::Attach::attach(&*sub);
+            } else {
+                let weak: std::rc::Weak<dyn iox::Attach> = std::rc::Rc::downgrade(&sub) as _;
+                self.iox_subscribers.borrow_mut().push(weak);
+            }
             Some(sub)
         } else {
             None
@@ -393,6 +402,7 @@ impl Node {
         }
         if !self.launched {
             self.attach_subscribers();
+            self.running.set(true);
             return Ok(true);
         }
         say(READY_MARKER)?;
@@ -400,6 +410,7 @@ impl Node {
             return Ok(false);
         }
         self.attach_subscribers();
+        self.running.set(true);
         say(CONNECTED_MARKER)?;
         self.wait_for_line(START_LINE)
     }

@@ -143,17 +143,39 @@ enum Producer {
     Resuming,
 }
 
-/// The launcher's notices about the node that publishes a grid topic, read from the control topic.
-/// Shared by the grid source (while it waits) and the step loop (every step, so that the
-/// simulator's own control messages never pile up in this subscriber and hold it back).
-struct ProducerWatch {
+/// The grid of a step from the bus, waiting up to the deadline; later grids are kept for their step.
+/// Also watches the control topic for the launcher's notices about the grid's producer. Shared by
+/// the warm-start model (which asks for grids) and the step loop, which drains both subscribers
+/// every step: grids of other simulators sharing the producer, grids of steps that needed none
+/// (no contacts) and our own control messages must never fill a queue, or the producer stalls
+/// on it while another simulator waits for its reply.
+struct BusGridSource {
+    sub: runtime::Subscriber<msgs::GridHeader, f32>,
     control: runtime::Subscriber<msgs::Control, u8>,
-    topic: String,
     producer: Producer,
+    deadline: Option<Duration>,
+    lockstep_timeout: Duration,
+    resume_patience: Duration,
+    /// Simulation ids of this simulator: several simulators may share one grid producer.
+    simulations: std::collections::BTreeSet<u32>,
+    pending: Option<msgs::Grid>,
+    shutdown: runtime::ShutdownSignal,
 }
 
-impl ProducerWatch {
-    fn read(&mut self) {
+type SharedSource = std::rc::Rc<std::cell::RefCell<BusGridSource>>;
+
+/// The warm-start model's handle on the shared source.
+struct SourceHandle(SharedSource);
+
+impl GridSource for SourceHandle {
+    fn grid(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Grid> {
+        self.0.borrow_mut().grid(run_id, simulation, step)
+    }
+}
+
+impl BusGridSource {
+    /// Applies the launcher's notices about the node that publishes our grid topic.
+    fn read_control(&mut self) {
         loop {
             let c = match self.control.try_recv() {
                 Ok(Some(c)) => c,
@@ -168,55 +190,60 @@ impl ProducerWatch {
                 continue;
             }
             let details: serde_json::Value = serde_json::from_slice(c.items()).unwrap_or_default();
+            let topic = self.sub.topic();
             let ours = details["publishes"]
                 .as_array()
-                .is_some_and(|topics| topics.iter().any(|t| t.as_str() == Some(self.topic.as_str())));
+                .is_some_and(|topics| topics.iter().any(|t| t.as_str() == Some(topic)));
             if !ours {
                 continue;
             }
             let node = details["node"].as_str().unwrap_or("?");
             if kind == Some(ControlKind::NodeDown) {
-                tracing::warn!(node, topic = %self.topic, "grid producer down: falling back until it returns");
+                tracing::warn!(node, topic, "grid producer down: falling back until it returns");
                 self.producer = Producer::Down;
             } else {
-                tracing::info!(node, topic = %self.topic, "grid producer back: resuming");
+                tracing::info!(node, topic, "grid producer back: resuming");
                 self.producer = Producer::Resuming;
             }
         }
     }
-}
 
-type SharedWatch = std::rc::Rc<std::cell::RefCell<ProducerWatch>>;
+    /// Before step `step` of `simulation`: reads the notices, and takes every grid waiting,
+    /// keeping only the newest of ours that this step or a later one can use.
+    fn between_steps(&mut self, run_id: u64, simulation: u32, step: u32) {
+        self.read_control();
+        loop {
+            let got = match self.sub.try_recv() {
+                Ok(Some(r)) => r,
+                Ok(None) => return,
+                Err(e) => {
+                    tracing::warn!("grid subscriber: {e}");
+                    return;
+                }
+            };
+            let h = *got.header();
+            // Step k is warm-started from the grid made of step k - 1.
+            if !self.is_ours(run_id, &h) || (h.step.simulation, h.step.step) < (simulation, step.saturating_sub(1)) {
+                continue;
+            }
+            self.producer = Producer::Up;
+            self.pending = Some(got.into_frame());
+        }
+    }
 
-/// The grid of a step from the bus, waiting up to the deadline; later grids are kept for their step.
-struct BusGridSource {
-    sub: runtime::Subscriber<msgs::GridHeader, f32>,
-    watch: SharedWatch,
-    deadline: Option<Duration>,
-    lockstep_timeout: Duration,
-    resume_patience: Duration,
-    /// Simulation ids of this simulator: several simulators may share one grid producer.
-    simulations: std::collections::BTreeSet<u32>,
-    pending: Option<msgs::Grid>,
-    shutdown: runtime::ShutdownSignal,
-}
-
-impl BusGridSource {
-    fn set_producer(&self, p: Producer) {
-        self.watch.borrow_mut().producer = p;
+    fn is_ours(&self, run_id: u64, h: &msgs::GridHeader) -> bool {
+        (run_id == 0 || h.step.run_id == run_id) && self.simulations.contains(&h.step.simulation)
     }
 
     fn wait_limit(&self) -> Option<Duration> {
-        match (self.watch.borrow().producer, self.deadline) {
+        match (self.producer, self.deadline) {
             (Producer::Down, _) => Some(Duration::ZERO),
             (Producer::Resuming, d) => Some(d.map_or(self.resume_patience, |d| d.min(self.resume_patience))),
             (Producer::Up, Some(d)) => Some(d),
             (Producer::Up, None) => None,
         }
     }
-}
 
-impl GridSource for BusGridSource {
     fn grid(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Grid> {
         // Simulations run in increasing id order, so (simulation, step) orders the stream.
         let want = (simulation, step);
@@ -233,7 +260,7 @@ impl GridSource for BusGridSource {
         }
         let start = Instant::now();
         loop {
-            self.watch.borrow_mut().read();
+            self.read_control();
             let waited = start.elapsed();
             let slice = match self.wait_limit() {
                 Some(limit) => match limit.checked_sub(waited) {
@@ -249,7 +276,7 @@ impl GridSource for BusGridSource {
                             simulation, step, waited = ?waited,
                             "no grid within --lockstep-timeout: its producer counts as lost; falling back"
                         );
-                        self.set_producer(Producer::Resuming);
+                        self.producer = Producer::Resuming;
                         return None;
                     }
                     Duration::from_millis(20)
@@ -264,11 +291,11 @@ impl GridSource for BusGridSource {
                 }
             };
             let h = *got.header();
-            if (run_id != 0 && h.step.run_id != run_id) || !self.simulations.contains(&h.step.simulation) {
+            if !self.is_ours(run_id, &h) {
                 continue; // another run's leftovers, or another simulator's grid
             }
             // Grids flow again: back to waiting for each one.
-            self.set_producer(Producer::Up);
+            self.producer = Producer::Up;
             match key(&h).cmp(&want) {
                 std::cmp::Ordering::Less => continue, // stale: its step was already solved
                 std::cmp::Ordering::Equal => return Some(got.into_frame()),
@@ -384,28 +411,22 @@ fn run(
     // the producer, which stalls the simulator in turn (a deadlock seen in `dc eval`). In lockstep
     // at most one grid is outstanding, so the loop cannot fill it.
     let topic = grid_topic(model_kind);
-    let watch: Option<SharedWatch> = match topic {
-        // Our own control messages arrive here too; the step loop drains it every step.
-        Some(topic) => Some(std::rc::Rc::new(std::cell::RefCell::new(ProducerWatch {
-            control: node.subscriber(msgs::topics::CONTROL)?,
-            topic: topic.name.to_string(),
-            producer: Producer::Up,
-        }))),
-        None => None,
-    };
-    let source: Option<Box<dyn GridSource>> = match (topic, &watch) {
-        (Some(topic), Some(watch)) => Some(Box::new(BusGridSource {
+    let shared: Option<SharedSource> = match topic {
+        Some(topic) => Some(std::rc::Rc::new(std::cell::RefCell::new(BusGridSource {
             sub: node.subscriber(topic)?,
-            watch: watch.clone(),
+            // Our own control messages arrive here too; the step loop drains it every step.
+            control: node.subscriber(msgs::topics::CONTROL)?,
+            producer: Producer::Up,
             deadline: args.deadline.0,
             lockstep_timeout: args.lockstep_timeout,
             resume_patience: args.resume_patience,
             simulations: seeds.iter().map(|&s| s as u32).collect(),
             pending: None,
             shutdown: node.shutdown_signal(),
-        })),
-        _ => None,
+        }))),
+        None => None,
     };
+    let source = shared.clone().map(|s| Box::new(SourceHandle(s)) as Box<dyn GridSource>);
     let model = model_kind.build_with_source(args.seed, source)?;
     let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
     let run_header = StepHeader { run_id, simulation: 0, step: 0 };
@@ -436,8 +457,8 @@ fn run(
             if node.is_shutdown() {
                 break 'run;
             }
-            if let Some(w) = &watch {
-                w.borrow_mut().read();
+            if let Some(source) = &shared {
+                source.borrow_mut().between_steps(run_id, simulation, step);
             }
             let stats = world.step(&mut warm).clone();
             let header = StepHeader { run_id, simulation, step };

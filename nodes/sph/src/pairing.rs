@@ -5,22 +5,35 @@
 //! run ahead of the other, and a frame can be missing (a dropped sample, a node restarted mid-run).
 //! The pairer queues each stream and pairs equal headers; a frame that can no longer find a partner
 //! (the other stream has moved past its step) is dropped and counted, never paired with another step.
+//! Several simulators may feed one node: each run (run id) has its own lane, in order within
+//! itself, whatever the interleaving between runs.
 
 use msgs::StepHeader;
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 
 /// Pairs frames of two streams that carry the same [`StepHeader`].
 #[derive(Debug)]
 pub struct StepPairer<A, B> {
+    lanes: BTreeMap<u64, Lane<A, B>>,
+    dropped: u64,
+}
+
+/// The queued frames of one run.
+#[derive(Debug)]
+struct Lane<A, B> {
     a: VecDeque<(StepHeader, A)>,
     b: VecDeque<(StepHeader, B)>,
-    run_id: Option<u64>,
-    dropped: u64,
+}
+
+impl<A, B> Default for Lane<A, B> {
+    fn default() -> Self {
+        Lane { a: VecDeque::new(), b: VecDeque::new() }
+    }
 }
 
 impl<A, B> Default for StepPairer<A, B> {
     fn default() -> Self {
-        StepPairer { a: VecDeque::new(), b: VecDeque::new(), run_id: None, dropped: 0 }
+        StepPairer { lanes: BTreeMap::new(), dropped: 0 }
     }
 }
 
@@ -37,14 +50,12 @@ impl<A, B> StepPairer<A, B> {
 
     /// Queues a frame of the first stream.
     pub fn push_a(&mut self, header: StepHeader, frame: A) {
-        self.new_run(header.run_id);
-        self.a.push_back((header, frame));
+        self.lanes.entry(header.run_id).or_default().a.push_back((header, frame));
     }
 
     /// Queues a frame of the second stream.
     pub fn push_b(&mut self, header: StepHeader, frame: B) {
-        self.new_run(header.run_id);
-        self.b.push_back((header, frame));
+        self.lanes.entry(header.run_id).or_default().b.push_back((header, frame));
     }
 
     /// Frames dropped so far for want of a partner.
@@ -54,46 +65,47 @@ impl<A, B> StepPairer<A, B> {
 
     /// Frames waiting for a partner.
     pub fn pending(&self) -> usize {
-        self.a.len() + self.b.len()
+        self.pending_a() + self.pending_b()
     }
 
     /// Frames of the first stream waiting for a partner.
     pub fn pending_a(&self) -> usize {
-        self.a.len()
+        self.lanes.values().map(|l| l.a.len()).sum()
     }
 
     /// Frames of the second stream waiting for a partner.
     pub fn pending_b(&self) -> usize {
-        self.b.len()
+        self.lanes.values().map(|l| l.b.len()).sum()
     }
 
-    /// The next pair with equal headers, dropping frames whose step the other stream has passed.
+    /// The next pair with equal headers (of any run), dropping frames whose step the other stream
+    /// of their run has passed.
     pub fn pop(&mut self) -> Option<(StepHeader, A, B)> {
-        loop {
-            let (ha, hb) = (self.a.front()?.0, self.b.front()?.0);
-            if ha == hb {
-                let (h, a) = self.a.pop_front()?;
-                let (_, b) = self.b.pop_front()?;
-                return Some((h, a, b));
+        let mut found = None;
+        for lane in self.lanes.values_mut() {
+            loop {
+                let (Some(fa), Some(fb)) = (lane.a.front(), lane.b.front()) else { break };
+                let (ha, hb) = (fa.0, fb.0);
+                if ha == hb {
+                    let (h, a) = lane.a.pop_front().expect("front exists");
+                    let (_, b) = lane.b.pop_front().expect("front exists");
+                    found = Some((h, a, b));
+                    break;
+                }
+                // The older of the two fronts can never be paired: its partner would have come first.
+                if key(&ha) < key(&hb) {
+                    lane.a.pop_front();
+                } else {
+                    lane.b.pop_front();
+                }
+                self.dropped += 1;
             }
-            // The older of the two fronts can never be paired: its partner would have come first.
-            if key(&ha) < key(&hb) {
-                self.a.pop_front();
-            } else {
-                self.b.pop_front();
+            if found.is_some() {
+                break;
             }
-            self.dropped += 1;
         }
-    }
-
-    /// A frame of another run makes everything queued from the previous run stale.
-    fn new_run(&mut self, run_id: u64) {
-        if self.run_id != Some(run_id) {
-            self.dropped += (self.a.len() + self.b.len()) as u64;
-            self.a.clear();
-            self.b.clear();
-            self.run_id = Some(run_id);
-        }
+        self.lanes.retain(|_, l| !l.a.is_empty() || !l.b.is_empty());
+        found
     }
 }
 
@@ -135,12 +147,22 @@ mod tests {
     }
 
     #[test]
-    fn a_new_run_clears_the_old_one() {
+    fn interleaved_runs_of_several_simulators_pair_within_their_own_run() {
         let mut p = StepPairer::new();
-        p.push_a(h(0, 7), 1);
-        p.push_b(StepHeader { run_id: 2, simulation: 0, step: 0 }, 2);
-        p.push_a(StepHeader { run_id: 2, simulation: 0, step: 0 }, 3);
-        assert_eq!(p.pop().map(|(_, a, b)| (a, b)), Some((3, 2)));
-        assert_eq!(p.dropped(), 1);
+        let r = |run_id: u64, step: u32| StepHeader { run_id, simulation: run_id as u32, step };
+        // Run 1's bodies, then run 2's bodies and contacts, then run 1's contacts.
+        p.push_a(r(1, 0), 10);
+        p.push_a(r(2, 0), 20);
+        p.push_b(r(2, 0), 21);
+        p.push_a(r(1, 1), 12);
+        p.push_b(r(1, 0), 11);
+        p.push_b(r(1, 1), 13);
+        let mut pairs = Vec::new();
+        while let Some((h, a, b)) = p.pop() {
+            pairs.push((h.run_id, h.step, a, b));
+        }
+        pairs.sort();
+        assert_eq!(pairs, [(1, 0, 10, 11), (1, 1, 12, 13), (2, 0, 20, 21)]);
+        assert_eq!((p.dropped(), p.pending()), (0, 0));
     }
 }
