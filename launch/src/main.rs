@@ -102,6 +102,22 @@ struct EvalArgs {
 
 #[derive(Subcommand)]
 enum BenchWhat {
+    /// Steps/s of the closed loop (sim + sph + unet + metrics + recorder, lockstep) on one host
+    /// over iceoryx2, the same graph with every topic over zenoh, and every stage in one process.
+    Loop {
+        #[arg(long, default_value = "0..2")]
+        seeds: String,
+        #[arg(long, default_value_t = 100)]
+        steps: u32,
+        /// Dynamic bodies (ball-box).
+        #[arg(long, default_value_t = 40)]
+        n: u32,
+        #[arg(long, default_value = "models/unet-demo.dcu")]
+        unet_model: PathBuf,
+        /// Repetitions of each variant (the median is reported).
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+    },
     /// One-way latency and throughput of iceoryx2, zenoh and an in-process channel.
     Bus {
         /// Frames in the throughput phase.
@@ -162,6 +178,9 @@ fn real_main(cli: Cli) -> Result<()> {
         }
         Command::Eval(args) => eval(args),
         Command::Bench { what: BenchWhat::Bus { count, latency_count } } => bench_bus(count, latency_count),
+        Command::Bench { what: BenchWhat::Loop { seeds, steps, n, unet_model, repeat } } => {
+            bench_loop(&seeds, steps, n, &unet_model, repeat.max(1))
+        }
     }
 }
 
@@ -274,6 +293,125 @@ fn bench_bus(count: u32, latency_count: u32) -> Result<()> {
     Ok(())
 }
 
+/// One run of a loop variant: steps, seconds in the step loops, total sweeps, fallbacks.
+#[derive(serde::Deserialize, Debug, Clone)]
+struct LoopRun {
+    steps: u64,
+    loop_secs: f64,
+    total_sweeps: u64,
+    fallbacks: u64,
+}
+
+fn bench_loop(seeds: &str, steps: u32, n: u32, model: &std::path::Path, repeat: usize) -> Result<()> {
+    let find = |b: &str| find_binary(b).with_context(|| format!("{b} not built (cargo build --workspace --bins)"));
+    let unet = find("dc-unet")?;
+    let sph_args = unet_sph_args(&unet, model)?;
+    let scratch = std::env::temp_dir().join(unique_namespace("bench-loop"));
+    std::fs::create_dir_all(&scratch)?;
+    let flag = interrupt_flag();
+    println!("closed loop: ball-box, {n} bodies, seeds {seeds}, {steps} steps, unet model {} (lockstep), {repeat} runs each", model.display());
+    println!("{:<34} {:>10} {:>10} {:>12} {:>9}", "variant", "steps/s", "loop s", "total sweeps", "fallbacks");
+    let mut medians = Vec::new();
+    for variant in ["one process (no bus)", "graph, iceoryx2 (one host)", "graph, every topic over zenoh"] {
+        let mut runs = Vec::new();
+        for r in 0..repeat {
+            let run: LoopRun = if variant.starts_with("one process") {
+                let out = std::process::Command::new(&unet)
+                    .args(["loop-bench", "--seeds", seeds, "--steps", &steps.to_string(), "--n", &n.to_string()])
+                    .arg("--model")
+                    .arg(model)
+                    .arg("--record")
+                    .arg(scratch.join(format!("inprocess-{r}.mcap")))
+                    .output()?;
+                if !out.status.success() {
+                    bail!("dc-unet loop-bench failed: {}", String::from_utf8_lossy(&out.stderr));
+                }
+                let line = String::from_utf8_lossy(&out.stdout).lines().last().unwrap_or_default().to_string();
+                serde_json::from_str(&line).with_context(|| format!("bad result line `{line}`"))?
+            } else {
+                let zenoh = variant.contains("zenoh");
+                let dir = scratch.join(format!("{}-{r}", if zenoh { "zenoh" } else { "iceoryx2" }));
+                let graph = loop_graph(seeds, steps, n, model, &sph_args, &dir, zenoh)?;
+                let report = supervisor::run(&graph, DEFAULT_HOST, Output::Capture, &flag)?;
+                let line = report
+                    .stdout
+                    .get("sim")
+                    .and_then(|lines| lines.iter().find_map(|l| l.strip_prefix("dc-sim run ")))
+                    .context("the simulator printed no run summary")?
+                    .to_string();
+                serde_json::from_str(&line).with_context(|| format!("bad summary `{line}`"))?
+            };
+            runs.push(run);
+        }
+        runs.sort_by(|a, b| (a.steps as f64 / a.loop_secs).total_cmp(&(b.steps as f64 / b.loop_secs)));
+        let m = runs[runs.len() / 2].clone();
+        let rate = m.steps as f64 / m.loop_secs;
+        println!("{variant:<34} {rate:>10.1} {:>10.2} {:>12} {:>9}", m.loop_secs, m.total_sweeps, m.fallbacks);
+        medians.push((rate, m));
+    }
+    let (inproc, iox, zenoh) = (medians[0].0, medians[1].0, medians[2].0);
+    println!("ratios (steps/s): iceoryx2 / one process = {:.2} (target >= 0.9); zenoh / one process = {:.2}; zenoh / iceoryx2 = {:.2}", iox / inproc, zenoh / inproc, zenoh / iox);
+    let same = medians.iter().all(|(_, m)| m.total_sweeps == medians[0].1.total_sweeps);
+    println!("same total sweeps in every variant (lockstep solves the same problems): {same}");
+    let _ = std::fs::remove_dir_all(&scratch);
+    Ok(())
+}
+
+/// The `dc-sph` arguments that make the input grids `model` was trained on.
+fn unet_sph_args(unet: &std::path::Path, model: &std::path::Path) -> Result<Vec<String>> {
+    let out = std::process::Command::new(unet).arg("sph-args").arg(model).output().context("running dc-unet sph-args")?;
+    if !out.status.success() {
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        // The first line is the error; a backtrace may follow.
+        bail!("{}", stderr.lines().next().unwrap_or("").trim_start_matches("Error: "));
+    }
+    Ok(String::from_utf8_lossy(&out.stdout).lines().map(str::to_string).collect())
+}
+
+/// The closed loop as a graph: sim (lockstep unet) + sph + unet + metrics + recorder.
+fn loop_graph(seeds: &str, steps: u32, n: u32, model: &std::path::Path, sph_args: &[String], dir: &std::path::Path, zenoh: bool) -> Result<Graph> {
+    let mut graph = Graph::parse("<bench-loop>", "[[nodes]]\nname = 'x'\nbinary = 'sh'\n").expect("built-in graph parses");
+    graph.name = "bench-loop".into();
+    graph.namespace = unique_namespace("loop");
+    let node = |name: &str, binary: &str, daemon: bool, args: Vec<String>| -> Result<NodeSpec> {
+        Ok(NodeSpec {
+            name: name.into(),
+            binary: binary.into(),
+            program: find_binary(binary).with_context(|| format!("{binary} not built"))?,
+            host: DEFAULT_HOST.into(),
+            daemon,
+            on_failure: Default::default(),
+            args,
+            env: [("RUST_LOG".to_string(), "warn".to_string())].into(),
+            line: 0,
+        })
+    };
+    graph.nodes = vec![
+        node("sph", "dc-sph", true, sph_args.to_vec())?,
+        node("unet", "dc-unet", true, vec![format!("--model={}", model.display())])?,
+        node("recorder", "dc-record", true, vec![format!("--dir={}", dir.join("recordings").display())])?,
+        node("metrics", "dc-metrics", false, vec!["--runs=1".into(), format!("--out={}", dir.join("report").display())])?,
+        node(
+            "sim",
+            "dc-sim",
+            false,
+            vec![
+                "--models=unet".into(),
+                format!("--seeds={seeds}"),
+                format!("--steps={steps}"),
+                format!("--n={n}"),
+                "--deadline=none".into(),
+            ],
+        )?,
+    ];
+    if zenoh {
+        for t in msgs::topics::ALL {
+            graph.topics.insert(t.to_string(), Transport::Zenoh);
+        }
+    }
+    Ok(graph)
+}
+
 /// A two-node graph (source -> sink) over one transport, in its own namespace.
 fn bench_graph(program: &std::path::Path, args: &[String], zenoh: bool) -> Graph {
     let node = |name: &str, role: &str| NodeSpec {
@@ -356,18 +494,7 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
             );
         }
         // The SPH node must make exactly the grids the model was trained on: the model file says how.
-        let out = std::process::Command::new(find("dc-unet")?)
-            .arg("sph-args")
-            .arg(&args.unet_model)
-            .output()
-            .context("running dc-unet sph-args")?;
-        if !out.status.success() {
-            let stderr = String::from_utf8_lossy(&out.stderr);
-            // The first line is the error; a backtrace may follow.
-            let why = stderr.lines().next().unwrap_or("").trim_start_matches("Error: ");
-            bail!("--unet-model: {why}");
-        }
-        sph_args = String::from_utf8_lossy(&out.stdout).lines().map(str::to_string).collect();
+        sph_args = unet_sph_args(&find("dc-unet")?, &args.unet_model).context("--unet-model")?;
     }
     if grid_based {
         let sph = find("dc-sph")?;

@@ -243,8 +243,10 @@ impl Node {
         // One handler per process; every node of the process sees the signal.
         static INSTALL: std::sync::Once = std::sync::Once::new();
         INSTALL.call_once(|| {
-            if let Err(e) = ctrlc::set_handler(|| SIGNALLED.store(true, Ordering::SeqCst)) {
-                tracing::warn!("could not install the Ctrl-C handler: {e}");
+            match ctrlc::set_handler(|| SIGNALLED.store(true, Ordering::SeqCst)) {
+                // The process (a launcher) handles signals itself.
+                Ok(()) | Err(ctrlc::Error::MultipleHandlers) => {}
+                Err(e) => tracing::warn!("could not install the Ctrl-C handler: {e}"),
             }
         });
         Node {

@@ -386,6 +386,9 @@ fn grid_topic(model: ModelKind) -> Option<msgs::topics::Topic<msgs::GridHeader, 
     }
 }
 
+/// Prefix of the JSON line with a run's totals on stdout.
+const RUN_SUMMARY_PREFIX: &str = "dc-sim run ";
+
 /// The simulator's publishers.
 struct Publishers {
     bodies: runtime::Publisher<StepHeader, msgs::Body>,
@@ -440,6 +443,8 @@ fn run(
     tracing::info!(run_id, simulations = seeds.len(), model = model_kind.name(), "run start");
 
     let (mut bodies, mut contacts, mut residuals) = (Vec::new(), Vec::new(), Vec::new());
+    // The run's totals, printed on stdout at its end (benchmarks read them).
+    let (mut run_steps, mut run_secs, mut run_sweeps, mut run_fallbacks) = (0u64, 0f64, 0u64, 0u64);
     'run: for &seed in seeds {
         let simulation = u32::try_from(seed).context("seeds must fit in u32 (they are simulation ids)")?;
         let mut world = World::new(&args.scene_config(seed), params)?;
@@ -489,8 +494,17 @@ fn run(
             secs = started.elapsed().as_secs_f32(),
             "simulation done"
         );
+        run_steps += world.steps_taken() as u64;
+        run_secs += started.elapsed().as_secs_f64();
+        run_sweeps += total_sweeps;
+        run_fallbacks += warm.fallbacks_total() as u64;
     }
     control_pub.publish_frame(&ControlMsg::control(run_header, ControlKind::RunEnd, seeds.len() as u32, ""))?;
     tracing::info!(run_id, "run end");
+    let summary = serde_json::json!({
+        "run_id": run_id, "model": model_kind.name(), "steps": run_steps, "loop_secs": run_secs,
+        "total_sweeps": run_sweeps, "fallbacks": run_fallbacks,
+    });
+    println!("{RUN_SUMMARY_PREFIX}{summary}");
     Ok(())
 }

@@ -9,6 +9,7 @@
 
 pub mod data;
 pub mod infer;
+pub mod inprocess;
 pub mod model;
 pub mod modelfile;
 pub mod schedule;

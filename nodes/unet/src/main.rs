@@ -45,6 +45,28 @@ enum Command {
     SphArgs { model: PathBuf },
     /// Inference and training-step timings per backend.
     Bench(BenchArgs),
+    /// The closed loop (sim, SPH, U-Net, statistics, recording) in this one process, no bus;
+    /// prints one JSON line (steps, loop seconds, sweeps, fallbacks). `dc bench loop` compares it
+    /// with the same loop as a graph.
+    LoopBench(LoopBenchArgs),
+}
+
+#[derive(Args, Debug)]
+struct LoopBenchArgs {
+    #[arg(long, default_value = "models/unet-demo.dcu")]
+    model: PathBuf,
+    #[arg(long, default_value = "0..2")]
+    seeds: String,
+    #[arg(long, default_value_t = 100)]
+    steps: u32,
+    /// Dynamic bodies (ball-box scene).
+    #[arg(long, default_value_t = 40)]
+    n: usize,
+    /// Where the recording goes.
+    #[arg(long)]
+    record: PathBuf,
+    #[arg(long, default_value = "flex")]
+    device: String,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -229,6 +251,15 @@ fn main() -> Result<()> {
             Ok(())
         }
         Some(Command::Bench(a)) => bench(&a),
+        Some(Command::LoopBench(a)) => {
+            let device = unet::device(&a.device)?;
+            let predictor = unet::Predictor::load(&a.model, &device)?;
+            let seeds = msgs::parse_seeds(&a.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
+            let scene = sim::SceneConfig { n: a.n, ..Default::default() };
+            let run = unet::inprocess::run_loop(&predictor, &scene, sim::WorldParams::default(), &seeds, a.steps, &a.record)?;
+            println!("{}", serde_json::to_string(&run)?);
+            Ok(())
+        }
     }
 }
 
