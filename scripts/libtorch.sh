@@ -9,14 +9,15 @@
 #
 # burn-tch 0.22.1 expects PyTorch 2.9; the torch 2.11.0 wheel (a CUDA 13 build) works with the
 # version check bypassed. Its libtorch_cpu.so links libcudart.so.13 and libcupti.so.13 even on
-# CPU, hence the two NVIDIA runtime wheels.
+# CPU, hence the two NVIDIA runtime wheels; `--no-deps` keeps the rest of the CUDA stack (GBs)
+# out: libtorch itself needs only these.
 set -euo pipefail
 env_only=false
 if [[ "${1:-}" == "--env" ]]; then env_only=true; shift; fi
 dir="${1:-$HOME/.cache/deep-contact/libtorch}"
 torch_version="${TORCH_VERSION:-2.11.0}"
 if ! $env_only; then
-  python3 -m pip install --disable-pip-version-check --target "$dir" \
+  python3 -m pip install --disable-pip-version-check --no-deps --target "$dir" \
     "torch==${torch_version}" nvidia-cuda-runtime nvidia-cuda-cupti >&2
 fi
 libs="$dir/torch/lib"

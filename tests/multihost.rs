@@ -169,3 +169,89 @@ fn a_two_host_graph_over_zenoh_matches_the_one_host_run_step_for_step() {
         assert_eq!(Some(one), two_steps.get(key), "simulation {} step {}: sweeps differ", key.0, key.1);
     }
 }
+
+/// A free TCP port on loopback (the launchers of both "hosts" must agree on it, so it is fixed
+/// in the file rather than picked by each).
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+#[test]
+fn two_hosts_through_a_zenoh_router_deliver_every_frame_bit_for_bit() {
+    // Two "hosts" on loopback (no root needed): host `b` runs the graph's zenoh router, every node
+    // connects to it; the frames cross from `a` to `b` through it and are checked on arrival.
+    let dir = scratch_dir("router");
+    let file = dir.join("router.toml");
+    let graph = format!(
+        r#"
+[hosts.a]
+address = "127.0.0.1"
+[hosts.b]
+address = "127.0.0.1"
+zenoh_port = {}
+router = true
+
+[[nodes]]
+name = "source"
+binary = "dc-bench-bus"
+host = "a"
+params = {{ role = "source", kind = "bodies", n = 1000, count = 100, verify = true }}
+
+[[nodes]]
+name = "sink"
+binary = "dc-bench-bus"
+host = "b"
+params = {{ role = "sink", kind = "bodies", n = 1000, count = 100, verify = true, timeout-s = 20 }}
+"#,
+        free_port()
+    );
+    std::fs::write(&file, graph).unwrap();
+    let namespace = unique_namespace("router");
+    let dry = Command::new(bin("dc")).arg("list").arg(&file).output().unwrap();
+    let dry_text = String::from_utf8_lossy(&dry.stdout);
+    assert!(dry_text.contains("zenoh router: tcp/127.0.0.1:") && dry_text.contains("[zenoh a -> b]"), "{}", text(&dry));
+    let start = |host: &str| {
+        Command::new(bin("dc"))
+            .arg("launch")
+            .arg(&file)
+            .args(["--host", host, "--namespace", &namespace])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    // The source's host first: it must wait for the sink's host before anything flows.
+    let a = start("a");
+    std::thread::sleep(Duration::from_millis(500));
+    let b = start("b");
+    let out_b = wait(b, "host b", Duration::from_secs(90));
+    let out_a = wait(a, "host a", Duration::from_secs(30));
+    assert!(out_a.status.success(), "host a: {}", text(&out_a));
+    assert!(out_b.status.success(), "host b: {}", text(&out_b));
+    let sink = String::from_utf8_lossy(&out_b.stdout);
+    assert!(sink.contains("\"verified\":100"), "{}", text(&out_b));
+}
+
+#[test]
+fn a_host_that_never_comes_is_named_after_the_wait() {
+    let dir = scratch_dir("lonely");
+    let file = dir.join("lonely.toml");
+    let (pa, pb) = (free_port(), free_port());
+    let graph = format!(
+        "[hosts.a]\naddress = \"127.0.0.1\"\nzenoh_port = {pa}\n[hosts.b]\naddress = \"127.0.0.1\"\nzenoh_port = {pb}\n\
+         [[nodes]]\nname = \"source\"\nbinary = \"dc-bench-bus\"\nhost = \"a\"\nparams = {{ role = \"source\", count = 10 }}\n\
+         [[nodes]]\nname = \"sink\"\nbinary = \"dc-bench-bus\"\nhost = \"b\"\nparams = {{ role = \"sink\", count = 10 }}\n"
+    );
+    std::fs::write(&file, graph).unwrap();
+    let started = Instant::now();
+    let out = Command::new(bin("dc"))
+        .arg("launch")
+        .arg(&file)
+        .args(["--host", "a", "--wait-hosts", "2s", "--namespace", &unique_namespace("lonely")])
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "{}", text(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("host `b` did not get its nodes connected within 2 s"), "{stderr}");
+    assert!(started.elapsed() < Duration::from_secs(30), "gave up late: {:?}", started.elapsed());
+}

@@ -30,6 +30,10 @@ enum Command {
         /// Show what would start where and over which transport, then exit.
         #[arg(long)]
         dry_run: bool,
+        /// With several hosts: how long to wait for the other hosts' nodes before giving up
+        /// (`120s`, `500ms`).
+        #[arg(long, default_value = "120s", value_parser = parse_duration)]
+        wait_hosts: std::time::Duration,
     },
     /// Start one node by hand: `dc run sim --steps 10` runs `dc-sim --steps 10`.
     Run {
@@ -155,7 +159,7 @@ fn interrupt_flag() -> Arc<AtomicBool> {
 
 fn real_main(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Launch { file, host, namespace, dry_run } => {
+        Command::Launch { file, host, namespace, dry_run, wait_hosts } => {
             let mut graph = Graph::load(&file)?;
             if let Some(ns) = namespace {
                 graph.namespace = ns;
@@ -166,7 +170,8 @@ fn real_main(cli: Cli) -> Result<()> {
                 return print_graph(&graph, Some(&host));
             }
             let flag = interrupt_flag();
-            supervisor::run(&graph, &host, Output::Forward, &flag)?;
+            let options = supervisor::RunOptions { hosts_timeout: wait_hosts };
+            supervisor::run_with(&graph, &host, Output::Forward, &flag, &options)?;
             Ok(())
         }
         Command::Run { node, args } => exec_node(&node, &args),
@@ -181,6 +186,21 @@ fn real_main(cli: Cli) -> Result<()> {
         Command::Bench { what: BenchWhat::Loop { seeds, steps, n, unet_model, repeat } } => {
             bench_loop(&seeds, steps, n, &unet_model, repeat.max(1))
         }
+    }
+}
+
+fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
+    let t = s.trim();
+    let (num, scale) = if let Some(v) = t.strip_suffix("ms") {
+        (v, 1e-3)
+    } else if let Some(v) = t.strip_suffix('s') {
+        (v, 1.0)
+    } else {
+        return Err(format!("`{s}`: expected a duration like 120s or 500ms"));
+    };
+    match num.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(std::time::Duration::from_secs_f64(v * scale)),
+        _ => Err(format!("`{s}`: expected a duration like 120s or 500ms")),
     }
 }
 

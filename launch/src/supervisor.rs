@@ -13,8 +13,18 @@ use std::time::{Duration, Instant};
 
 /// How long nodes get to finish after SIGTERM before SIGKILL.
 const STOP_GRACE: Duration = Duration::from_secs(5);
-/// How long a launcher waits for the other hosts' launchers to have their nodes connected.
-const HOSTS_TIMEOUT: Duration = Duration::from_secs(120);
+/// Knobs of a run.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// How long a launcher waits for the other hosts' launchers to have their nodes connected.
+    pub hosts_timeout: Duration,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions { hosts_timeout: Duration::from_secs(120) }
+    }
+}
 
 /// How a graph run ended.
 #[derive(Debug, thiserror::Error)]
@@ -33,8 +43,8 @@ pub enum RunError {
     Graph(#[from] crate::graph::GraphError),
     #[error("launcher bus: {0}")]
     Bus(String),
-    #[error("hosts {missing} did not get their nodes connected within {secs} s (is `dc launch --host` running there, and can this host reach them?)")]
-    HostsMissing { missing: String, secs: u64 },
+    #[error("host {missing} did not get its nodes connected within {secs} s (is `dc launch --host` running there, and can this host reach it?)")]
+    HostsMissing { missing: String, secs: f64 },
 }
 
 /// Where captured node output goes.
@@ -138,6 +148,17 @@ pub fn run(
     host: &str,
     output: Output,
     interrupt: &std::sync::atomic::AtomicBool,
+) -> Result<RunReport, RunError> {
+    run_with(graph, host, output, interrupt, &RunOptions::default())
+}
+
+/// [`run`] with options.
+pub fn run_with(
+    graph: &Graph,
+    host: &str,
+    output: Output,
+    interrupt: &std::sync::atomic::AtomicBool,
+    options: &RunOptions,
 ) -> Result<RunReport, RunError> {
     let specs: Vec<NodeSpec> = graph.nodes_on(host).cloned().collect();
     if specs.is_empty() {
@@ -253,10 +274,10 @@ pub fn run(
                     let alive = sync.alive();
                     let missing: Vec<&String> =
                         hosts_with_nodes.iter().filter(|h| !alive.contains(&((*h).clone(), "connected".to_string()))).collect();
-                    if !missing.is_empty() && barrier_since.elapsed() > HOSTS_TIMEOUT {
+                    if !missing.is_empty() && barrier_since.elapsed() > options.hosts_timeout {
                         stop_all(&mut nodes);
                         let missing = missing.iter().map(|h| format!("`{h}`")).collect::<Vec<_>>().join(", ");
-                        return Err(RunError::HostsMissing { missing, secs: HOSTS_TIMEOUT.as_secs() });
+                        return Err(RunError::HostsMissing { missing, secs: options.hosts_timeout.as_secs_f64() });
                     }
                     missing.is_empty()
                 }

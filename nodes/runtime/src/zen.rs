@@ -15,18 +15,27 @@ use zenoh::Wait;
 /// launcher's ready barrier guarantees the subscriber exists; this covers the declaration's trip.
 const MATCH_TIMEOUT: Duration = Duration::from_secs(5);
 
+/// How long a client session waits for the graph's zenoh router before failing.
+const CLIENT_CONNECT_TIMEOUT: Duration = Duration::from_secs(120);
+
 pub(crate) fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, String> {
     let mut config = zenoh::Config::default();
     let json = |v: &[String]| serde_json::to_string(v).expect("strings serialise");
     let mode = cfg.mode.clone().unwrap_or_else(|| "peer".to_string());
     // Never the zenoh default (every interface): loopback with an OS-chosen port unless told.
     let listen = if cfg.listen.is_empty() { vec!["tcp/127.0.0.1:0".to_string()] } else { cfg.listen.clone() };
-    let settings = [
+    let mut settings = vec![
         ("mode", format!("\"{mode}\"")),
-        ("listen/endpoints", json(&listen)),
         ("connect/endpoints", json(&cfg.connect)),
         ("scouting/multicast/enabled", "false".to_string()),
     ];
+    if mode == "client" {
+        // A client only connects (to the graph's router), and by default gives up at once when
+        // the router is not up yet: the hosts of a graph start in any order, so it waits.
+        settings.push(("connect/timeout_ms", CLIENT_CONNECT_TIMEOUT.as_millis().to_string()));
+    } else {
+        settings.push(("listen/endpoints", json(&listen)));
+    }
     for (key, value) in settings {
         config
             .insert_json5(key, &value)
