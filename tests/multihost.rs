@@ -255,3 +255,70 @@ fn a_host_that_never_comes_is_named_after_the_wait() {
     assert!(stderr.contains("host `b` did not get its nodes connected within 2 s"), "{stderr}");
     assert!(started.elapsed() < Duration::from_secs(30), "gave up late: {:?}", started.elapsed());
 }
+
+#[test]
+fn a_host_that_disappears_mid_run_does_not_hang_the_other() {
+    // Host `b` (SPH + metrics) is killed mid-run, launcher and nodes (they die with it). On host
+    // `a` the simulator, with a grid deadline, falls back for the rest of the run and finishes;
+    // its launcher sees `b`'s liveliness go and ends instead of waiting for `b`'s workers.
+    let dir = scratch_dir("vanish");
+    let file = dir.join("vanish.toml");
+    let (pa, pb) = (free_port(), free_port());
+    let graph = format!(
+        r#"
+[hosts.a]
+address = "127.0.0.1"
+zenoh_port = {pa}
+[hosts.b]
+address = "127.0.0.1"
+zenoh_port = {pb}
+
+[[nodes]]
+name = "sim"
+binary = "dc-sim"
+host = "a"
+params = {{ models = "grid", seeds = "0..30", steps = 250, n = 40, deadline = "100ms" }}
+
+[[nodes]]
+name = "sph"
+binary = "dc-sph"
+host = "b"
+daemon = true
+params = {{ mode = "preserving" }}
+
+[[nodes]]
+name = "metrics"
+binary = "dc-metrics"
+host = "b"
+params = {{ runs = 1, out = "{}" }}
+"#,
+        dir.join("report").display()
+    );
+    std::fs::write(&file, graph).unwrap();
+    let namespace = unique_namespace("vanish");
+    let start = |host: &str| {
+        Command::new(bin("dc"))
+            .arg("launch")
+            .arg(&file)
+            .args(["--host", host, "--namespace", &namespace])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let mut b = start("b");
+    let a = start("a");
+    // Let the run get going (grids flowing; the whole run takes ~15 s), then take host b away.
+    std::thread::sleep(Duration::from_secs(3));
+    assert!(b.try_wait().unwrap().is_none(), "host b ended early: {}", text(&b.wait_with_output().unwrap()));
+    b.kill().unwrap();
+    let _ = b.wait();
+    let out_a = wait(a, "host a after host b vanished", Duration::from_secs(120));
+    assert!(out_a.status.success(), "host a: {}", text(&out_a));
+    let stdout = String::from_utf8_lossy(&out_a.stdout);
+    let summary = stdout.lines().find_map(|l| l.split_once("dc-sim run ").map(|(_, j)| j)).unwrap_or_else(|| panic!("{}", text(&out_a)));
+    let summary: serde_json::Value = serde_json::from_str(summary).unwrap();
+    assert_eq!(summary["steps"], 30 * 250, "{summary}");
+    let fallbacks = summary["fallbacks"].as_u64().unwrap();
+    assert!(fallbacks > 0 && fallbacks < 30 * 250, "fell back only after host b went: {summary}");
+}

@@ -5,7 +5,7 @@
 
 use crate::graph::{Graph, NodeSpec, OnFailure};
 use crate::plan::{self, Plan};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
@@ -242,6 +242,8 @@ pub fn run_with(
     let hosts_with_nodes: Vec<String> =
         graph.hosts.keys().filter(|h| graph.nodes_on(h).next().is_some()).cloned().collect();
     let barrier_since = Instant::now();
+    // Other hosts seen running, and those that went away.
+    let (mut seen_hosts, mut gone_hosts) = (BTreeSet::<String>::new(), BTreeSet::<String>::new());
     let mut working_declared = false;
     loop {
         // Drain events (handshake markers, captured lines) with a short wait, then look at exits.
@@ -289,6 +291,42 @@ pub fn run_with(
                     n.phase = n.phase.max(Phase::Started);
                 }
                 tracing::debug!("all {} nodes connected: started", nodes.len());
+            }
+        }
+        // Another host whose launcher vanished (its liveliness went: killed, or unreachable past
+        // zenoh's lease) takes its nodes with it: tell ours, so that a simulator stops waiting
+        // for grids that cannot come. Back when its launcher is.
+        if started {
+            if let Some(sync) = &mut bus.sync {
+                let alive: BTreeSet<String> =
+                    sync.alive().iter().filter(|(_, state)| state == "connected").map(|(h, _)| h.clone()).collect();
+                let mut notices = Vec::new();
+                for h in hosts_with_nodes.iter().filter(|h| h.as_str() != host) {
+                    match (seen_hosts.contains(h), alive.contains(h)) {
+                        (true, false) => {
+                            eprintln!("[dc] host `{h}` is gone: its nodes count as down");
+                            seen_hosts.remove(h);
+                            notices.push((msgs::ControlKind::NodeDown, h.clone()));
+                        }
+                        (false, true) => {
+                            if gone_hosts.remove(h) {
+                                eprintln!("[dc] host `{h}` is back");
+                                notices.push((msgs::ControlKind::NodeUp, h.clone()));
+                            }
+                            seen_hosts.insert(h.clone());
+                        }
+                        _ => {}
+                    }
+                }
+                for (kind, h) in notices {
+                    if kind == msgs::ControlKind::NodeDown {
+                        gone_hosts.insert(h.clone());
+                    }
+                    for node in graph.nodes_on(&h) {
+                        let publishes = published(&plan, &node.name);
+                        bus.notice(kind, &node.name, &h, &publishes, if kind == msgs::ControlKind::NodeDown { "host gone" } else { "host back" });
+                    }
+                }
             }
         }
         // A restarted node was told to connect and start at spawn; once connected it is back.

@@ -56,6 +56,9 @@ pub fn backends() -> &'static [&'static str] {
 
 /// The device called `name`: `flex` (pure-Rust CPU); with the `tch` feature also `libtorch`
 /// (libtorch CPU) and `cuda` / `cuda:N` (libtorch CUDA).
+// burn 0.22 marks burn-tch deprecated in favour of CubeCL backends; libtorch is the GPU route
+// this project chose, and it still builds and runs here.
+#[allow(deprecated)]
 pub fn device(name: &str) -> Result<Device> {
     match name {
         "flex" | "cpu" => Ok(Device::flex()),

@@ -358,3 +358,24 @@ fn training_data_that_is_not_a_recording_is_a_clear_error() {
     let e = unet::train::train(&train_options(&file, &dir.join("m.dcu")), &device()).unwrap_err().to_string();
     assert!(e.contains("x.mcap"), "{e}");
 }
+
+/// With `--features tch` (libtorch, see scripts/libtorch.sh): one model file gives the same
+/// predictions on libtorch CPU as on flex, so a model trained on one backend serves on the other.
+#[cfg(feature = "tch")]
+#[test]
+fn libtorch_and_flex_predict_the_same_from_one_model_file() {
+    let flex = device();
+    let torch = unet::device("libtorch").unwrap();
+    let config = UNetConfig { residual: None, ..small_net() };
+    let dir = scratch("tch");
+    let path = dir.join("m.dcu");
+    ModelFile::save(&meta_for(&config, [16, 16]), &config.init(&flex), &path).unwrap();
+    let on_flex = ModelFile::load(&path, &flex).unwrap().model.valid();
+    let on_torch = ModelFile::load(&path, &torch).unwrap().model.valid();
+    let x: Vec<f32> = (0..7 * 16 * 16).map(|i| ((i * 37 % 101) as f32 / 50.0) - 1.0).collect();
+    let input = |d: &Device| Tensor::<4>::from_data(burn::tensor::TensorData::new(x.clone(), [1, 7, 16, 16]), d);
+    let (a, b) = (values(on_flex.forward(input(&flex))), values(on_torch.forward(input(&torch))));
+    let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+    let scale = a.iter().map(|v| v.abs()).fold(0.0f32, f32::max).max(1e-6);
+    assert!(worst <= 1e-4 * scale.max(1.0), "flex and libtorch differ by {worst} (outputs up to {scale})");
+}
