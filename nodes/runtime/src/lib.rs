@@ -201,7 +201,8 @@ pub struct Node {
 /// readers are done, closes our stdin (or a signal arrives).
 impl Drop for Node {
     fn drop(&mut self) {
-        if !self.launched || self.iox_publishers.borrow().is_empty() || std::thread::panicking() {
+        // A node that never started sent nothing anybody could be reading.
+        if !self.launched || !self.running.get() || self.iox_publishers.borrow().is_empty() || std::thread::panicking() {
             return;
         }
         if say(DONE_MARKER).is_err() {
