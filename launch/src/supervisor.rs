@@ -268,11 +268,14 @@ pub fn run_with(
             let all_hosts = match &mut bus.sync {
                 None => true,
                 Some(sync) => {
-                    sync.declare(host, "connected").map_err(RunError::Bus)?;
+                    // `working` before `connected`: a host that sees us connected has seen that we
+                    // have workers too (one session delivers in order), so it cannot mistake us
+                    // for done and stop its daemons under our feet.
                     if !working_declared && specs.iter().any(|s| !s.daemon) {
                         sync.declare(host, "working").map_err(RunError::Bus)?;
                         working_declared = true;
                     }
+                    sync.declare(host, "connected").map_err(RunError::Bus)?;
                     let alive = sync.alive();
                     let missing: Vec<&String> =
                         hosts_with_nodes.iter().filter(|h| !alive.contains(&((*h).clone(), "connected".to_string()))).collect();
