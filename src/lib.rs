@@ -68,7 +68,8 @@ pub fn report_steps(dir: &Path) -> std::collections::BTreeMap<(u32, u32), (u32, 
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
     let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("no column {name}"));
-    let (sim, step, sweeps, fallback, used) = (col("simulation"), col("step"), col("sweeps"), col("fallback"), col("used_model"));
+    let (sim, step, sweeps, fallback, used) =
+        (col("simulation"), col("step"), col("sweeps"), col("fallback"), col("used_model"));
     lines
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();

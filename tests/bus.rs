@@ -6,11 +6,7 @@ use deep_contact::{launch, text};
 
 /// A graph with a bodies pair and a grid pair, each verifying every frame.
 fn verify_graph(zenoh: bool, garbage_every: u32) -> String {
-    let topics = if zenoh {
-        "[topics]\n\"bench/bodies\" = \"zenoh\"\n\"bench/grid\" = \"zenoh\"\n"
-    } else {
-        ""
-    };
+    let topics = if zenoh { "[topics]\n\"bench/bodies\" = \"zenoh\"\n\"bench/grid\" = \"zenoh\"\n" } else { "" };
     format!(
         r#"
 [graph]

@@ -107,7 +107,8 @@ fn dry_run_and_list_show_the_graph_without_starting_it() {
 #[test]
 fn dc_record_forwards_to_the_recorder_and_names_a_bad_file() {
     let readme = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md");
-    let out = std::process::Command::new(deep_contact::bin("dc")).args(["record", "info"]).arg(&readme).output().unwrap();
+    let out =
+        std::process::Command::new(deep_contact::bin("dc")).args(["record", "info"]).arg(&readme).output().unwrap();
     assert!(!out.status.success(), "{}", text(&out));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("README.md: not an MCAP file"), "{stderr}");

@@ -34,7 +34,12 @@ impl TwoHosts {
         let (a, b) = (format!("dc-a-{id}"), format!("dc-b-{id}"));
         let (va, vb) = (format!("dcva{id}"), format!("dcvb{id}"));
         let net = 10 + id % 200;
-        let hosts = TwoHosts { a: a.clone(), b: b.clone(), addr_a: format!("10.231.{net}.1"), addr_b: format!("10.231.{net}.2") };
+        let hosts = TwoHosts {
+            a: a.clone(),
+            b: b.clone(),
+            addr_a: format!("10.231.{net}.1"),
+            addr_b: format!("10.231.{net}.2"),
+        };
         ip(&["netns", "add", &a])?;
         ip(&["netns", "add", &b])?;
         ip(&["link", "add", &va, "type", "veth", "peer", "name", &vb])?;
@@ -124,7 +129,12 @@ fn a_two_host_graph_over_zenoh_matches_the_one_host_run_step_for_step() {
     let one = dir.join("one-host");
     let file = dir.join("one-host.toml");
     std::fs::write(&file, graph("", "", "", &one)).unwrap();
-    let out = Command::new(&dc).arg("launch").arg(&file).args(["--namespace", &unique_namespace("one-host")]).output().unwrap();
+    let out = Command::new(&dc)
+        .arg("launch")
+        .arg(&file)
+        .args(["--namespace", &unique_namespace("one-host")])
+        .output()
+        .unwrap();
     assert!(out.status.success(), "one-host run: {}", text(&out));
 
     // Two hosts: `dc launch --host` in each namespace, sharing one bus namespace.
@@ -316,9 +326,8 @@ params = {{ runs = 1, out = "{}" }}
     let out_a = wait(a, "host a after host b vanished", Duration::from_secs(120));
     assert!(out_a.status.success(), "host a: {}", text(&out_a));
     let stdout = String::from_utf8_lossy(&out_a.stdout);
-    let summary = stdout.lines().find_map(|l| l.split_once("dc-sim run ").map(|(_, j)| j)).unwrap_or_else(|| panic!("{}", text(&out_a)));
-    let summary: serde_json::Value = serde_json::from_str(summary).unwrap();
-    assert_eq!(summary["steps"], 30 * 250, "{summary}");
-    let fallbacks = summary["fallbacks"].as_u64().unwrap();
-    assert!(fallbacks > 0 && fallbacks < 30 * 250, "fell back only after host b went: {summary}");
+    let summaries = msgs::RunSummary::find_in(stdout.lines()).unwrap();
+    let [summary] = summaries.as_slice() else { panic!("one run summary expected: {}", text(&out_a)) };
+    assert_eq!(summary.steps, 30 * 250, "{summary:?}");
+    assert!(summary.fallbacks > 0 && summary.fallbacks < 30 * 250, "fell back only after host b went: {summary:?}");
 }

@@ -38,6 +38,8 @@ use toml::Spanned;
 
 /// Host used when a launch file names none.
 pub const DEFAULT_HOST: &str = "local";
+/// Queue depth per subscriber unless the file says otherwise.
+const DEFAULT_QUEUE_DEPTH: usize = 16;
 
 /// A problem in a launch file, located by line.
 #[derive(Debug, Clone, PartialEq)]
@@ -58,7 +60,11 @@ pub enum GraphError {
 fn render_problems(file: &str, problems: &[Problem]) -> String {
     problems
         .iter()
-        .map(|p| format!("{file}:{}: {}", p.line, p.message))
+        .map(|p| match p.line {
+            // A graph built in code has no lines.
+            0 => format!("{file}: {}", p.message),
+            line => format!("{file}:{line}: {}", p.message),
+        })
         .collect::<Vec<_>>()
         .join("\n")
 }
@@ -102,6 +108,24 @@ struct RawHost {
 
 fn default_address() -> String {
     "127.0.0.1".to_string()
+}
+
+/// The host of a graph that names none: `local`, on loopback, free ports.
+fn default_host() -> Host {
+    Host { name: DEFAULT_HOST.into(), address: default_address(), zenoh_port: 0, zenoh_connect: vec![], router: false }
+}
+
+/// What is wrong with a node name, if anything.
+fn name_problem(label: &str) -> Option<String> {
+    let ok = !label.is_empty() && label.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_');
+    (!ok).then(|| format!("node name `{label}` must be non-empty letters, digits, `-` or `_`"))
+}
+
+/// Finds node `label`'s binary, or says why not.
+fn resolve_binary(label: &str, binary: &str) -> Result<PathBuf, String> {
+    find_binary(binary).ok_or_else(|| {
+        format!("node `{label}`: unknown node binary `{binary}` (not beside dc nor on PATH; was it built?)")
+    })
 }
 
 #[derive(Debug, Deserialize)]
@@ -157,6 +181,30 @@ pub struct NodeSpec {
     pub line: usize,
 }
 
+impl NodeSpec {
+    /// A node built in code, for [`Graph::single_host`] (which finds its binary): on the default
+    /// host, stopping the graph when it fails, run with `args`.
+    pub fn new(name: impl Into<String>, binary: impl Into<String>, daemon: bool, args: Vec<String>) -> NodeSpec {
+        NodeSpec {
+            name: name.into(),
+            binary: binary.into(),
+            program: PathBuf::new(),
+            host: DEFAULT_HOST.into(),
+            daemon,
+            on_failure: OnFailure::default(),
+            args,
+            env: BTreeMap::new(),
+            line: 0,
+        }
+    }
+
+    /// The node with environment variable `key` set to `value`.
+    pub fn with_env(mut self, key: impl Into<String>, value: impl Into<String>) -> NodeSpec {
+        self.env.insert(key.into(), value.into());
+        self
+    }
+}
+
 /// A checked graph.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Graph {
@@ -207,9 +255,7 @@ pub fn find_binary(name: &str) -> Option<PathBuf> {
     if let Some(p) = beside.filter(|p| p.is_file()) {
         return Some(p);
     }
-    std::env::var_os("PATH").and_then(|paths| {
-        std::env::split_paths(&paths).map(|d| d.join(name)).find(|p| p.is_file())
-    })
+    std::env::var_os("PATH").and_then(|paths| std::env::split_paths(&paths).map(|d| d.join(name)).find(|p| p.is_file()))
 }
 
 impl Graph {
@@ -229,13 +275,12 @@ impl Graph {
             invalid(vec![Problem { line, message: e.message().trim().to_string() }])
         })?;
         let mut problems = Vec::new();
-        let mut problem = |offset: usize, message: String| problems.push(Problem { line: line_of(text, offset), message });
+        let mut problem =
+            |offset: usize, message: String| problems.push(Problem { line: line_of(text, offset), message });
 
-        let name = raw
-            .graph
-            .name
-            .clone()
-            .unwrap_or_else(|| Path::new(file).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
+        let name = raw.graph.name.clone().unwrap_or_else(|| {
+            Path::new(file).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+        });
         let namespace = raw.graph.namespace.clone().unwrap_or_else(|| name.clone());
 
         let mut hosts = BTreeMap::new();
@@ -253,14 +298,17 @@ impl Graph {
             );
         }
         if hosts.is_empty() {
-            hosts.insert(
-                DEFAULT_HOST.to_string(),
-                Host { name: DEFAULT_HOST.into(), address: default_address(), zenoh_port: 0, zenoh_connect: vec![], router: false },
-            );
+            hosts.insert(DEFAULT_HOST.to_string(), default_host());
         }
         let routers: Vec<_> = raw.hosts.iter().filter(|(_, h)| h.get_ref().router).collect();
         if routers.len() > 1 {
-            problem(routers[1].1.span().start, format!("hosts `{}` and `{}` both say `router = true`: a graph has one zenoh router", routers[0].0, routers[1].0));
+            problem(
+                routers[1].1.span().start,
+                format!(
+                    "hosts `{}` and `{}` both say `router = true`: a graph has one zenoh router",
+                    routers[0].0, routers[1].0
+                ),
+            );
         }
         if raw.hosts.len() > 1 {
             // Every machine computes the same endpoints from the file, so ports cannot be picked
@@ -275,15 +323,21 @@ impl Graph {
 
         let mut topics = BTreeMap::new();
         for (topic, transport) in &raw.topics {
-            if !msgs::topics::ALL.contains(&topic.get_ref().as_str()) {
-                problem(topic.span().start, format!("unknown topic `{}` (known: {})", topic.get_ref(), msgs::topics::ALL.join(", ")));
+            if msgs::topics::info(topic.get_ref()).is_none() {
+                problem(
+                    topic.span().start,
+                    format!("unknown topic `{}` (known: {})", topic.get_ref(), msgs::topics::names_list()),
+                );
             }
             match transport.get_ref().as_str() {
                 "iceoryx2" => topics.insert(topic.get_ref().clone(), Transport::Iceoryx2),
                 "zenoh" => topics.insert(topic.get_ref().clone(), Transport::Zenoh),
                 "both" => topics.insert(topic.get_ref().clone(), Transport::Both),
                 other => {
-                    problem(transport.span().start, format!("topic `{}`: unknown transport `{other}` (iceoryx2, zenoh or both)", topic.get_ref()));
+                    problem(
+                        transport.span().start,
+                        format!("topic `{}`: unknown transport `{other}` (iceoryx2, zenoh or both)", topic.get_ref()),
+                    );
                     None
                 }
             };
@@ -303,16 +357,26 @@ impl Graph {
                 continue;
             };
             let label = node_name.get_ref().clone();
-            if label.is_empty() || !label.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
-                problem(node_name.span().start, format!("node name `{label}` must be non-empty letters, digits, `-` or `_`"));
+            if let Some(why) = name_problem(&label) {
+                problem(node_name.span().start, why);
             }
             if let Some(first) = seen.insert(label.clone(), line) {
-                problem(node_name.span().start, format!("duplicate node name `{label}` (first defined on line {first})"));
+                problem(
+                    node_name.span().start,
+                    format!("duplicate node name `{label}` (first defined on line {first})"),
+                );
             }
             let host = match &node.host {
                 Some(h) if hosts.contains_key(h.get_ref()) => h.get_ref().clone(),
                 Some(h) => {
-                    problem(h.span().start, format!("node `{label}`: unknown host `{}` (hosts: {})", h.get_ref(), hosts.keys().cloned().collect::<Vec<_>>().join(", ")));
+                    problem(
+                        h.span().start,
+                        format!(
+                            "node `{label}`: unknown host `{}` (hosts: {})",
+                            h.get_ref(),
+                            hosts.keys().cloned().collect::<Vec<_>>().join(", ")
+                        ),
+                    );
                     continue;
                 }
                 None if hosts.len() == 1 => hosts.keys().next().cloned().unwrap_or_default(),
@@ -325,10 +389,10 @@ impl Graph {
                 problem(start, format!("node `{label}`: missing `binary`"));
                 continue;
             };
-            let program = match find_binary(binary.get_ref()) {
-                Some(p) => p,
-                None => {
-                    problem(binary.span().start, format!("node `{label}`: unknown node binary `{}` (not beside dc nor on PATH; was it built?)", binary.get_ref()));
+            let program = match resolve_binary(&label, binary.get_ref()) {
+                Ok(p) => p,
+                Err(why) => {
+                    problem(binary.span().start, why);
                     continue;
                 }
             };
@@ -372,10 +436,54 @@ impl Graph {
             file: file.to_string(),
             name,
             namespace,
-            queue_depth: raw.graph.queue_depth.unwrap_or(16),
+            queue_depth: raw.graph.queue_depth.unwrap_or(DEFAULT_QUEUE_DEPTH),
             hosts,
             topics,
             nodes,
+        })
+    }
+
+    /// A graph built in code (`dc eval`, `dc bench`) rather than read from a file: every node on
+    /// the one default host (loopback, free ports), named `<name>` in messages. The nodes get a
+    /// launch file's checks: valid and unique names, binaries found beside dc or on PATH (every
+    /// problem is reported at once). Parameters are checked by [`Graph::check_params`].
+    pub fn single_host(name: &str, namespace: &str, nodes: Vec<NodeSpec>) -> Result<Graph, GraphError> {
+        let file = format!("<{name}>");
+        let mut problems = Vec::new();
+        let mut problem = |message: String| problems.push(Problem { line: 0, message });
+        let mut seen = std::collections::BTreeSet::new();
+        let mut checked = Vec::with_capacity(nodes.len());
+        for mut node in nodes {
+            if let Some(why) = name_problem(&node.name) {
+                problem(why);
+            }
+            if !seen.insert(node.name.clone()) {
+                problem(format!("duplicate node name `{}`", node.name));
+            }
+            if node.host != DEFAULT_HOST {
+                problem(format!("node `{}`: unknown host `{}` (hosts: {DEFAULT_HOST})", node.name, node.host));
+                continue;
+            }
+            match resolve_binary(&node.name, &node.binary) {
+                Ok(program) => node.program = program,
+                Err(why) => {
+                    problem(why);
+                    continue;
+                }
+            }
+            checked.push(node);
+        }
+        if !problems.is_empty() {
+            return Err(GraphError::Invalid { file, problems });
+        }
+        Ok(Graph {
+            file,
+            name: name.to_string(),
+            namespace: namespace.to_string(),
+            queue_depth: DEFAULT_QUEUE_DEPTH,
+            hosts: [(DEFAULT_HOST.to_string(), default_host())].into(),
+            topics: BTreeMap::new(),
+            nodes: checked,
         })
     }
 
@@ -472,14 +580,19 @@ host = "c"
 "#;
         let p = problems(text);
         let messages: Vec<_> = p.iter().map(|p| (p.line, p.message.as_str())).collect();
-        assert!(messages.iter().any(|(l, m)| *l == 7 && m.contains("unknown node binary `dc-no-such-binary`")), "{messages:?}");
+        assert!(
+            messages.iter().any(|(l, m)| *l == 7 && m.contains("unknown node binary `dc-no-such-binary`")),
+            "{messages:?}"
+        );
         assert!(messages.iter().any(|(l, m)| *l == 11 && m.contains("duplicate node name `x`")), "{messages:?}");
         assert!(messages.iter().any(|(l, m)| *l == 13 && m.contains("unknown host `c`")), "{messages:?}");
     }
 
     #[test]
     fn unknown_topic_and_transport_are_reported() {
-        let p = problems("[topics]\n\"bodies\" = \"carrier-pigeon\"\n\"nope\" = \"zenoh\"\n[[nodes]]\nname='a'\nbinary='sh'\n");
+        let p = problems(
+            "[topics]\n\"bodies\" = \"carrier-pigeon\"\n\"nope\" = \"zenoh\"\n[[nodes]]\nname='a'\nbinary='sh'\n",
+        );
         assert!(p.iter().any(|p| p.line == 2 && p.message.contains("unknown transport")), "{p:?}");
         assert!(p.iter().any(|p| p.line == 3 && p.message.contains("unknown topic `nope`")), "{p:?}");
     }
@@ -488,6 +601,32 @@ host = "c"
     fn unknown_keys_are_refused() {
         let p = problems("[[nodes]]\nname='a'\nbinary='sh'\nparmas = {}\n");
         assert!(p[0].message.contains("parmas"), "{p:?}");
+    }
+
+    #[test]
+    fn a_graph_built_in_code_gets_the_checks_of_a_file() {
+        let g = Graph::single_host(
+            "demo",
+            "demo-1",
+            vec![NodeSpec::new("a", "sh", false, vec!["-c".into(), "true".into()]).with_env("K", "v")],
+        )
+        .unwrap();
+        assert_eq!((g.file.as_str(), g.name.as_str(), g.namespace.as_str()), ("<demo>", "demo", "demo-1"));
+        assert_eq!(g.hosts.keys().collect::<Vec<_>>(), [DEFAULT_HOST]);
+        assert_eq!(g.nodes_on(DEFAULT_HOST).count(), 1);
+        assert!(g.nodes[0].program.is_file(), "{:?}", g.nodes[0].program);
+        assert_eq!(g.nodes[0].env["K"], "v");
+        assert_eq!(g.nodes[0].on_failure, OnFailure::StopGraph);
+
+        let nodes = vec![
+            NodeSpec::new("a", "sh", false, vec![]),
+            NodeSpec::new("a", "dc-no-such-binary", true, vec![]),
+            NodeSpec::new("b c", "sh", false, vec![]),
+        ];
+        let err = Graph::single_host("demo", "demo", nodes).unwrap_err().to_string();
+        assert!(err.contains("<demo>: duplicate node name `a`"), "{err}");
+        assert!(err.contains("<demo>: node `a`: unknown node binary `dc-no-such-binary`"), "{err}");
+        assert!(err.contains("<demo>: node name `b c` must be"), "{err}");
     }
 
     #[test]

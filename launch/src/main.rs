@@ -4,6 +4,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use launch::graph::{find_binary, Graph, NodeSpec, DEFAULT_HOST};
 use launch::supervisor::{self, Output, RunError};
+use msgs::RunSummary;
 use runtime::Transport;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -31,8 +32,8 @@ enum Command {
         #[arg(long)]
         dry_run: bool,
         /// With several hosts: how long to wait for the other hosts' nodes before giving up
-        /// (`120s`, `500ms`).
-        #[arg(long, default_value = "120s", value_parser = parse_duration)]
+        /// (`120s`, `500ms`; a unit is required: a bare `120` is ambiguous here).
+        #[arg(long, default_value = "120s", value_parser = duration_with_unit)]
         wait_hosts: std::time::Duration,
     },
     /// Start one node by hand: `dc run sim --steps 10` runs `dc-sim --steps 10`.
@@ -157,6 +158,15 @@ fn interrupt_flag() -> Arc<AtomicBool> {
     flag
 }
 
+/// A duration that names its unit (a plain number would be milliseconds, a trap for a timeout
+/// given in seconds everywhere else in the README).
+fn duration_with_unit(s: &str) -> Result<std::time::Duration, String> {
+    if s.trim().parse::<f64>().is_ok() {
+        return Err(format!("`{s}`: give a unit, e.g. {s}s or {s}ms"));
+    }
+    runtime::parse_duration(s)
+}
+
 fn real_main(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Launch { file, host, namespace, dry_run, wait_hosts } => {
@@ -176,7 +186,9 @@ fn real_main(cli: Cli) -> Result<()> {
         }
         Command::Run { node, args } => exec_node(&node, &args),
         Command::Record { args } => exec_node("record", &args),
-        Command::Train { args } => exec_node("unet", &std::iter::once("train".to_string()).chain(args).collect::<Vec<_>>()),
+        Command::Train { args } => {
+            exec_node("unet", &std::iter::once("train".to_string()).chain(args).collect::<Vec<_>>())
+        }
         Command::List { file } => {
             let graph = Graph::load(&file)?;
             print_graph(&graph, None)
@@ -186,21 +198,6 @@ fn real_main(cli: Cli) -> Result<()> {
         Command::Bench { what: BenchWhat::Loop { seeds, steps, n, unet_model, repeat } } => {
             bench_loop(&seeds, steps, n, &unet_model, repeat.max(1))
         }
-    }
-}
-
-fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
-    let t = s.trim();
-    let (num, scale) = if let Some(v) = t.strip_suffix("ms") {
-        (v, 1e-3)
-    } else if let Some(v) = t.strip_suffix('s') {
-        (v, 1.0)
-    } else {
-        return Err(format!("`{s}`: expected a duration like 120s or 500ms"));
-    };
-    match num.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v >= 0.0 => Ok(std::time::Duration::from_secs_f64(v * scale)),
-        _ => Err(format!("`{s}`: expected a duration like 120s or 500ms")),
     }
 }
 
@@ -241,7 +238,13 @@ fn print_graph(graph: &Graph, only: Option<&str>) -> Result<()> {
             let flags = if flags.is_empty() { String::new() } else { format!(" [{}]", flags.join(", ")) };
             println!("  {}{flags}: {} {}", n.name, n.program.display(), n.args.join(" "));
             let p = &ports[&n.name];
-            let list = |set: &std::collections::BTreeSet<String>| if set.is_empty() { "-".to_string() } else { set.iter().cloned().collect::<Vec<_>>().join(", ") };
+            let list = |set: &std::collections::BTreeSet<String>| {
+                if set.is_empty() {
+                    "-".to_string()
+                } else {
+                    set.iter().cloned().collect::<Vec<_>>().join(", ")
+                }
+            };
             println!("      publishes {}; subscribes {}", list(&p.publishes), list(&p.subscribes));
             if let Some(e) = plan.endpoints.get(&n.name) {
                 println!("      zenoh {e}");
@@ -258,7 +261,10 @@ fn print_graph(graph: &Graph, only: Option<&str>) -> Result<()> {
             if v.is_empty() {
                 "nobody".to_string()
             } else {
-                v.iter().map(|(n, h)| if plan.multi_host { format!("{n}@{h}") } else { n.clone() }).collect::<Vec<_>>().join(", ")
+                v.iter()
+                    .map(|(n, h)| if plan.multi_host { format!("{n}@{h}") } else { n.clone() })
+                    .collect::<Vec<_>>()
+                    .join(", ")
             }
         };
         let links = if r.links.is_empty() { "no link".to_string() } else { r.links.join("; ") };
@@ -276,7 +282,10 @@ fn bench_bus(count: u32, latency_count: u32) -> Result<()> {
     ];
     let common = vec![format!("--count={count}"), format!("--latency-count={latency_count}")];
     let flag = interrupt_flag();
-    println!("{:<16} {:<10} {:>10} {:>10} {:>12} {:>10}", "payload", "transport", "p50 us", "p99 us", "frames/s", "MB/s");
+    println!(
+        "{:<16} {:<10} {:>10} {:>10} {:>12} {:>10}",
+        "payload", "transport", "p50 us", "p99 us", "frames/s", "MB/s"
+    );
     for (label, kind_args) in &payloads {
         let mut results = Vec::new();
         for transport in ["inproc", "iceoryx2", "zenoh"] {
@@ -290,11 +299,12 @@ fn bench_bus(count: u32, latency_count: u32) -> Result<()> {
                 }
                 String::from_utf8_lossy(&out.stdout).lines().last().unwrap_or_default().to_string()
             } else {
-                let graph = bench_graph(&program, &args, transport == "zenoh");
+                let graph = bench_graph(&args, transport == "zenoh")?;
                 let report = supervisor::run(&graph, DEFAULT_HOST, Output::Capture, &flag)?;
                 report.stdout.get("sink").and_then(|l| l.last().cloned()).context("sink printed no result")?
             };
-            let r: bench_bus::BenchResult = serde_json::from_str(&line).with_context(|| format!("bad result line `{line}`"))?;
+            let r: bench_bus::BenchResult =
+                serde_json::from_str(&line).with_context(|| format!("bad result line `{line}`"))?;
             println!(
                 "{:<16} {:<10} {:>10.1} {:>10.1} {:>12.0} {:>10.1}",
                 label, transport, r.p50_us, r.p99_us, r.frames_per_s, r.mb_per_s
@@ -313,53 +323,42 @@ fn bench_bus(count: u32, latency_count: u32) -> Result<()> {
     Ok(())
 }
 
-/// One run of a loop variant: steps, seconds in the step loops, total sweeps, fallbacks.
-#[derive(serde::Deserialize, Debug, Clone)]
-struct LoopRun {
-    steps: u64,
-    loop_secs: f64,
-    total_sweeps: u64,
-    fallbacks: u64,
-}
-
 fn bench_loop(seeds: &str, steps: u32, n: u32, model: &std::path::Path, repeat: usize) -> Result<()> {
     let find = |b: &str| find_binary(b).with_context(|| format!("{b} not built (cargo build --workspace --bins)"));
-    let unet = find("dc-unet")?;
+    let (unet, in_process) = (find("dc-unet")?, find("dc-loop-bench")?);
     let sph_args = unet_sph_args(&unet, model)?;
     let scratch = std::env::temp_dir().join(unique_namespace("bench-loop"));
     std::fs::create_dir_all(&scratch)?;
     let flag = interrupt_flag();
-    println!("closed loop: ball-box, {n} bodies, seeds {seeds}, {steps} steps, unet model {} (lockstep), {repeat} runs each", model.display());
+    println!(
+        "closed loop: ball-box, {n} bodies, seeds {seeds}, {steps} steps, unet model {} (lockstep), {repeat} runs each",
+        model.display()
+    );
     println!("{:<34} {:>10} {:>10} {:>12} {:>9}", "variant", "steps/s", "loop s", "total sweeps", "fallbacks");
     let mut medians = Vec::new();
     for variant in ["one process (no bus)", "graph, iceoryx2 (one host)", "graph, every topic over zenoh"] {
         let mut runs = Vec::new();
         for r in 0..repeat {
-            let run: LoopRun = if variant.starts_with("one process") {
-                let out = std::process::Command::new(&unet)
-                    .args(["loop-bench", "--seeds", seeds, "--steps", &steps.to_string(), "--n", &n.to_string()])
+            let run = if variant.starts_with("one process") {
+                let out = std::process::Command::new(&in_process)
+                    .args(["--seeds", seeds, "--steps", &steps.to_string(), "--n", &n.to_string()])
                     .arg("--model")
                     .arg(model)
                     .arg("--record")
                     .arg(scratch.join(format!("inprocess-{r}.mcap")))
                     .output()?;
                 if !out.status.success() {
-                    bail!("dc-unet loop-bench failed: {}", String::from_utf8_lossy(&out.stderr));
+                    bail!("dc-loop-bench failed: {}", String::from_utf8_lossy(&out.stderr));
                 }
-                let line = String::from_utf8_lossy(&out.stdout).lines().last().unwrap_or_default().to_string();
-                serde_json::from_str(&line).with_context(|| format!("bad result line `{line}`"))?
+                let stdout = String::from_utf8_lossy(&out.stdout);
+                one_summary("dc-loop-bench", stdout.lines())?
             } else {
                 let zenoh = variant.contains("zenoh");
                 let dir = scratch.join(format!("{}-{r}", if zenoh { "zenoh" } else { "iceoryx2" }));
                 let graph = loop_graph(seeds, steps, n, model, &sph_args, &dir, zenoh)?;
                 let report = supervisor::run(&graph, DEFAULT_HOST, Output::Capture, &flag)?;
-                let line = report
-                    .stdout
-                    .get("sim")
-                    .and_then(|lines| lines.iter().find_map(|l| l.strip_prefix("dc-sim run ")))
-                    .context("the simulator printed no run summary")?
-                    .to_string();
-                serde_json::from_str(&line).with_context(|| format!("bad summary `{line}`"))?
+                let lines = report.stdout.get("sim").map(Vec::as_slice).unwrap_or_default();
+                one_summary("the simulator", lines.iter().map(String::as_str))?
             };
             runs.push(run);
         }
@@ -377,9 +376,20 @@ fn bench_loop(seeds: &str, steps: u32, n: u32, model: &std::path::Path, repeat: 
     Ok(())
 }
 
+/// The one run summary (`msgs::RunSummary`) among `who`'s stdout lines.
+fn one_summary<'a>(who: &str, lines: impl IntoIterator<Item = &'a str>) -> Result<RunSummary> {
+    let mut found = RunSummary::find_in(lines).with_context(|| format!("{who} printed a bad run summary"))?;
+    match found.len() {
+        1 => Ok(found.remove(0)),
+        0 => bail!("{who} printed no run summary"),
+        k => bail!("{who} printed {k} run summaries, expected one"),
+    }
+}
+
 /// The `dc-sph` arguments that make the input grids `model` was trained on.
 fn unet_sph_args(unet: &std::path::Path, model: &std::path::Path) -> Result<Vec<String>> {
-    let out = std::process::Command::new(unet).arg("sph-args").arg(model).output().context("running dc-unet sph-args")?;
+    let out =
+        std::process::Command::new(unet).arg("sph-args").arg(model).output().context("running dc-unet sph-args")?;
     if !out.status.success() {
         let stderr = String::from_utf8_lossy(&out.stderr);
         // The first line is the error; a backtrace may follow.
@@ -389,43 +399,41 @@ fn unet_sph_args(unet: &std::path::Path, model: &std::path::Path) -> Result<Vec<
 }
 
 /// The closed loop as a graph: sim (lockstep unet) + sph + unet + metrics + recorder.
-fn loop_graph(seeds: &str, steps: u32, n: u32, model: &std::path::Path, sph_args: &[String], dir: &std::path::Path, zenoh: bool) -> Result<Graph> {
-    let mut graph = Graph::parse("<bench-loop>", "[[nodes]]\nname = 'x'\nbinary = 'sh'\n").expect("built-in graph parses");
-    graph.name = "bench-loop".into();
-    graph.namespace = unique_namespace("loop");
-    let node = |name: &str, binary: &str, daemon: bool, args: Vec<String>| -> Result<NodeSpec> {
-        Ok(NodeSpec {
-            name: name.into(),
-            binary: binary.into(),
-            program: find_binary(binary).with_context(|| format!("{binary} not built"))?,
-            host: DEFAULT_HOST.into(),
-            daemon,
-            on_failure: Default::default(),
-            args,
-            env: [("RUST_LOG".to_string(), "warn".to_string())].into(),
-            line: 0,
-        })
+fn loop_graph(
+    seeds: &str,
+    steps: u32,
+    n: u32,
+    model: &std::path::Path,
+    sph_args: &[String],
+    dir: &std::path::Path,
+    zenoh: bool,
+) -> Result<Graph> {
+    let node = |name: &str, binary: &str, daemon: bool, args: Vec<String>| {
+        NodeSpec::new(name, binary, daemon, args).with_env("RUST_LOG", "warn")
     };
-    graph.nodes = vec![
-        node("sph", "dc-sph", true, sph_args.to_vec())?,
-        node("unet", "dc-unet", true, vec![format!("--model={}", model.display())])?,
-        node("recorder", "dc-record", true, vec![format!("--dir={}", dir.join("recordings").display())])?,
-        node("metrics", "dc-metrics", false, vec!["--runs=1".into(), format!("--out={}", dir.join("report").display())])?,
-        node(
-            "sim",
-            "dc-sim",
-            false,
-            vec![
-                "--models=unet".into(),
-                format!("--seeds={seeds}"),
-                format!("--steps={steps}"),
-                format!("--n={n}"),
-                "--deadline=none".into(),
-            ],
-        )?,
+    let sim_args = vec![
+        "--models=unet".into(),
+        format!("--seeds={seeds}"),
+        format!("--steps={steps}"),
+        format!("--n={n}"),
+        "--deadline=none".into(),
     ];
+    let nodes = vec![
+        node("sph", "dc-sph", true, sph_args.to_vec()),
+        node("unet", "dc-unet", true, vec![format!("--model={}", model.display())]),
+        node("recorder", "dc-record", true, vec![format!("--dir={}", dir.join("recordings").display())]),
+        node(
+            "metrics",
+            "dc-metrics",
+            false,
+            vec!["--runs=1".into(), format!("--out={}", dir.join("report").display())],
+        ),
+        node("sim", "dc-sim", false, sim_args),
+    ];
+    let mut graph = Graph::single_host("bench-loop", &unique_namespace("loop"), nodes)?;
+    graph.check_params()?;
     if zenoh {
-        for t in msgs::topics::ALL {
+        for t in msgs::topics::names() {
             graph.topics.insert(t.to_string(), Transport::Zenoh);
         }
     }
@@ -433,28 +441,20 @@ fn loop_graph(seeds: &str, steps: u32, n: u32, model: &std::path::Path, sph_args
 }
 
 /// A two-node graph (source -> sink) over one transport, in its own namespace.
-fn bench_graph(program: &std::path::Path, args: &[String], zenoh: bool) -> Graph {
-    let node = |name: &str, role: &str| NodeSpec {
-        name: name.into(),
-        binary: "dc-bench-bus".into(),
-        program: program.to_path_buf(),
-        host: DEFAULT_HOST.into(),
-        daemon: false,
-        on_failure: Default::default(),
-        args: std::iter::once(format!("--role={role}")).chain(args.iter().cloned()).collect(),
-        env: [("RUST_LOG".to_string(), "warn,zenoh::net::runtime::orchestrator=error".to_string())].into(),
-        line: 0,
+fn bench_graph(args: &[String], zenoh: bool) -> Result<Graph> {
+    let node = |role: &str| {
+        let args = std::iter::once(format!("--role={role}")).chain(args.iter().cloned()).collect();
+        NodeSpec::new(role, "dc-bench-bus", false, args)
+            .with_env("RUST_LOG", "warn,zenoh::net::runtime::orchestrator=error")
     };
-    let mut graph = Graph::parse("<bench>", "[[nodes]]\nname = 'x'\nbinary = 'sh'\n").expect("built-in graph parses");
-    graph.name = "bench-bus".into();
-    graph.namespace = unique_namespace("bench");
-    graph.nodes = vec![node("sink", "sink"), node("source", "source")];
+    let mut graph = Graph::single_host("bench-bus", &unique_namespace("bench"), vec![node("sink"), node("source")])?;
+    graph.check_params()?;
     if zenoh {
         for t in [msgs::topics::BENCH_BODIES.name, msgs::topics::BENCH_GRID.name] {
             graph.topics.insert(t.into(), Transport::Zenoh);
         }
     }
-    graph
+    Ok(graph)
 }
 
 /// Builds the evaluation graph: one metrics node and `jobs` simulators sharing the models.
@@ -472,39 +472,30 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
     if args.models.is_empty() {
         bail!("--models is empty");
     }
-    let find = |b: &str| find_binary(b).with_context(|| format!("{b} not built (cargo build --workspace --bins)"));
-    let (sim, metrics) = (find("dc-sim")?, find("dc-metrics")?);
+    for m in &args.models {
+        if msgs::models::model(m).is_none() {
+            bail!("--models: unknown warm-start model `{m}` (known: {})", msgs::models::names_list());
+        }
+    }
     let jobs = args.jobs.clamp(1, args.models.len());
-    let mut graph = Graph::parse("<eval>", "[[nodes]]\nname = 'x'\nbinary = 'sh'\n").expect("built-in graph parses");
-    graph.name = "eval".into();
-    graph.namespace = unique_namespace("eval");
-    let node = |name: String, program: &std::path::Path, binary: &str, args: Vec<String>| NodeSpec {
-        name,
-        binary: binary.into(),
-        program: program.to_path_buf(),
-        host: DEFAULT_HOST.into(),
-        daemon: false,
-        on_failure: Default::default(),
-        args,
-        env: Default::default(),
-        line: 0,
-    };
     let title = format!(
         "Warm-start evaluation: {} scene, {} bodies, seeds {}, {} steps, tolerance {}",
         args.scene, args.n, args.seeds, args.steps, args.tolerance
     );
-    graph.nodes = vec![node(
-        "metrics".into(),
-        &metrics,
+    let mut nodes = vec![NodeSpec::new(
+        "metrics",
         "dc-metrics",
+        false,
         vec![format!("--runs={}", args.models.len()), format!("--out={}", out.display()), format!("--title={title}")],
     )];
     // Grid-based models need the SPH node (it turns each step's contacts into the next step's
     // warm-start grid); it serves every simulator of the graph. With `unet` it makes the model's
     // input grids (e.g. temporal, padded to 128); padding leaves the `grid` model's samples
     // unchanged (the extra nodes lie outside the box).
-    let uses_unet = args.models.iter().any(|m| m == "unet");
-    let grid_based = uses_unet || args.models.iter().any(|m| m == "grid");
+    let reads =
+        |topic: &str| args.models.iter().any(|m| msgs::models::model(m).and_then(|i| i.grid_topic) == Some(topic));
+    let uses_unet = reads(msgs::topics::GRID_UNET.name);
+    let grid_based = uses_unet || reads(msgs::topics::GRID_CONTACTS.name);
     let mut sph_args = vec!["--mode=preserving".to_string()];
     if uses_unet {
         if !args.unet_model.is_file() {
@@ -514,19 +505,14 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
             );
         }
         // The SPH node must make exactly the grids the model was trained on: the model file says how.
-        sph_args = unet_sph_args(&find("dc-unet")?, &args.unet_model).context("--unet-model")?;
+        let unet = find_binary("dc-unet").context("dc-unet not built (cargo build --workspace --bins)")?;
+        sph_args = unet_sph_args(&unet, &args.unet_model).context("--unet-model")?;
     }
     if grid_based {
-        let sph = find("dc-sph")?;
-        let mut sph_node = node("sph".into(), &sph, "dc-sph", sph_args);
-        sph_node.daemon = true;
-        graph.nodes.push(sph_node);
+        nodes.push(NodeSpec::new("sph", "dc-sph", true, sph_args));
     }
     if uses_unet {
-        let unet = find("dc-unet")?;
-        let mut unet_node = node("unet".into(), &unet, "dc-unet", vec![format!("--model={}", args.unet_model.display())]);
-        unet_node.daemon = true;
-        graph.nodes.push(unet_node);
+        nodes.push(NodeSpec::new("unet", "dc-unet", true, vec![format!("--model={}", args.unet_model.display())]));
     }
     for j in 0..jobs {
         let models: Vec<&str> = args.models.iter().skip(j).step_by(jobs).map(String::as_str).collect();
@@ -539,9 +525,9 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
             format!("--n={}", args.n),
         ];
         sim_args.extend(args.sim_args.iter().cloned());
-        graph.nodes.push(node(format!("sim-{j}"), &sim, "dc-sim", sim_args));
+        nodes.push(NodeSpec::new(format!("sim-{j}"), "dc-sim", false, sim_args));
     }
-    Ok(graph)
+    Ok(Graph::single_host("eval", &unique_namespace("eval"), nodes)?)
 }
 
 fn eval(args: EvalArgs) -> Result<()> {

@@ -58,14 +58,19 @@ pub fn describe_ports(graph: &Graph) -> Result<BTreeMap<String, Ports>, GraphErr
         let why = match result {
             Ok(o) => {
                 let stdout = String::from_utf8_lossy(&o.stdout);
-                let ports = stdout.lines().find_map(|l| l.strip_prefix(runtime::PORTS_MARKER)).map(serde_json::from_str::<Ports>);
+                let ports = stdout
+                    .lines()
+                    .find_map(|l| l.strip_prefix(runtime::PORTS_MARKER))
+                    .map(serde_json::from_str::<Ports>);
                 match (o.status.success(), ports) {
                     (true, Some(Ok(p))) => {
                         out.insert(node.name.clone(), p);
                         continue;
                     }
                     (true, Some(Err(e))) => format!("unreadable port list: {e}"),
-                    (true, None) => "it exited without saying which topics it uses (it never reached `ready`)".to_string(),
+                    (true, None) => {
+                        "it exited without saying which topics it uses (it never reached `ready`)".to_string()
+                    }
                     (false, _) => {
                         let stderr = String::from_utf8_lossy(&o.stderr);
                         let first = stderr.lines().find(|l| !l.trim().is_empty()).unwrap_or("").trim().to_string();
@@ -90,25 +95,40 @@ impl Plan {
         let multi_host = graph.hosts.len() > 1;
         let mut members = Vec::new();
         for host in graph.hosts.keys() {
-            let launcher_ports = Ports { publishes: [msgs::topics::CONTROL.name.to_string()].into(), ..Default::default() };
+            let launcher_ports =
+                Ports { publishes: [msgs::topics::CONTROL.name.to_string()].into(), ..Default::default() };
             members.push(Member { name: launcher_name(host), host: host.clone(), ports: launcher_ports });
             for node in graph.nodes_on(host) {
-                members.push(Member { name: node.name.clone(), host: host.clone(), ports: ports.get(&node.name).cloned().unwrap_or_default() });
+                members.push(Member {
+                    name: node.name.clone(),
+                    host: host.clone(),
+                    ports: ports.get(&node.name).cloned().unwrap_or_default(),
+                });
             }
         }
         let mut transports = BTreeMap::new();
         for m in &members {
-            for (topic, publishing) in m.ports.publishes.iter().map(|t| (t, true)).chain(m.ports.subscribes.iter().map(|t| (t, false))) {
+            for (topic, publishing) in
+                m.ports.publishes.iter().map(|t| (t, true)).chain(m.ports.subscribes.iter().map(|t| (t, false)))
+            {
                 let t = match graph.topics.get(topic) {
                     Some(forced) => *forced,
                     None => {
                         // The other side of this port: readers of what we write, writers of what we read.
                         let peers = members.iter().filter(|o| {
-                            if publishing { o.ports.subscribes.contains(topic) } else { o.ports.publishes.contains(topic) }
+                            if publishing {
+                                o.ports.subscribes.contains(topic)
+                            } else {
+                                o.ports.publishes.contains(topic)
+                            }
                         });
                         let (mut local, mut remote) = (false, false);
                         for o in peers {
-                            if o.host == m.host { local = true } else { remote = true }
+                            if o.host == m.host {
+                                local = true
+                            } else {
+                                remote = true
+                            }
                         }
                         match (local, remote) {
                             (true, true) => Transport::Both,
@@ -120,7 +140,11 @@ impl Plan {
                 transports.insert((m.name.clone(), topic.clone()), t);
             }
         }
-        let router = graph.hosts.values().find(|h| h.router).map(|h| (format!("tcp/{}:{}", h.address, h.zenoh_port), h.name.clone()));
+        let router = graph
+            .hosts
+            .values()
+            .find(|h| h.router)
+            .map(|h| (format!("tcp/{}:{}", h.address, h.zenoh_port), h.name.clone()));
         let mut plan = Plan {
             members,
             transports,
@@ -134,8 +158,12 @@ impl Plan {
         if plan.router.is_none() {
             // Every machine computes the same ports from the file: members in file order per host.
             for (name, host) in &graph.hosts {
-                let users: Vec<String> =
-                    plan.members.iter().filter(|m| &m.host == name && plan.uses_zenoh(&m.name)).map(|m| m.name.clone()).collect();
+                let users: Vec<String> = plan
+                    .members
+                    .iter()
+                    .filter(|m| &m.host == name && plan.uses_zenoh(&m.name))
+                    .map(|m| m.name.clone())
+                    .collect();
                 for (i, member) in users.into_iter().enumerate() {
                     let port = if host.zenoh_port == 0 { free_port(&host.address) } else { host.zenoh_port + i as u16 };
                     plan.endpoints.insert(member, format!("tcp/{}:{port}", host.address));
@@ -208,7 +236,11 @@ impl Plan {
                     let link = if wh == rh && wt.uses_iceoryx2() && rt.uses_iceoryx2() {
                         format!("iceoryx2 on {wh}")
                     } else if wt.uses_zenoh() && rt.uses_zenoh() {
-                        if wh == rh { format!("zenoh on {wh}") } else { format!("zenoh {wh} -> {rh}") }
+                        if wh == rh {
+                            format!("zenoh on {wh}")
+                        } else {
+                            format!("zenoh {wh} -> {rh}")
+                        }
                     } else {
                         continue;
                     };
@@ -323,7 +355,8 @@ mod tests {
 
     #[test]
     fn a_one_host_graph_stays_on_iceoryx2_with_unqualified_names() {
-        let graph = Graph::parse("g.toml", "[[nodes]]\nname='sim'\nbinary='sh'\n[[nodes]]\nname='rec'\nbinary='sh'\n").unwrap();
+        let graph =
+            Graph::parse("g.toml", "[[nodes]]\nname='sim'\nbinary='sh'\n[[nodes]]\nname='rec'\nbinary='sh'\n").unwrap();
         let p: BTreeMap<String, Ports> =
             [("sim".to_string(), ports(&["bodies"], &[])), ("rec".to_string(), ports(&[], &["bodies"]))].into();
         let plan = Plan::new(&graph, &p);

@@ -2,6 +2,12 @@
 //! name, releases them together once every node's ports exist (on every host of the graph),
 //! restarts nodes whose policy says so and tells the graph (control: node down / up), and stops
 //! the whole graph on Ctrl-C or when a node fails.
+//!
+//! [`run_with`] is a loop over the phases of one `Supervisor`: take the nodes' events, move the
+//! start-up barrier, watch the other hosts, announce restarted nodes, handle exits, and stop once
+//! the workers are done. What each phase decides is a pure function (`barrier_step`,
+//! `hosts_gate`, `HostWatch::update`, `failure_action`, `workers_finished`) tested without
+//! processes; the methods around them do the process and bus work.
 
 use crate::graph::{Graph, NodeSpec, OnFailure};
 use crate::plan::{self, Plan};
@@ -131,14 +137,185 @@ impl LauncherBus {
         Ok(LauncherBus { control, sync, _node: node, _router: router })
     }
 
-    /// Tells the graph that `node` went down or came back, with the topics it publishes.
-    fn notice(&mut self, kind: msgs::ControlKind, node: &str, host: &str, publishes: &[String], status: &str) {
-        let details = serde_json::json!({ "node": node, "host": host, "publishes": publishes, "status": status });
-        let msg = msgs::ControlMsg::control(msgs::StepHeader::default(), kind, 0, &details.to_string());
+    /// Tells the graph that a node went down (`up == false`) or came back.
+    fn notice(&mut self, up: bool, notice: msgs::NodeNotice) {
+        let msg = msgs::ControlMsg::node_notice(up, &notice);
         if let Err(e) = self.control.publish_frame(&msg) {
-            tracing::warn!("could not publish the {kind:?} notice of `{node}`: {e}");
+            let kind = if up { msgs::ControlKind::NodeUp } else { msgs::ControlKind::NodeDown };
+            tracing::warn!("could not publish the {kind:?} notice of `{}`: {e}", notice.node);
         }
     }
+}
+
+/// The notice about `node` of `host`, with the topics it publishes.
+fn notice_of(plan: &Plan, node: &str, host: &str, status: &str) -> msgs::NodeNotice {
+    msgs::NodeNotice {
+        node: node.to_string(),
+        host: host.to_string(),
+        publishes: published(plan, node),
+        status: status.to_string(),
+    }
+}
+
+/// Where this host's start-up barrier stands. Two barriers: every node's ports exist (ready) ->
+/// `connect`; every node attached its subscribers (connected) -> `start`. With several hosts,
+/// `start` waits for every host's nodes to be connected, so no source publishes into a graph half
+/// there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stage {
+    /// Waiting for every node to be ready.
+    Spawned,
+    /// Told `connect`; waiting for every node (and host) to be connected.
+    Connecting,
+    /// Told `start`.
+    Started,
+}
+
+struct BarrierState {
+    stage: Stage,
+    /// When the nodes were spawned (the other hosts get [`RunOptions::hosts_timeout`] from then).
+    since: Instant,
+}
+
+impl BarrierState {
+    /// `connect` was said (restarted nodes are told it too).
+    fn connecting(&self) -> bool {
+        self.stage != Stage::Spawned
+    }
+
+    fn started(&self) -> bool {
+        self.stage == Stage::Started
+    }
+}
+
+/// What the barrier does next.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum BarrierStep {
+    /// Nothing yet (or nothing left: started).
+    Hold,
+    /// Every node is ready (or finished): say `connect`.
+    Connect,
+    /// Every node here is connected (or finished): say `start` once every host is.
+    LocalConnected,
+}
+
+/// The barrier's next step from its stage and each node's `(phase, finished)`: a finished node
+/// counts as past every barrier.
+fn barrier_step(stage: Stage, nodes: impl IntoIterator<Item = (Phase, bool)>) -> BarrierStep {
+    let (needed, step) = match stage {
+        Stage::Spawned => (Phase::Ready, BarrierStep::Connect),
+        Stage::Connecting => (Phase::Connected, BarrierStep::LocalConnected),
+        Stage::Started => return BarrierStep::Hold,
+    };
+    if nodes.into_iter().all(|(phase, finished)| phase >= needed || finished) {
+        step
+    } else {
+        BarrierStep::Hold
+    }
+}
+
+/// Whether `start` may go once this host's nodes are connected, with several hosts.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum HostsGate {
+    /// Every host with nodes has them connected.
+    Open,
+    Wait,
+    /// These hosts did not get their nodes connected in time.
+    TimedOut(Vec<String>),
+}
+
+/// The gate from the hosts with nodes, those whose launchers say `connected`, and how long we
+/// have waited.
+fn hosts_gate(with_nodes: &[String], connected: &BTreeSet<String>, waited: Duration, timeout: Duration) -> HostsGate {
+    let missing: Vec<String> = with_nodes.iter().filter(|h| !connected.contains(*h)).cloned().collect();
+    if missing.is_empty() {
+        HostsGate::Open
+    } else if waited > timeout {
+        HostsGate::TimedOut(missing)
+    } else {
+        HostsGate::Wait
+    }
+}
+
+/// The hosts whose launchers hold `state` among the alive `(host, state)` tokens.
+fn hosts_in(alive: &BTreeSet<(String, String)>, state: &str) -> BTreeSet<String> {
+    alive.iter().filter(|(_, s)| s == state).map(|(h, _)| h.clone()).collect()
+}
+
+/// Another host's launcher vanished, or came back.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum HostChange {
+    Gone(String),
+    Back(String),
+}
+
+/// The other hosts as this launcher has seen them since `start`.
+#[derive(Debug, Default)]
+struct HostWatch {
+    /// Hosts with nodes, this one included.
+    with_nodes: Vec<String>,
+    /// Other hosts seen running.
+    seen: BTreeSet<String>,
+    /// Other hosts that went away.
+    gone: BTreeSet<String>,
+    /// This host declared `working` (it has workers, not all done).
+    working_declared: bool,
+}
+
+impl HostWatch {
+    /// Compares the other hosts with nodes (not `me`) with those whose launchers are `connected`
+    /// now: a seen host no longer there is gone, a gone host there again is back (a host seen
+    /// for the first time is just seen).
+    fn update(&mut self, me: &str, connected: &BTreeSet<String>) -> Vec<HostChange> {
+        let mut changes = Vec::new();
+        for h in self.with_nodes.iter().filter(|h| h.as_str() != me) {
+            match (self.seen.contains(h), connected.contains(h)) {
+                (true, false) => {
+                    self.seen.remove(h);
+                    self.gone.insert(h.clone());
+                    changes.push(HostChange::Gone(h.clone()));
+                }
+                (false, true) => {
+                    if self.gone.remove(h) {
+                        changes.push(HostChange::Back(h.clone()));
+                    }
+                    self.seen.insert(h.clone());
+                }
+                _ => {}
+            }
+        }
+        changes
+    }
+}
+
+/// What happens to a node that exited with a failure.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FailureAction {
+    /// Start it again: restart number `attempt` of at most `max`.
+    Restart { attempt: u32, max: u32 },
+    /// Its restarts are used up: stop the graph.
+    Exhausted { restarts: u32 },
+    /// Its policy is to stop the graph.
+    StopGraph,
+}
+
+/// The action for a failed node from its policy and how often it was restarted.
+fn failure_action(policy: OnFailure, restarts: u32) -> FailureAction {
+    match policy {
+        OnFailure::Restart { max } if restarts < max => FailureAction::Restart { attempt: restarts + 1, max },
+        OnFailure::Restart { .. } => FailureAction::Exhausted { restarts },
+        OnFailure::StopGraph => FailureAction::StopGraph,
+    }
+}
+
+/// Started, and every worker (non-daemon) of `(daemon, finished)` finished.
+fn workers_finished(started: bool, nodes: impl IntoIterator<Item = (bool, bool)>) -> bool {
+    started && nodes.into_iter().filter(|(daemon, _)| !daemon).all(|(_, finished)| finished)
+}
+
+/// A node that fails while being stopped (an exit code, not our signal) is still a failure.
+fn failed_on_stop(status: ExitStatus) -> bool {
+    !status.success() && status.code().is_some()
 }
 
 /// Runs the nodes of `graph` placed on `host` until they are all done (daemons are stopped when
@@ -160,26 +337,101 @@ pub fn run_with(
     interrupt: &std::sync::atomic::AtomicBool,
     options: &RunOptions,
 ) -> Result<RunReport, RunError> {
-    let specs: Vec<NodeSpec> = graph.nodes_on(host).cloned().collect();
-    if specs.is_empty() {
-        return Err(RunError::NoNodes(host.to_string()));
+    let mut sup = Supervisor::new(graph, host, output, options)?;
+    sup.spawn_all()?;
+    loop {
+        sup.pump_events();
+        sup.advance_barrier()?;
+        sup.watch_hosts();
+        sup.announce_restarted();
+        if interrupt.load(std::sync::atomic::Ordering::SeqCst) {
+            return Err(sup.interrupted());
+        }
+        sup.handle_exits()?;
+        if sup.workers_done() && sup.other_hosts_done() {
+            return sup.drain_and_shutdown();
+        }
     }
-    match runtime::cleanup_stale_resources() {
-        Ok(0) => {}
-        Ok(n) => tracing::info!("cleaned shared-memory resources of {n} dead iceoryx2 nodes"),
-        Err(e) => tracing::warn!("stale resource cleanup failed: {e}"),
-    }
-    let ports = plan::describe_ports(graph)?;
-    let plan = Plan::new(graph, &ports);
-    let mut bus = LauncherBus::open(graph, &plan, host)?;
-    let (tx, rx) = mpsc::channel::<Event>();
-    let width = specs.iter().map(|s| s.name.len()).max().unwrap_or(0);
-    let forward = matches!(output, Output::Forward);
-    let mut nodes: Vec<Running> = Vec::new();
-    let mut report = RunReport::default();
+}
 
-    let spawn = |i: usize, spec: &NodeSpec| -> Result<(Child, Option<ChildStdin>), RunError> {
-        let bus_json = serde_json::to_string(&plan.bus(&spec.name, host)).expect("bus config serialises");
+/// One host's run of a graph.
+struct Supervisor<'a> {
+    // Field order is drop order: the nodes' pipes close before the bus goes.
+    nodes: Vec<Running>,
+    report: RunReport,
+    rx: mpsc::Receiver<Event>,
+    tx: mpsc::Sender<Event>,
+    bus: LauncherBus,
+    plan: Plan,
+    graph: &'a Graph,
+    host: &'a str,
+    output: Output,
+    options: &'a RunOptions,
+    /// Width of the node-name column of forwarded lines.
+    width: usize,
+    barrier: BarrierState,
+    hosts: HostWatch,
+}
+
+impl<'a> Supervisor<'a> {
+    /// Routes the graph and joins the bus; cleans up what dead iceoryx2 nodes left first.
+    fn new(graph: &'a Graph, host: &'a str, output: Output, options: &'a RunOptions) -> Result<Self, RunError> {
+        let width = match graph.nodes_on(host).map(|s| s.name.len()).max() {
+            Some(w) => w,
+            None => return Err(RunError::NoNodes(host.to_string())),
+        };
+        match runtime::cleanup_stale_resources() {
+            Ok(0) => {}
+            Ok(n) => tracing::info!("cleaned shared-memory resources of {n} dead iceoryx2 nodes"),
+            Err(e) => tracing::warn!("stale resource cleanup failed: {e}"),
+        }
+        let ports = plan::describe_ports(graph)?;
+        let plan = Plan::new(graph, &ports);
+        let bus = LauncherBus::open(graph, &plan, host)?;
+        let (tx, rx) = mpsc::channel::<Event>();
+        let with_nodes = graph.hosts.keys().filter(|h| graph.nodes_on(h).next().is_some()).cloned().collect();
+        Ok(Supervisor {
+            nodes: Vec::new(),
+            report: RunReport::default(),
+            rx,
+            tx,
+            bus,
+            plan,
+            graph,
+            host,
+            output,
+            options,
+            width,
+            barrier: BarrierState { stage: Stage::Spawned, since: Instant::now() },
+            hosts: HostWatch { with_nodes, ..Default::default() },
+        })
+    }
+
+    /// Starts every node of this host; if one cannot start, stops those started.
+    fn spawn_all(&mut self) -> Result<(), RunError> {
+        let graph = self.graph;
+        for (i, spec) in graph.nodes_on(self.host).enumerate() {
+            match self.spawn(i, spec) {
+                Ok((child, stdin)) => self.nodes.push(Running {
+                    spec: spec.clone(),
+                    child,
+                    stdin,
+                    exited: None,
+                    done: false,
+                    phase: Phase::Starting,
+                    restarts: 0,
+                }),
+                Err(e) => return Err(self.fail(e)),
+            }
+        }
+        self.barrier.since = Instant::now();
+        Ok(())
+    }
+
+    /// Starts node `i` with its bus configuration, and threads that turn its stdout into events
+    /// and forward its stderr.
+    fn spawn(&self, i: usize, spec: &NodeSpec) -> Result<(Child, Option<ChildStdin>), RunError> {
+        let bus_json = serde_json::to_string(&self.plan.bus(&spec.name, self.host)).expect("bus config serialises");
         let mut cmd = Command::new(&spec.program);
         cmd.args(&spec.args)
             .envs(&spec.env)
@@ -192,10 +444,11 @@ pub fn run_with(
         die_with_parent(&mut cmd);
         let mut child = cmd.spawn().map_err(|e| RunError::Spawn { node: spec.name.clone(), what: e.to_string() })?;
         eprintln!("[dc] node `{}` started (pid {})", spec.name, child.id());
-        let prefix = format!("[{:width$}]", spec.name);
+        let prefix = format!("[{:width$}]", spec.name, width = self.width);
         let stdout = child.stdout.take().expect("piped");
         let stderr = child.stderr.take().expect("piped");
-        let (tx_out, tx_err) = (tx.clone(), tx.clone());
+        let (tx_out, tx_err) = (self.tx.clone(), self.tx.clone());
+        let forward = matches!(self.output, Output::Forward);
         let p = prefix.clone();
         std::thread::spawn(move || {
             for line in BufReader::new(stdout).lines().map_while(Result::ok) {
@@ -221,216 +474,239 @@ pub fn run_with(
         });
         let stdin = child.stdin.take();
         Ok((child, stdin))
-    };
+    }
 
-    for (i, spec) in specs.iter().enumerate() {
-        match spawn(i, spec) {
-            Ok((child, stdin)) => {
-                nodes.push(Running { spec: spec.clone(), child, stdin, exited: None, done: false, phase: Phase::Starting, restarts: 0 })
-            }
-            Err(e) => {
-                stop_all(&mut nodes);
-                return Err(e);
+    /// Takes the nodes' events (handshake markers, captured lines), waiting briefly for the first.
+    fn pump_events(&mut self) {
+        let mut first = self.rx.recv_timeout(Duration::from_millis(20)).ok();
+        while let Some(ev) = first.take().or_else(|| self.rx.try_recv().ok()) {
+            match ev {
+                Event::Ready(i) => self.nodes[i].phase = self.nodes[i].phase.max(Phase::Ready),
+                Event::Connected(i) => self.nodes[i].phase = self.nodes[i].phase.max(Phase::Connected),
+                Event::Done(i) => self.nodes[i].done = true,
+                Event::Line(i, line) => self.capture(i, line),
             }
         }
     }
 
-    // Two barriers: every node's ports exist (ready) -> "connect"; every node attached its
-    // subscribers (connected) -> "start". With several hosts, "start" waits for every host's
-    // nodes to be connected, so no source publishes into a graph half there.
-    let (mut connecting, mut started) = (false, false);
-    let hosts_with_nodes: Vec<String> =
-        graph.hosts.keys().filter(|h| graph.nodes_on(h).next().is_some()).cloned().collect();
-    let barrier_since = Instant::now();
-    // Other hosts seen running, and those that went away.
-    let (mut seen_hosts, mut gone_hosts) = (BTreeSet::<String>::new(), BTreeSet::<String>::new());
-    let mut working_declared = false;
-    loop {
-        // Drain events (handshake markers, captured lines) with a short wait, then look at exits.
-        let mut first = rx.recv_timeout(Duration::from_millis(20)).ok();
-        while let Some(ev) = first.take().or_else(|| rx.try_recv().ok()) {
-            match ev {
-                Event::Ready(i) => nodes[i].phase = nodes[i].phase.max(Phase::Ready),
-                Event::Connected(i) => nodes[i].phase = nodes[i].phase.max(Phase::Connected),
-                Event::Done(i) => nodes[i].done = true,
-                Event::Line(i, line) => {
-                    if matches!(output, Output::Capture) {
-                        report.stdout.entry(nodes[i].spec.name.clone()).or_default().push(line);
-                    }
-                }
+    /// Keeps a stdout line of node `i` with [`Output::Capture`].
+    fn capture(&mut self, i: usize, line: String) {
+        if matches!(self.output, Output::Capture) {
+            self.report.stdout.entry(self.nodes[i].spec.name.clone()).or_default().push(line);
+        }
+    }
+
+    fn phases(&self) -> impl Iterator<Item = (Phase, bool)> + '_ {
+        self.nodes.iter().map(|n| (n.phase, n.finished()))
+    }
+
+    /// Says `connect` once every node is ready, then `start` once every node (on every host) is
+    /// connected; both may happen in one call.
+    fn advance_barrier(&mut self) -> Result<(), RunError> {
+        if barrier_step(self.barrier.stage, self.phases()) == BarrierStep::Connect {
+            self.barrier.stage = Stage::Connecting;
+            tell_all(&mut self.nodes, runtime::CONNECT_LINE);
+        }
+        if barrier_step(self.barrier.stage, self.phases()) == BarrierStep::LocalConnected && self.hosts_connected()? {
+            self.barrier.stage = Stage::Started;
+            tell_all(&mut self.nodes, runtime::START_LINE);
+            for n in self.nodes.iter_mut() {
+                n.phase = n.phase.max(Phase::Started);
+            }
+            tracing::debug!("all {} nodes connected: started", self.nodes.len());
+        }
+        Ok(())
+    }
+
+    /// With several hosts: says this host's nodes are connected and tells whether every host's
+    /// are; past the timeout, stops the nodes and fails. With one host: yes.
+    fn hosts_connected(&mut self) -> Result<bool, RunError> {
+        let Some(sync) = &mut self.bus.sync else { return Ok(true) };
+        // `working` before `connected`: a host that sees us connected has seen that we have
+        // workers too (one session delivers in order), so it cannot mistake us for done and stop
+        // its daemons under our feet.
+        if !self.hosts.working_declared && self.nodes.iter().any(|n| !n.spec.daemon) {
+            sync.declare(self.host, "working").map_err(RunError::Bus)?;
+            self.hosts.working_declared = true;
+        }
+        sync.declare(self.host, "connected").map_err(RunError::Bus)?;
+        let connected = hosts_in(sync.alive(), "connected");
+        match hosts_gate(&self.hosts.with_nodes, &connected, self.barrier.since.elapsed(), self.options.hosts_timeout) {
+            HostsGate::Open => Ok(true),
+            HostsGate::Wait => Ok(false),
+            HostsGate::TimedOut(missing) => {
+                let missing = missing.iter().map(|h| format!("`{h}`")).collect::<Vec<_>>().join(", ");
+                Err(self.fail(RunError::HostsMissing { missing, secs: self.options.hosts_timeout.as_secs_f64() }))
             }
         }
-        if !connecting && nodes.iter().all(|n| n.phase >= Phase::Ready || n.finished()) {
-            connecting = true;
-            tell_all(&mut nodes, runtime::CONNECT_LINE);
+    }
+
+    /// Another host whose launcher vanished (its liveliness went: killed, or unreachable past
+    /// zenoh's lease) takes its nodes with it: tell ours, so that a simulator stops waiting for
+    /// grids that cannot come. Back when its launcher is.
+    fn watch_hosts(&mut self) {
+        if !self.barrier.started() {
+            return;
         }
-        if connecting && !started && nodes.iter().all(|n| n.phase >= Phase::Connected || n.finished()) {
-            let all_hosts = match &mut bus.sync {
-                None => true,
-                Some(sync) => {
-                    // `working` before `connected`: a host that sees us connected has seen that we
-                    // have workers too (one session delivers in order), so it cannot mistake us
-                    // for done and stop its daemons under our feet.
-                    if !working_declared && specs.iter().any(|s| !s.daemon) {
-                        sync.declare(host, "working").map_err(RunError::Bus)?;
-                        working_declared = true;
-                    }
-                    sync.declare(host, "connected").map_err(RunError::Bus)?;
-                    let alive = sync.alive();
-                    let missing: Vec<&String> =
-                        hosts_with_nodes.iter().filter(|h| !alive.contains(&((*h).clone(), "connected".to_string()))).collect();
-                    if !missing.is_empty() && barrier_since.elapsed() > options.hosts_timeout {
-                        stop_all(&mut nodes);
-                        let missing = missing.iter().map(|h| format!("`{h}`")).collect::<Vec<_>>().join(", ");
-                        return Err(RunError::HostsMissing { missing, secs: options.hosts_timeout.as_secs_f64() });
-                    }
-                    missing.is_empty()
-                }
+        let Some(sync) = &mut self.bus.sync else { return };
+        let connected = hosts_in(sync.alive(), "connected");
+        let changes = self.hosts.update(self.host, &connected);
+        for change in &changes {
+            match change {
+                HostChange::Gone(h) => eprintln!("[dc] host `{h}` is gone: its nodes count as down"),
+                HostChange::Back(h) => eprintln!("[dc] host `{h}` is back"),
+            }
+        }
+        let graph = self.graph;
+        for change in changes {
+            let (up, h, status) = match &change {
+                HostChange::Gone(h) => (false, h, "host gone"),
+                HostChange::Back(h) => (true, h, "host back"),
             };
-            if all_hosts {
-                started = true;
-                tell_all(&mut nodes, runtime::START_LINE);
-                for n in nodes.iter_mut() {
-                    n.phase = n.phase.max(Phase::Started);
-                }
-                tracing::debug!("all {} nodes connected: started", nodes.len());
+            for node in graph.nodes_on(h) {
+                self.bus.notice(up, notice_of(&self.plan, &node.name, h, status));
             }
         }
-        // Another host whose launcher vanished (its liveliness went: killed, or unreachable past
-        // zenoh's lease) takes its nodes with it: tell ours, so that a simulator stops waiting
-        // for grids that cannot come. Back when its launcher is.
-        if started {
-            if let Some(sync) = &mut bus.sync {
-                let alive: BTreeSet<String> =
-                    sync.alive().iter().filter(|(_, state)| state == "connected").map(|(h, _)| h.clone()).collect();
-                let mut notices = Vec::new();
-                for h in hosts_with_nodes.iter().filter(|h| h.as_str() != host) {
-                    match (seen_hosts.contains(h), alive.contains(h)) {
-                        (true, false) => {
-                            eprintln!("[dc] host `{h}` is gone: its nodes count as down");
-                            seen_hosts.remove(h);
-                            notices.push((msgs::ControlKind::NodeDown, h.clone()));
-                        }
-                        (false, true) => {
-                            if gone_hosts.remove(h) {
-                                eprintln!("[dc] host `{h}` is back");
-                                notices.push((msgs::ControlKind::NodeUp, h.clone()));
-                            }
-                            seen_hosts.insert(h.clone());
-                        }
-                        _ => {}
-                    }
-                }
-                for (kind, h) in notices {
-                    if kind == msgs::ControlKind::NodeDown {
-                        gone_hosts.insert(h.clone());
-                    }
-                    for node in graph.nodes_on(&h) {
-                        let publishes = published(&plan, &node.name);
-                        bus.notice(kind, &node.name, &h, &publishes, if kind == msgs::ControlKind::NodeDown { "host gone" } else { "host back" });
-                    }
-                }
-            }
-        }
-        // A restarted node was told to connect and start at spawn; once connected it is back.
-        for n in nodes.iter_mut().filter(|n| n.restarts > 0 && n.exited.is_none() && n.phase == Phase::Connected) {
+    }
+
+    /// A restarted node was told to connect and start at spawn; once connected it is back.
+    fn announce_restarted(&mut self) {
+        for n in self.nodes.iter_mut().filter(|n| n.restarts > 0 && n.exited.is_none() && n.phase == Phase::Connected) {
             n.phase = Phase::Started;
             eprintln!("[dc] node `{}` is back (restart {})", n.spec.name, n.restarts);
-            let publishes = published(&plan, &n.spec.name);
-            bus.notice(msgs::ControlKind::NodeUp, &n.spec.name, host, &publishes, "running");
-        }
-        if interrupt.load(std::sync::atomic::Ordering::SeqCst) {
-            eprintln!("[dc] interrupted: stopping the graph");
-            stop_all(&mut nodes);
-            return Err(RunError::Interrupted);
-        }
-        for i in 0..nodes.len() {
-            if nodes[i].exited.is_some() {
-                continue;
-            }
-            let Ok(Some(status)) = nodes[i].child.try_wait() else { continue };
-            nodes[i].exited = Some(status);
-            if status.success() {
-                continue;
-            }
-            let name = nodes[i].spec.name.clone();
-            let described = describe(status);
-            // Its shared-memory ports must go at once: publishers would wait on its full queues.
-            if let Err(e) = runtime::cleanup_stale_resources() {
-                tracing::warn!("cleaning the dead node's resources: {e}");
-            }
-            let publishes = published(&plan, &name);
-            match nodes[i].spec.on_failure {
-                OnFailure::Restart { max } if nodes[i].restarts < max => {
-                    nodes[i].restarts += 1;
-                    eprintln!("[dc] node `{name}` exited with {described}: restarting it ({} of at most {max})", nodes[i].restarts);
-                    bus.notice(msgs::ControlKind::NodeDown, &name, host, &publishes, &described);
-                    let spec = nodes[i].spec.clone();
-                    let (child, stdin) = match spawn(i, &spec) {
-                        Ok(c) => c,
-                        Err(e) => {
-                            stop_all(&mut nodes);
-                            return Err(e);
-                        }
-                    };
-                    let n = &mut nodes[i];
-                    (n.child, n.stdin, n.exited, n.done, n.phase) = (child, stdin, None, false, Phase::Starting);
-                    report.restarts.insert(name, n.restarts);
-                    // It reads these lines once its ports exist: the rest of the graph is running.
-                    if connecting {
-                        tell(n, runtime::CONNECT_LINE);
-                    }
-                    if started {
-                        tell(n, runtime::START_LINE);
-                    }
-                }
-                OnFailure::Restart { .. } => {
-                    let restarts = nodes[i].restarts;
-                    eprintln!("[dc] node `{name}` exited with {described} after {restarts} restarts: stopping the graph");
-                    bus.notice(msgs::ControlKind::NodeDown, &name, host, &publishes, &described);
-                    stop_all(&mut nodes);
-                    drain_lines(&rx, &mut report, &nodes, &output);
-                    return Err(RunError::RestartsExhausted { node: name, status: described, restarts });
-                }
-                OnFailure::StopGraph => {
-                    eprintln!("[dc] node `{name}` exited with {described}: stopping the graph");
-                    stop_all(&mut nodes);
-                    drain_lines(&rx, &mut report, &nodes, &output);
-                    return Err(RunError::NodeFailed { node: name, status: described });
-                }
-            }
-        }
-        let workers_done = started && nodes.iter().filter(|n| !n.spec.daemon).all(Running::finished);
-        if workers_done && other_hosts_done(&mut bus, host, &mut working_declared) {
-            // Daemons first (they drain what the finished workers sent, whose publishers are
-            // still alive), then the lingering workers.
-            stop_where(&mut nodes, |n| !n.done);
-            stop_all(&mut nodes);
-            drain_lines(&rx, &mut report, &nodes, &output);
-            // A node that fails while being stopped is still a failure worth reporting.
-            if let Some(n) = nodes.iter().find(|n| n.exited.is_some_and(|s| !s.success() && s.code().is_some())) {
-                let status = describe(n.exited.unwrap());
-                return Err(RunError::NodeFailed { node: n.spec.name.clone(), status });
-            }
-            return Ok(report);
+            self.bus.notice(true, notice_of(&self.plan, &n.spec.name, self.host, "running"));
         }
     }
-}
 
-/// On a graph of several hosts, this host's workers are done: say so and tell whether every
-/// other host's are too (a host that disappeared loses its token and counts as done).
-fn other_hosts_done(bus: &mut LauncherBus, host: &str, working_declared: &mut bool) -> bool {
-    let Some(sync) = &mut bus.sync else { return true };
-    if *working_declared {
-        sync.withdraw(host, "working");
-        *working_declared = false;
+    /// Notes the nodes that exited; a failed one is restarted or stops the graph (an error).
+    fn handle_exits(&mut self) -> Result<(), RunError> {
+        for i in 0..self.nodes.len() {
+            let n = &mut self.nodes[i];
+            if n.exited.is_some() {
+                continue;
+            }
+            let Ok(Some(status)) = n.child.try_wait() else { continue };
+            n.exited = Some(status);
+            if !status.success() {
+                self.node_failed(i, status)?;
+            }
+        }
+        Ok(())
     }
-    !sync.alive().iter().any(|(_, state)| state == "working")
+
+    fn node_failed(&mut self, i: usize, status: ExitStatus) -> Result<(), RunError> {
+        let name = self.nodes[i].spec.name.clone();
+        let described = describe(status);
+        // Its shared-memory ports must go at once: publishers would wait on its full queues.
+        if let Err(e) = runtime::cleanup_stale_resources() {
+            tracing::warn!("cleaning the dead node's resources: {e}");
+        }
+        let down = notice_of(&self.plan, &name, self.host, &described);
+        match failure_action(self.nodes[i].spec.on_failure, self.nodes[i].restarts) {
+            FailureAction::Restart { attempt, max } => {
+                self.nodes[i].restarts = attempt;
+                eprintln!("[dc] node `{name}` exited with {described}: restarting it ({attempt} of at most {max})");
+                self.bus.notice(false, down);
+                self.restart(i)?;
+                self.report.restarts.insert(name, attempt);
+                Ok(())
+            }
+            FailureAction::Exhausted { restarts } => {
+                eprintln!("[dc] node `{name}` exited with {described} after {restarts} restarts: stopping the graph");
+                self.bus.notice(false, down);
+                self.stop_and_drain();
+                Err(RunError::RestartsExhausted { node: name, status: described, restarts })
+            }
+            FailureAction::StopGraph => {
+                eprintln!("[dc] node `{name}` exited with {described}: stopping the graph");
+                self.stop_and_drain();
+                Err(RunError::NodeFailed { node: name, status: described })
+            }
+        }
+    }
+
+    /// Starts node `i` again and tells it the barrier lines already said: it reads them once its
+    /// ports exist, the rest of the graph is running.
+    fn restart(&mut self, i: usize) -> Result<(), RunError> {
+        let spec = self.nodes[i].spec.clone();
+        let (child, stdin) = match self.spawn(i, &spec) {
+            Ok(c) => c,
+            Err(e) => return Err(self.fail(e)),
+        };
+        let n = &mut self.nodes[i];
+        (n.child, n.stdin, n.exited, n.done, n.phase) = (child, stdin, None, false, Phase::Starting);
+        if self.barrier.connecting() {
+            tell(n, runtime::CONNECT_LINE);
+        }
+        if self.barrier.started() {
+            tell(n, runtime::START_LINE);
+        }
+        Ok(())
+    }
+
+    fn workers_done(&self) -> bool {
+        workers_finished(self.barrier.started(), self.nodes.iter().map(|n| (n.spec.daemon, n.finished())))
+    }
+
+    /// On a graph of several hosts, this host's workers are done: say so and tell whether every
+    /// other host's are too (a host that disappeared loses its token and counts as done).
+    fn other_hosts_done(&mut self) -> bool {
+        let Some(sync) = &mut self.bus.sync else { return true };
+        if self.hosts.working_declared {
+            sync.withdraw(self.host, "working");
+            self.hosts.working_declared = false;
+        }
+        !sync.alive().iter().any(|(_, state)| state == "working")
+    }
+
+    /// Stops the nodes: daemons first (they drain what the finished workers sent, whose
+    /// publishers are still alive), then the lingering workers. A node that fails while being
+    /// stopped is still a failure worth reporting.
+    fn drain_and_shutdown(mut self) -> Result<RunReport, RunError> {
+        stop_where(&mut self.nodes, |n| !n.done);
+        stop_all(&mut self.nodes);
+        self.drain_lines();
+        if let Some(n) = self.nodes.iter().find(|n| n.exited.is_some_and(failed_on_stop)) {
+            let status = describe(n.exited.unwrap());
+            return Err(RunError::NodeFailed { node: n.spec.name.clone(), status });
+        }
+        Ok(std::mem::take(&mut self.report))
+    }
+
+    fn interrupted(&mut self) -> RunError {
+        eprintln!("[dc] interrupted: stopping the graph");
+        self.fail(RunError::Interrupted)
+    }
+
+    /// Stops every node and passes `e` on.
+    fn fail(&mut self, e: RunError) -> RunError {
+        stop_all(&mut self.nodes);
+        e
+    }
+
+    fn stop_and_drain(&mut self) {
+        stop_all(&mut self.nodes);
+        self.drain_lines();
+    }
+
+    fn drain_lines(&mut self) {
+        // Reader threads finish once the children's pipes close.
+        let deadline = Instant::now() + Duration::from_secs(2);
+        while let Ok(ev) = self.rx.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
+            if let Event::Line(i, line) = ev {
+                self.capture(i, line);
+            }
+        }
+    }
 }
 
 /// The topics `node` publishes, for the down / up notices.
 fn published(plan: &Plan, node: &str) -> Vec<String> {
-    plan.members.iter().find(|m| m.name == node).map(|m| m.ports.publishes.iter().cloned().collect()).unwrap_or_default()
+    plan.members
+        .iter()
+        .find(|m| m.name == node)
+        .map(|m| m.ports.publishes.iter().cloned().collect())
+        .unwrap_or_default()
 }
 
 fn tell(n: &mut Running, line: &str) {
@@ -442,19 +718,7 @@ fn tell(n: &mut Running, line: &str) {
 /// Writes a line to every running node's stdin.
 fn tell_all(nodes: &mut [Running], line: &str) {
     for n in nodes.iter_mut().filter(|n| n.exited.is_none()) {
-        if let Some(stdin) = &mut n.stdin {
-            let _ = writeln!(stdin, "{line}").and_then(|_| stdin.flush());
-        }
-    }
-}
-
-fn drain_lines(rx: &mpsc::Receiver<Event>, report: &mut RunReport, nodes: &[Running], output: &Output) {
-    // Reader threads finish once the children's pipes close.
-    let deadline = Instant::now() + Duration::from_secs(2);
-    while let Ok(ev) = rx.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
-        if let (Event::Line(i, line), Output::Capture) = (ev, output) {
-            report.stdout.entry(nodes[i].spec.name.clone()).or_default().push(line);
-        }
+        tell(n, line);
     }
 }
 
@@ -513,5 +777,134 @@ fn die_with_parent(cmd: &mut Command) {
             libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
             Ok(())
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::unix::process::ExitStatusExt;
+
+    fn set(hosts: &[&str]) -> BTreeSet<String> {
+        hosts.iter().map(|h| h.to_string()).collect()
+    }
+
+    fn strings(hosts: &[&str]) -> Vec<String> {
+        hosts.iter().map(|h| h.to_string()).collect()
+    }
+
+    #[test]
+    fn connect_waits_for_every_node_to_be_ready_or_finished() {
+        use Phase::*;
+        assert_eq!(barrier_step(Stage::Spawned, [(Ready, false), (Starting, false)]), BarrierStep::Hold);
+        // A node that finished (or died) before its ports existed does not hold the others back.
+        assert_eq!(barrier_step(Stage::Spawned, [(Ready, false), (Starting, true)]), BarrierStep::Connect);
+        assert_eq!(barrier_step(Stage::Spawned, [(Connected, false), (Ready, false)]), BarrierStep::Connect);
+        // Connected nodes alone do not start the graph before `connect` was said.
+        assert_eq!(barrier_step(Stage::Spawned, [(Connected, false)]), BarrierStep::Connect);
+    }
+
+    #[test]
+    fn start_waits_for_every_node_to_be_connected_or_finished() {
+        use Phase::*;
+        assert_eq!(barrier_step(Stage::Connecting, [(Connected, false), (Ready, false)]), BarrierStep::Hold);
+        assert_eq!(barrier_step(Stage::Connecting, [(Connected, false), (Ready, true)]), BarrierStep::LocalConnected);
+        assert_eq!(
+            barrier_step(Stage::Connecting, [(Started, false), (Connected, false)]),
+            BarrierStep::LocalConnected
+        );
+        // Once started, restarted nodes (back to Starting) do not move the barrier again.
+        assert_eq!(barrier_step(Stage::Started, [(Started, false)]), BarrierStep::Hold);
+        assert_eq!(barrier_step(Stage::Started, [(Starting, false)]), BarrierStep::Hold);
+    }
+
+    #[test]
+    fn both_barriers_can_pass_in_one_round() {
+        // As `advance_barrier` does: `connect`, then look again with the same phases.
+        let phases = [(Phase::Connected, false), (Phase::Starting, true)];
+        let mut stage = Stage::Spawned;
+        if barrier_step(stage, phases) == BarrierStep::Connect {
+            stage = Stage::Connecting;
+        }
+        assert_eq!(barrier_step(stage, phases), BarrierStep::LocalConnected);
+    }
+
+    #[test]
+    fn the_hosts_gate_opens_when_every_host_with_nodes_is_connected_and_times_out() {
+        let hosts = strings(&["a", "b", "c"]);
+        let (t, timeout) = (Duration::from_secs(1), Duration::from_secs(10));
+        assert_eq!(hosts_gate(&hosts, &set(&["a", "b", "c"]), t, timeout), HostsGate::Open);
+        assert_eq!(hosts_gate(&hosts, &set(&["a", "c"]), t, timeout), HostsGate::Wait);
+        assert_eq!(
+            hosts_gate(&hosts, &set(&["a"]), Duration::from_secs(11), timeout),
+            HostsGate::TimedOut(strings(&["b", "c"]))
+        );
+        // Only the hosts with nodes count; a launcher of another graph's host does not.
+        assert_eq!(hosts_gate(&strings(&["a"]), &set(&["a", "z"]), Duration::from_secs(11), timeout), HostsGate::Open);
+    }
+
+    #[test]
+    fn hosts_in_picks_one_state() {
+        let alive: BTreeSet<(String, String)> = [("a", "connected"), ("a", "working"), ("b", "working")]
+            .iter()
+            .map(|(h, s)| (h.to_string(), s.to_string()))
+            .collect();
+        assert_eq!(hosts_in(&alive, "connected"), set(&["a"]));
+        assert_eq!(hosts_in(&alive, "working"), set(&["a", "b"]));
+    }
+
+    #[test]
+    fn a_host_is_gone_when_its_launcher_goes_and_back_when_it_returns() {
+        let mut w = HostWatch { with_nodes: strings(&["a", "b", "c"]), ..Default::default() };
+        // First sight: no notice; this host (a) is never watched.
+        assert_eq!(w.update("a", &set(&["b"])), vec![]);
+        assert_eq!(w.update("a", &set(&["b", "c"])), vec![]);
+        assert_eq!(w.seen, set(&["b", "c"]));
+        assert_eq!(w.update("a", &set(&["c"])), vec![HostChange::Gone("b".into())]);
+        // Gone once, not at every look.
+        assert_eq!(w.update("a", &set(&["c"])), vec![]);
+        assert_eq!(w.update("a", &set(&[])), vec![HostChange::Gone("c".into())]);
+        assert_eq!(w.update("a", &set(&["b", "c"])), vec![HostChange::Back("b".into()), HostChange::Back("c".into())]);
+        assert_eq!(w.update("a", &set(&["b", "c"])), vec![]);
+        assert!(w.gone.is_empty());
+    }
+
+    #[test]
+    fn a_host_never_seen_is_not_gone() {
+        let mut w = HostWatch { with_nodes: strings(&["a", "b"]), ..Default::default() };
+        assert_eq!(w.update("a", &set(&[])), vec![]);
+        assert_eq!(w.update("a", &set(&["a"])), vec![]);
+        assert!(w.seen.is_empty() && w.gone.is_empty());
+    }
+
+    #[test]
+    fn a_failed_node_restarts_up_to_its_bound_then_stops_the_graph() {
+        let policy = OnFailure::Restart { max: 2 };
+        assert_eq!(failure_action(policy, 0), FailureAction::Restart { attempt: 1, max: 2 });
+        assert_eq!(failure_action(policy, 1), FailureAction::Restart { attempt: 2, max: 2 });
+        assert_eq!(failure_action(policy, 2), FailureAction::Exhausted { restarts: 2 });
+        assert_eq!(failure_action(OnFailure::Restart { max: 0 }, 0), FailureAction::Exhausted { restarts: 0 });
+        assert_eq!(failure_action(OnFailure::StopGraph, 0), FailureAction::StopGraph);
+    }
+
+    #[test]
+    fn the_graph_is_done_when_its_workers_are_after_start() {
+        // (daemon, finished)
+        assert!(!workers_finished(false, [(false, true)]), "not before start");
+        assert!(workers_finished(true, [(false, true), (true, false)]), "daemons do not count");
+        assert!(!workers_finished(true, [(false, true), (false, false)]));
+        // Daemons only: done at start (they are stopped).
+        assert!(workers_finished(true, [(true, false)]));
+    }
+
+    #[test]
+    fn exit_statuses_are_described_and_signals_on_stop_are_no_failure() {
+        let code = |c: i32| ExitStatus::from_raw(c << 8);
+        let signal = |s: i32| ExitStatus::from_raw(s);
+        assert_eq!(describe(code(1)), "exit status 1");
+        assert_eq!(describe(signal(9)), "signal 9");
+        assert!(failed_on_stop(code(3)));
+        assert!(!failed_on_stop(code(0)));
+        assert!(!failed_on_stop(signal(libc::SIGTERM)));
     }
 }

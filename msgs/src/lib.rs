@@ -12,9 +12,17 @@
 //! explicit iceoryx2 type name so that every crate agrees on the shared-memory type identity.
 
 mod codec;
+pub mod control;
+pub mod models;
+mod names;
+mod stats;
 pub mod topics;
 
-pub use codec::{decode, decode_header, encode, encode_into, CodecError, WIRE_VERSION};
+pub use codec::{decode, decode_header, encode, encode_into, CodecError, OLDEST_WIRE_VERSION, WIRE_VERSION};
+pub use control::{ControlDetails, DetailsError, NodeNotice, RunParams, RunSummary, SceneInfo};
+pub use names::id_text;
+pub use stats::StepStats;
+pub use topics::{FrameKind, HasStep};
 
 use bytemuck::{Pod, Zeroable};
 use iceoryx2_bb_derive_macros::ZeroCopySend;
@@ -72,9 +80,7 @@ pub fn name16_str(n: &Name16) -> &str {
 /// Parses a seed list: `N`, `A..B` (exclusive), `A..=B`, or a comma list of those; sorted,
 /// without repeats. Seeds are simulation ids, shared by the simulator and the evaluation.
 pub fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
-    let num = |t: &str| {
-        t.trim().parse::<u64>().map_err(|_| format!("`{s}`: expected N, A..B, A..=B or a comma list"))
-    };
+    let num = |t: &str| t.trim().parse::<u64>().map_err(|_| format!("`{s}`: expected N, A..B, A..=B or a comma list"));
     let mut out = Vec::new();
     for part in s.split(',').filter(|p| !p.trim().is_empty()) {
         if let Some((a, b)) = part.split_once("..=") {
@@ -194,6 +200,8 @@ pub struct GridHeader {
     pub width: u32,
     pub height: u32,
     pub channels: u32,
+    /// Text strings on the wire (see [`names`]).
+    #[serde(with = "names::text_array")]
     pub channel_names: [Name16; MAX_GRID_CHANNELS],
 }
 
@@ -220,43 +228,33 @@ impl GridHeader {
     }
 }
 
-/// Statistics of one contact solve; the items are the residual after each sweep (bounded length,
-/// see [`MAX_RESIDUALS`]).
+/// The wire form of [`StepStats`] (the one definition of the step statistics: field meanings
+/// there); the items are the residual after each sweep (at most [`MAX_RESIDUALS`]). Names are
+/// text strings on the wire.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("dc::SolveStatsHeader")]
 pub struct SolveStatsHeader {
     pub step: StepHeader,
-    /// The warm-start model that was asked for.
+    #[serde(with = "names::text")]
     pub model: Name16,
-    /// The model actually used (differs from `model` on a fallback).
+    #[serde(with = "names::text")]
     pub used_model: Name16,
     pub contacts: u32,
-    /// Contacts that persisted from the previous step (matched by body pair and feature).
     pub persisting_contacts: u32,
     pub sweeps: u32,
-    /// 1 when the solve reached the tolerance before the sweep cap.
     pub converged: u32,
-    /// 1 when the model's warm start was late or missing and `used_model` stood in.
     pub fallback: u32,
-    /// Total fallbacks in this simulation so far.
     pub fallbacks_total: u32,
-    /// Largest impulse change of the last sweep.
     pub final_residual: f32,
     pub warm_error_normal_mse: f32,
     pub warm_error_normal_max: f32,
     pub warm_error_tangent_mse: f32,
     pub warm_error_tangent_max: f32,
-    /// Wall time of the velocity solve only, in microseconds.
     pub solve_us: f32,
-    /// Wall time of the whole step (collision, warm start, solve, integrate), in microseconds.
     pub step_us: f32,
-    /// Wall time spent obtaining the warm start (including waiting for a grid), in microseconds.
     pub warm_start_us: f32,
-    /// Kinetic energy (linear + rotational) of the dynamic bodies after the step, in J.
     pub kinetic_energy: f32,
-    /// Largest speed of a dynamic body after the step, in m/s (tells a settled pile from one
-    /// that still has bodies flying: the contact count alone does not).
     pub max_speed: f32,
 }
 
@@ -273,9 +271,9 @@ pub enum ControlKind {
     SimulationEnd = 4,
     /// Asks every node of the graph to finish cleanly.
     Shutdown = 5,
-    /// The launcher saw a node die; details: `{"node", "host", "publishes": [topics], "status"}`.
+    /// The launcher saw a node die; details: [`NodeNotice`].
     NodeDown = 6,
-    /// A restarted node is running again; details as [`ControlKind::NodeDown`].
+    /// A restarted node is running again; details: [`NodeNotice`].
     NodeUp = 7,
 }
 
@@ -294,8 +292,8 @@ impl ControlKind {
     }
 }
 
-/// A control message; its items are UTF-8 bytes of a JSON document with details (run parameters,
-/// scene description), possibly empty.
+/// A control message; its items are the CBOR bytes of its typed details (see [`control`]),
+/// possibly empty.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable, ZeroCopySend, Serialize, Deserialize)]
 #[type_name("dc::Control")]
@@ -322,28 +320,14 @@ pub type ControlMsg = Frame<Control, u8>;
 
 impl Grid {
     /// A zero grid with the given geometry and channel names.
-    pub fn zeros(
-        step: StepHeader,
-        origin: [f32; 2],
-        spacing: f32,
-        width: u32,
-        height: u32,
-        channels: &[&str],
-    ) -> Grid {
+    pub fn zeros(step: StepHeader, origin: [f32; 2], spacing: f32, width: u32, height: u32, channels: &[&str]) -> Grid {
         assert!(channels.len() <= MAX_GRID_CHANNELS, "at most {MAX_GRID_CHANNELS} grid channels");
         let mut channel_names = [[0u8; 16]; MAX_GRID_CHANNELS];
         for (slot, name) in channel_names.iter_mut().zip(channels) {
             *slot = name16(name);
         }
-        let header = GridHeader {
-            step,
-            origin,
-            spacing,
-            width,
-            height,
-            channels: channels.len() as u32,
-            channel_names,
-        };
+        let header =
+            GridHeader { step, origin, spacing, width, height, channels: channels.len() as u32, channel_names };
         let len = header.len();
         Frame::new(header, vec![0.0; len])
     }
@@ -357,20 +341,6 @@ impl Grid {
     pub fn channel_data_mut(&mut self, c: usize) -> &mut [f32] {
         let n = self.header.width as usize * self.header.height as usize;
         &mut self.items[c * n..(c + 1) * n]
-    }
-}
-
-impl ControlMsg {
-    pub fn control(step: StepHeader, kind: ControlKind, count: u32, details: &str) -> ControlMsg {
-        Frame::new(
-            Control { step, kind: kind as u32, count },
-            details.as_bytes().to_vec(),
-        )
-    }
-
-    /// The JSON details as text.
-    pub fn details(&self) -> &str {
-        std::str::from_utf8(&self.items).unwrap_or("")
     }
 }
 

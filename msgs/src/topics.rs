@@ -1,7 +1,126 @@
-//! Topic names in one place, each typed with the frame it carries.
+//! The topic table: every topic of a graph with its name, header and item types, frame kind and
+//! purpose, in one place. Nodes open ports through the typed [`Topic`] constants; the recorder,
+//! replay, the Foxglove bridge and launch-file validation look topics up in [`TABLE`].
 
 use crate::*;
 use std::marker::PhantomData;
+
+/// The frame type of a topic: which header and item types its frames have.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum FrameKind {
+    /// `Frame<StepHeader, Body>`.
+    Bodies,
+    /// `Frame<StepHeader, Contact>`.
+    Contacts,
+    /// `Frame<GridHeader, f32>`.
+    Grid,
+    /// `Frame<SolveStatsHeader, f32>`.
+    SolveStats,
+    /// `Frame<Control, u8>`.
+    Control,
+}
+
+impl FrameKind {
+    pub const ALL: [FrameKind; 5] =
+        [FrameKind::Bodies, FrameKind::Contacts, FrameKind::Grid, FrameKind::SolveStats, FrameKind::Control];
+
+    /// The frame type of a known topic.
+    pub fn of_topic(topic: &str) -> Option<FrameKind> {
+        info(topic).map(|t| t.kind)
+    }
+
+    /// The name written in recordings' channel metadata (`type`).
+    pub fn type_name(self) -> &'static str {
+        match self {
+            FrameKind::Bodies => "dc::Bodies",
+            FrameKind::Contacts => "dc::Contacts",
+            FrameKind::Grid => "dc::Grid",
+            FrameKind::SolveStats => "dc::SolveStats",
+            FrameKind::Control => "dc::ControlMsg",
+        }
+    }
+
+    pub fn from_type_name(name: &str) -> Option<FrameKind> {
+        FrameKind::ALL.into_iter().find(|k| k.type_name() == name)
+    }
+
+    /// Header and item type names, for channel metadata and `dc-record info`.
+    pub fn parts(self) -> (&'static str, &'static str) {
+        match self {
+            FrameKind::Bodies => ("dc::StepHeader", "dc::Body"),
+            FrameKind::Contacts => ("dc::StepHeader", "dc::Contact"),
+            FrameKind::Grid => ("dc::GridHeader", "f32"),
+            FrameKind::SolveStats => ("dc::SolveStatsHeader", "f32"),
+            FrameKind::Control => ("dc::Control", "u8"),
+        }
+    }
+
+    /// The (run, simulation, step) a payload belongs to, decoding its header only.
+    pub fn step_of(self, payload: &[u8]) -> Result<StepHeader, CodecError> {
+        Ok(match self {
+            FrameKind::Bodies | FrameKind::Contacts => decode_header::<StepHeader>(payload)?,
+            FrameKind::Grid => decode_header::<GridHeader>(payload)?.step,
+            FrameKind::SolveStats => decode_header::<SolveStatsHeader>(payload)?.step,
+            FrameKind::Control => decode_header::<Control>(payload)?.step,
+        })
+    }
+
+    /// Decodes a payload fully (version, header, item length) and drops it: is it a valid frame?
+    pub fn validate(self, payload: &[u8]) -> Result<(), CodecError> {
+        match self {
+            FrameKind::Bodies => decode::<StepHeader, Body>(payload).map(drop),
+            FrameKind::Contacts => decode::<StepHeader, Contact>(payload).map(drop),
+            FrameKind::Grid => decode::<GridHeader, f32>(payload).map(drop),
+            FrameKind::SolveStats => decode::<SolveStatsHeader, f32>(payload).map(drop),
+            FrameKind::Control => decode::<Control, u8>(payload).map(drop),
+        }
+    }
+}
+
+/// Ties a frame type to its [`FrameKind`], so that the table below is checked by the compiler.
+pub trait KindOf {
+    const KIND: FrameKind;
+}
+impl KindOf for Bodies {
+    const KIND: FrameKind = FrameKind::Bodies;
+}
+impl KindOf for Contacts {
+    const KIND: FrameKind = FrameKind::Contacts;
+}
+impl KindOf for Grid {
+    const KIND: FrameKind = FrameKind::Grid;
+}
+impl KindOf for SolveStats {
+    const KIND: FrameKind = FrameKind::SolveStats;
+}
+impl KindOf for ControlMsg {
+    const KIND: FrameKind = FrameKind::Control;
+}
+
+/// A header that carries the (run, simulation, step) of its frame.
+pub trait HasStep {
+    fn step_header(&self) -> StepHeader;
+}
+impl HasStep for StepHeader {
+    fn step_header(&self) -> StepHeader {
+        *self
+    }
+}
+impl HasStep for GridHeader {
+    fn step_header(&self) -> StepHeader {
+        self.step
+    }
+}
+impl HasStep for SolveStatsHeader {
+    fn step_header(&self) -> StepHeader {
+        self.step
+    }
+}
+impl HasStep for Control {
+    fn step_header(&self) -> StepHeader {
+        self.step
+    }
+}
 
 /// A topic: its name on the bus and, in its type, the header and item types of its frames.
 #[derive(Debug)]
@@ -23,6 +142,25 @@ impl<H, T> Topic<H, T> {
     }
 }
 
+impl<H, T> Topic<H, T>
+where
+    Frame<H, T>: KindOf,
+{
+    /// The table row of this topic.
+    pub const fn row(self, about: &'static str) -> TopicInfo {
+        TopicInfo { name: self.name, kind: <Frame<H, T> as KindOf>::KIND, about }
+    }
+}
+
+/// One row of the topic table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TopicInfo {
+    pub name: &'static str,
+    pub kind: FrameKind,
+    /// Who publishes it and what it carries.
+    pub about: &'static str,
+}
+
 /// Body states at the end of every step (sim).
 pub const BODIES: Topic<StepHeader, Body> = Topic::new("bodies");
 /// Contacts with their final impulses, every step (sim).
@@ -35,7 +173,7 @@ pub const GRID_BODIES: Topic<GridHeader, f32> = Topic::new("grid/bodies");
 pub const GRID_CONTACTS: Topic<GridHeader, f32> = Topic::new("grid/contacts");
 /// Predicted impulse grids from the U-Net (unet).
 pub const GRID_UNET: Topic<GridHeader, f32> = Topic::new("grid/unet");
-/// Run and simulation start/end, shutdown requests.
+/// Run and simulation start/end, shutdown requests, node down/up notices.
 pub const CONTROL: Topic<Control, u8> = Topic::new("control");
 /// Per-step summary for live plots (metrics).
 pub const METRICS_STEP: Topic<SolveStatsHeader, f32> = Topic::new("metrics/step");
@@ -45,18 +183,65 @@ pub const BENCH_GRID: Topic<GridHeader, f32> = Topic::new("bench/grid");
 pub const BENCH_ECHO: Topic<StepHeader, Body> = Topic::new("bench/echo");
 pub const BENCH_GRID_ECHO: Topic<GridHeader, f32> = Topic::new("bench/grid-echo");
 
-/// Every topic name a graph may use, for validation of launch files.
-pub const ALL: &[&str] = &[
-    BODIES.name,
-    CONTACTS.name,
-    SOLVE_STATS.name,
-    GRID_BODIES.name,
-    GRID_CONTACTS.name,
-    GRID_UNET.name,
-    CONTROL.name,
-    METRICS_STEP.name,
-    BENCH_BODIES.name,
-    BENCH_GRID.name,
-    BENCH_ECHO.name,
-    BENCH_GRID_ECHO.name,
+/// Every topic a graph may use.
+pub const TABLE: &[TopicInfo] = &[
+    BODIES.row("sim: body states at the end of every step"),
+    CONTACTS.row("sim: contacts with their final impulses, every step"),
+    SOLVE_STATS.row("sim: solver statistics of every step, residual per sweep as items"),
+    GRID_BODIES.row("sph: bodies (and the step's impulses) splatted to a grid"),
+    GRID_CONTACTS.row("sph: contact impulses splatted to a grid (the `grid` warm start)"),
+    GRID_UNET.row("unet: predicted impulse grid of the next step"),
+    CONTROL.row("sim, launcher: run/simulation start and end, shutdown, node down/up"),
+    METRICS_STEP.row("metrics: per-step summary [cumulative sweeps, sweeps] for live plots"),
+    BENCH_BODIES.row("dc-bench-bus: body frames"),
+    BENCH_GRID.row("dc-bench-bus: grid frames"),
+    BENCH_ECHO.row("dc-bench-bus: echoed body frames"),
+    BENCH_GRID_ECHO.row("dc-bench-bus: echoed grid frames"),
 ];
+
+/// The table row of `topic`.
+pub fn info(topic: &str) -> Option<&'static TopicInfo> {
+    TABLE.iter().find(|t| t.name == topic)
+}
+
+/// Every topic name, in table order.
+pub fn names() -> impl Iterator<Item = &'static str> {
+    TABLE.iter().map(|t| t.name)
+}
+
+/// Every topic name, comma-separated (for error messages).
+pub fn names_list() -> String {
+    names().collect::<Vec<_>>().join(", ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_names_are_unique_and_known() {
+        let mut seen = std::collections::BTreeSet::new();
+        for t in TABLE {
+            assert!(seen.insert(t.name), "{} twice", t.name);
+            assert_eq!(FrameKind::of_topic(t.name), Some(t.kind));
+        }
+        assert_eq!(FrameKind::of_topic("nope"), None);
+    }
+
+    #[test]
+    fn type_names_round_trip() {
+        for k in FrameKind::ALL {
+            assert_eq!(FrameKind::from_type_name(k.type_name()), Some(k));
+        }
+    }
+
+    #[test]
+    fn step_is_read_from_every_header_kind() {
+        let s = StepHeader { run_id: 9, simulation: 2, step: 5 };
+        let grid = Grid::zeros(s, [0.0; 2], 1.0, 2, 2, &["a"]);
+        assert_eq!(FrameKind::Grid.step_of(&encode(&grid).unwrap()).unwrap(), s);
+        let c = ControlMsg::simple(s, ControlKind::SimulationEnd, 0);
+        assert_eq!(FrameKind::Control.step_of(&encode(&c).unwrap()).unwrap(), s);
+        assert!(FrameKind::Bodies.validate(&encode(&c).unwrap()).is_err());
+    }
+}

@@ -66,7 +66,9 @@ pub fn first_difference<T: msgs::FrameItem>(got: &[T], expected: &[T]) -> Option
     got.iter().zip(expected).position(|(a, b)| bytemuck::bytes_of(a) != bytemuck::bytes_of(b))
 }
 
-/// Latency and throughput of one bench case, as the receiver measured them.
+/// Latency and throughput of one bench case, as the receiver measured them. The latency
+/// percentiles are by nearest rank ([`metrics::stats::quantile_nearest_rank`]): each is a measured
+/// latency.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct BenchResult {
     pub transport: String,
@@ -77,16 +79,6 @@ pub struct BenchResult {
     pub p99_us: f64,
     pub frames_per_s: f64,
     pub mb_per_s: f64,
-}
-
-/// The `q` quantile (0..=1) of `values` by nearest rank; `values` are sorted in place.
-pub fn quantile(values: &mut [f64], q: f64) -> f64 {
-    if values.is_empty() {
-        return f64::NAN;
-    }
-    values.sort_by(|a, b| a.total_cmp(b));
-    let rank = ((q * values.len() as f64).ceil() as usize).clamp(1, values.len());
-    values[rank - 1]
 }
 
 #[cfg(test)]
@@ -102,14 +94,5 @@ mod tests {
         assert_eq!(first_difference(&a, &b), None);
         fill_bodies(2, &mut b);
         assert_eq!(first_difference(&a, &b), Some(0));
-    }
-
-    #[test]
-    fn quantile_is_nearest_rank() {
-        let mut v: Vec<f64> = (1..=100).map(f64::from).collect();
-        assert_eq!(quantile(&mut v, 0.5), 50.0);
-        assert_eq!(quantile(&mut v, 0.99), 99.0);
-        assert_eq!(quantile(&mut v, 1.0), 100.0);
-        assert!(quantile(&mut [], 0.5).is_nan());
     }
 }

@@ -7,6 +7,7 @@
 use anyhow::{bail, Context, Result};
 use bench_bus::*;
 use clap::{Parser, ValueEnum};
+use metrics::stats::quantile_nearest_rank;
 use msgs::{topics, Body, StepHeader};
 use runtime::Node;
 use std::time::{Duration, Instant};
@@ -72,7 +73,7 @@ fn stamped(h: StepHeader) -> StepHeader {
 }
 
 fn main() -> Result<()> {
-    let args: Args = runtime::parse_args();
+    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     if args.role == Role::Inproc {
         return inproc(&args);
@@ -82,7 +83,9 @@ fn main() -> Result<()> {
     match (args.role, args.kind) {
         (Role::Source, Kind::Bodies) => {
             let mut p = node.publisher(topics::BENCH_BODIES)?;
-            node.ready()?;
+            if !node.ready()? {
+                return Ok(());
+            }
             source(&node, &args, |h, seq, garbage| {
                 if garbage {
                     return p.publish_encoded(b"\xa3\x61v\x01\x61h\xff garbage");
@@ -95,7 +98,9 @@ fn main() -> Result<()> {
         }
         (Role::Source, Kind::Grid) => {
             let mut p = node.publisher(topics::BENCH_GRID)?;
-            node.ready()?;
+            if !node.ready()? {
+                return Ok(());
+            }
             let len = GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize;
             source(&node, &args, |h, seq, garbage| {
                 if garbage {
@@ -109,39 +114,55 @@ fn main() -> Result<()> {
         }
         (Role::Sink, Kind::Bodies) => {
             let mut s = node.subscriber(topics::BENCH_BODIES)?;
-            node.ready()?;
+            if !node.ready()? {
+                return Ok(());
+            }
             let mut expected = vec![Body::default(); args.n];
             let errors = std::cell::Cell::new(0);
-            sink(&args, frame_bytes(&args), |timeout| {
-                let got = s.recv_timeout(timeout)?;
-                errors.set(s.decode_errors());
-                Ok(got.map(|r| {
-                    let h = *r.header();
-                    let ok = !args.verify || {
-                        fill_bodies(h.step, &mut expected);
-                        first_difference(r.items(), &expected).is_none()
-                    };
-                    (h, ok)
-                }))
-            }, || errors.get(), || node.is_shutdown())
+            sink(
+                &args,
+                frame_bytes(&args),
+                |timeout| {
+                    let got = s.recv_timeout(timeout)?;
+                    errors.set(s.decode_errors());
+                    Ok(got.map(|r| {
+                        let h = *r.header();
+                        let ok = !args.verify || {
+                            fill_bodies(h.step, &mut expected);
+                            first_difference(r.items(), &expected).is_none()
+                        };
+                        (h, ok)
+                    }))
+                },
+                || errors.get(),
+                || node.is_shutdown(),
+            )
         }
         (Role::Sink, Kind::Grid) => {
             let mut s = node.subscriber(topics::BENCH_GRID)?;
-            node.ready()?;
+            if !node.ready()? {
+                return Ok(());
+            }
             let mut expected = vec![0f32; GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize];
             let errors = std::cell::Cell::new(0);
-            sink(&args, frame_bytes(&args), |timeout| {
-                let got = s.recv_timeout(timeout)?;
-                errors.set(s.decode_errors());
-                Ok(got.map(|r| {
-                    let h = r.header().step;
-                    let ok = !args.verify || {
-                        fill_grid(h.step, &mut expected);
-                        *r.header() == grid_header(h) && first_difference(r.items(), &expected).is_none()
-                    };
-                    (h, ok)
-                }))
-            }, || errors.get(), || node.is_shutdown())
+            sink(
+                &args,
+                frame_bytes(&args),
+                |timeout| {
+                    let got = s.recv_timeout(timeout)?;
+                    errors.set(s.decode_errors());
+                    Ok(got.map(|r| {
+                        let h = r.header().step;
+                        let ok = !args.verify || {
+                            fill_grid(h.step, &mut expected);
+                            *r.header() == grid_header(h) && first_difference(r.items(), &expected).is_none()
+                        };
+                        (h, ok)
+                    }))
+                },
+                || errors.get(),
+                || node.is_shutdown(),
+            )
         }
         (Role::Inproc, _) => unreachable!("handled above"),
     }
@@ -156,11 +177,7 @@ fn frame_bytes(args: &Args) -> usize {
 
 /// Publishes the latency phase (paced) then the throughput phase (back to back); in verify mode
 /// only `count` frames back to back.
-fn source(
-    node: &Node,
-    args: &Args,
-    mut send: impl FnMut(StepHeader, u32, bool) -> runtime::Result<()>,
-) -> Result<()> {
+fn source(node: &Node, args: &Args, mut send: impl FnMut(StepHeader, u32, bool) -> runtime::Result<()>) -> Result<()> {
     if !args.verify {
         for seq in 0..args.latency_count {
             send(header(0, seq), seq, false)?;
@@ -212,7 +229,13 @@ fn sink(
         };
         let now = monotonic_ns();
         if (h.simulation, h.step) != next {
-            bail!("out of order: got frame {} of phase {}, expected {} of phase {}", h.step, h.simulation, next.1, next.0);
+            bail!(
+                "out of order: got frame {} of phase {}, expected {} of phase {}",
+                h.step,
+                h.simulation,
+                next.1,
+                next.0
+            );
         }
         if !ok {
             bail!("frame {} differs from what was sent", h.step);
@@ -244,8 +267,8 @@ fn sink(
         payload: payload_label(args),
         bytes,
         latency_samples: latencies.len(),
-        p50_us: quantile(&mut latencies, 0.5),
-        p99_us: quantile(&mut latencies, 0.99),
+        p50_us: quantile_nearest_rank(&latencies, 0.5),
+        p99_us: quantile_nearest_rank(&latencies, 0.99),
         frames_per_s: fps,
         mb_per_s: fps * bytes as f64 / 1e6,
     };
@@ -297,22 +320,28 @@ fn inproc(args: &Args) -> Result<()> {
     });
     let mut expected_b = vec![Body::default(); n];
     let mut expected_g = vec![0f32; GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize];
-    let result = sink(args, frame_bytes(args), |timeout| {
-        Ok(rx.recv_timeout(timeout).ok().map(|(h, p)| {
-            let ok = !verify
-                || match &p {
-                    Payload::Bodies(b) => {
-                        fill_bodies(h.step, &mut expected_b);
-                        first_difference(b, &expected_b).is_none()
-                    }
-                    Payload::Grid(g) => {
-                        fill_grid(h.step, &mut expected_g);
-                        first_difference(g, &expected_g).is_none()
-                    }
-                };
-            (h, ok)
-        }))
-    }, || 0, || false);
+    let result = sink(
+        args,
+        frame_bytes(args),
+        |timeout| {
+            Ok(rx.recv_timeout(timeout).ok().map(|(h, p)| {
+                let ok = !verify
+                    || match &p {
+                        Payload::Bodies(b) => {
+                            fill_bodies(h.step, &mut expected_b);
+                            first_difference(b, &expected_b).is_none()
+                        }
+                        Payload::Grid(g) => {
+                            fill_grid(h.step, &mut expected_g);
+                            first_difference(g, &expected_g).is_none()
+                        }
+                    };
+                (h, ok)
+            }))
+        },
+        || 0,
+        || false,
+    );
     producer.join().map_err(|_| anyhow::anyhow!("producer thread panicked"))?;
     result
 }

@@ -109,7 +109,12 @@ pub struct Bridge {
     pub counters: Counters,
 }
 
-fn json_channel(ctx: &Arc<Context>, topic: &str, schema_name: &str, schema: &'static str) -> Result<Arc<RawChannel>, Error> {
+fn json_channel(
+    ctx: &Arc<Context>,
+    topic: &str,
+    schema_name: &str,
+    schema: &'static str,
+) -> Result<Arc<RawChannel>, Error> {
     Ok(ctx
         .channel_builder(topic)
         .message_encoding("json")
@@ -123,8 +128,18 @@ impl Bridge {
     pub fn new(ctx: &Arc<Context>, config: BridgeConfig) -> Result<Bridge, Error> {
         let mut json = BTreeMap::new();
         for (topic, kind, name, schema) in [
-            (msgs::topics::SOLVE_STATS.name, JsonKind::SolveStats, "dc.SolveStats", convert::SOLVE_STATS_SCHEMA),
-            (msgs::topics::METRICS_STEP.name, JsonKind::MetricsStep, "dc.MetricsStep", convert::METRICS_STEP_SCHEMA),
+            (
+                msgs::topics::SOLVE_STATS.name,
+                JsonKind::SolveStats,
+                "dc.SolveStats",
+                convert::SOLVE_STATS_SCHEMA.as_str(),
+            ),
+            (
+                msgs::topics::METRICS_STEP.name,
+                JsonKind::MetricsStep,
+                "dc.MetricsStep",
+                convert::METRICS_STEP_SCHEMA.as_str(),
+            ),
         ] {
             let channel = json_channel(ctx, &foxglove_topic(topic), name, schema)?;
             json.insert(topic.to_string(), JsonOut { channel, kind, throttle: Throttle::new(config.plot_hz) });
@@ -134,7 +149,7 @@ impl Bridge {
             config,
             scene: ctx.channel_builder(SCENE_TOPIC).build(),
             tf: ctx.channel_builder(TF_TOPIC).build(),
-            control: json_channel(ctx, CONTROL_TOPIC, "dc.Control", convert::CONTROL_SCHEMA)?,
+            control: json_channel(ctx, CONTROL_TOPIC, "dc.Control", convert::CONTROL_SCHEMA.as_str())?,
             scene_throttle: Throttle::new(config.max_hz),
             join: SceneJoin::default(),
             tf_throttle: Throttle::new(TF_HZ),
@@ -154,7 +169,8 @@ impl Bridge {
         let sim = (h.run_id, h.simulation);
         if self.tf.has_sinks() && (self.tf_for != Some(sim) || self.tf_throttle.due(now_ns)) {
             if let Some(center) = convert::scene_center(bodies) {
-                self.tf.log_with_meta(&convert::frame_transform(center, now_ns), PartialMetadata::with_log_time(now_ns));
+                self.tf
+                    .log_with_meta(&convert::frame_transform(center, now_ns), PartialMetadata::with_log_time(now_ns));
                 self.tf_throttle.take(now_ns);
                 self.tf_for = Some(sim);
                 self.count(TF_TOPIC);

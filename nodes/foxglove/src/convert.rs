@@ -10,7 +10,9 @@ use foxglove::messages::{
     FrameTransform, Grid, KeyValuePair, LinePrimitive, PackedElementField, Point3, Pose, Quaternion, RawImage,
     SceneEntity, SceneUpdate, Timestamp, Vector2, Vector3,
 };
+use msgs::StepStats;
 use msgs::{Body, Contact, GridHeader, Shape, SolveStatsHeader, StepHeader, MAX_GRID_CHANNELS};
+use std::sync::LazyLock;
 
 /// Frame of the scene and the grids: the simulator's world coordinates.
 pub const SCENE_FRAME: &str = "box";
@@ -46,10 +48,7 @@ pub fn yaw(angle: f32) -> Quaternion {
 }
 
 fn pose(x: f32, y: f32, z: f64, angle: f32) -> Pose {
-    Pose {
-        position: Some(Vector3 { x: x.into(), y: y.into(), z }),
-        orientation: Some(yaw(angle)),
-    }
+    Pose { position: Some(Vector3 { x: x.into(), y: y.into(), z }), orientation: Some(yaw(angle)) }
 }
 
 fn color(r: f64, g: f64, b: f64, a: f64) -> Option<Color> {
@@ -103,9 +102,8 @@ pub fn scene_update(
     let mut polygons = entity(entity_ids::POLYGONS, step, time_ns);
     let mut marks = Vec::with_capacity(bodies.len() * 2);
     for b in bodies {
-        let size = |depth: f64| {
-            Some(Vector3 { x: 2.0 * f64::from(b.size[0]), y: 2.0 * f64::from(b.size[1]), z: depth })
-        };
+        let size =
+            |depth: f64| Some(Vector3 { x: 2.0 * f64::from(b.size[0]), y: 2.0 * f64::from(b.size[1]), z: depth });
         match Shape::from_u32(b.shape) {
             Some(Shape::Wall) => walls.cubes.push(CubePrimitive {
                 pose: Some(pose(b.x, b.y, 0.0, b.angle)),
@@ -151,11 +149,8 @@ pub fn scene_update(
         }
     }
     if !marks.is_empty() {
-        let thickness = bodies
-            .iter()
-            .filter(|b| b.shape == Shape::Ball as u32)
-            .map(|b| b.size[0])
-            .fold(f32::INFINITY, f32::min);
+        let thickness =
+            bodies.iter().filter(|b| b.shape == Shape::Ball as u32).map(|b| b.size[0]).fold(f32::INFINITY, f32::min);
         balls.lines.push(LinePrimitive {
             r#type: line_primitive::Type::LineList as i32,
             pose: Some(pose(0.0, 0.0, 0.0, 0.0)),
@@ -254,11 +249,7 @@ pub fn grid(topic: &str, h: &GridHeader, items: &[f32], time_ns: u64) -> Result<
         timestamp: Some(timestamp(time_ns)),
         frame_id: SCENE_FRAME.into(),
         pose: Some(Pose {
-            position: Some(Vector3 {
-                x: (h.origin[0] - half).into(),
-                y: (h.origin[1] - half).into(),
-                z: GRID_Z,
-            }),
+            position: Some(Vector3 { x: (h.origin[0] - half).into(), y: (h.origin[1] - half).into(), z: GRID_Z }),
             orientation: Some(yaw(0.0)),
         }),
         column_count: h.width,
@@ -347,105 +338,106 @@ fn diverging_rgb(t: f32) -> [u8; 3] {
     }
 }
 
-/// JSON schema of [`solve_stats_json`], for Foxglove's Plot panel and message path completion.
-pub const SOLVE_STATS_SCHEMA: &str = r#"{
-  "title": "dc.SolveStats",
-  "description": "Contact solver statistics of one simulation step",
-  "type": "object",
-  "properties": {
-    "run_id": {"type": "integer"},
-    "simulation": {"type": "integer"},
-    "step": {"type": "integer"},
-    "model": {"type": "string", "description": "warm-start model asked for"},
-    "used_model": {"type": "string", "description": "model actually used (differs on a fallback)"},
-    "contacts": {"type": "integer"},
-    "persisting_contacts": {"type": "integer"},
-    "sweeps": {"type": "integer", "description": "PGS sweeps to reach the tolerance"},
-    "converged": {"type": "boolean"},
-    "fallback": {"type": "boolean"},
-    "fallbacks_total": {"type": "integer"},
-    "final_residual": {"type": "number"},
-    "warm_error_normal_mse": {"type": "number"},
-    "warm_error_normal_max": {"type": "number"},
-    "warm_error_tangent_mse": {"type": "number"},
-    "warm_error_tangent_max": {"type": "number"},
-    "solve_us": {"type": "number"},
-    "step_us": {"type": "number"},
-    "warm_start_us": {"type": "number"},
-    "kinetic_energy": {"type": "number"},
-    "max_speed": {"type": "number"},
-    "residuals": {"type": "array", "items": {"type": "number"}, "description": "largest impulse change after each sweep"}
-  }
-}"#;
+/// A JSON schema of the object `value` is an example of (field names and JSON types).
+fn schema_of(title: &str, description: &str, value: &serde_json::Value, extra: serde_json::Value) -> String {
+    use serde_json::Value;
+    let mut props = serde_json::Map::new();
+    for (key, v) in value.as_object().expect("an object") {
+        let ty = match v {
+            Value::String(_) => "string",
+            Value::Bool(_) => "boolean",
+            Value::Number(n) if n.is_u64() || n.is_i64() => "integer",
+            Value::Number(_) => "number",
+            Value::Array(_) => "array",
+            Value::Object(_) => "object",
+            Value::Null => "null",
+        };
+        props.insert(key.clone(), serde_json::json!({ "type": ty }));
+    }
+    props.extend(extra.as_object().cloned().unwrap_or_default());
+    serde_json::json!({ "title": title, "description": description, "type": "object", "properties": props }).to_string()
+}
 
-/// A solver statistics frame as JSON (see [`SOLVE_STATS_SCHEMA`]); non-finite numbers become null.
+/// JSON schema of [`solve_stats_json`], for Foxglove's Plot panel and message path completion;
+/// derived from `msgs::StepStats`, the one definition of the statistics.
+pub static SOLVE_STATS_SCHEMA: LazyLock<String> = LazyLock::new(|| {
+    let sample = serde_json::to_value(StepStats::default()).expect("statistics serialise");
+    let residuals = serde_json::json!({
+        "residuals": {"type": "array", "items": {"type": "number"}, "description": "largest impulse change after each sweep"}
+    });
+    schema_of("dc.SolveStats", "Contact solver statistics of one simulation step", &sample, residuals)
+});
+
+/// A solver statistics frame as JSON (see [`SOLVE_STATS_SCHEMA`]): `msgs::StepStats` (run id as
+/// text: it exceeds 2^53) plus the residuals; non-finite numbers become null.
 pub fn solve_stats_json(h: &SolveStatsHeader, residuals: &[f32]) -> serde_json::Value {
-    serde_json::json!({
-        "run_id": h.step.run_id,
-        "simulation": h.step.simulation,
-        "step": h.step.step,
-        "model": msgs::name16_str(&h.model),
-        "used_model": msgs::name16_str(&h.used_model),
-        "contacts": h.contacts,
-        "persisting_contacts": h.persisting_contacts,
-        "sweeps": h.sweeps,
-        "converged": h.converged != 0,
-        "fallback": h.fallback != 0,
-        "fallbacks_total": h.fallbacks_total,
-        "final_residual": h.final_residual,
-        "warm_error_normal_mse": h.warm_error_normal_mse,
-        "warm_error_normal_max": h.warm_error_normal_max,
-        "warm_error_tangent_mse": h.warm_error_tangent_mse,
-        "warm_error_tangent_max": h.warm_error_tangent_max,
-        "solve_us": h.solve_us,
-        "step_us": h.step_us,
-        "warm_start_us": h.warm_start_us,
-        "kinetic_energy": h.kinetic_energy,
-        "max_speed": h.max_speed,
-        "residuals": residuals,
-    })
+    let mut v = serde_json::to_value(StepStats::from_header(h)).expect("statistics serialise");
+    v["residuals"] = serde_json::json!(residuals);
+    v
+}
+
+/// A `metrics/step` frame as JSON: the step, its model, `[cumulative sweeps, sweeps]`.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct MetricsStep {
+    #[serde(with = "msgs::id_text")]
+    pub run_id: u64,
+    pub simulation: u32,
+    pub step: u32,
+    pub model: String,
+    pub cumulative_sweeps: Option<f32>,
+    pub sweeps: Option<f32>,
 }
 
 /// JSON schema of [`metrics_step_json`].
-pub const METRICS_STEP_SCHEMA: &str = r#"{
-  "title": "dc.MetricsStep",
-  "description": "Per-step summary of the metrics node: sweeps of the step and cumulative sweeps of its model",
-  "type": "object",
-  "properties": {
-    "run_id": {"type": "integer"},
-    "simulation": {"type": "integer"},
-    "step": {"type": "integer"},
-    "model": {"type": "string"},
-    "sweeps": {"type": "number"},
-    "cumulative_sweeps": {"type": "number"}
-  }
-}"#;
+pub static METRICS_STEP_SCHEMA: LazyLock<String> = LazyLock::new(|| {
+    let sample = MetricsStep { cumulative_sweeps: Some(0.5), sweeps: Some(0.5), ..MetricsStep::default() };
+    schema_of(
+        "dc.MetricsStep",
+        "Per-step summary of the metrics node: sweeps of the step and cumulative sweeps of its model",
+        &serde_json::to_value(sample).expect("serialises"),
+        serde_json::json!({}),
+    )
+});
 
 /// A `metrics/step` frame (the statistics header and `[cumulative sweeps, sweeps]`) as JSON.
 pub fn metrics_step_json(h: &SolveStatsHeader, items: &[f32]) -> serde_json::Value {
-    serde_json::json!({
-        "run_id": h.step.run_id,
-        "simulation": h.step.simulation,
-        "step": h.step.step,
-        "model": msgs::name16_str(&h.model),
-        "cumulative_sweeps": items.first(),
-        "sweeps": items.get(1),
-    })
+    let m = MetricsStep {
+        run_id: h.step.run_id,
+        simulation: h.step.simulation,
+        step: h.step.step,
+        model: msgs::name16_str(&h.model).to_string(),
+        cumulative_sweeps: items.first().copied(),
+        sweeps: items.get(1).copied(),
+    };
+    serde_json::to_value(m).expect("serialises")
+}
+
+/// A control message as JSON: its header and typed details.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct ControlJson {
+    #[serde(with = "msgs::id_text")]
+    pub run_id: u64,
+    pub simulation: u32,
+    pub step: u32,
+    pub kind: String,
+    pub count: u32,
+    /// The typed details (`msgs::control`) as a JSON object, null when there are none.
+    pub details: serde_json::Value,
+    /// Why the details could not be read, if they could not.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub details_error: Option<String>,
 }
 
 /// JSON schema of [`control_json`].
-pub const CONTROL_SCHEMA: &str = r#"{
-  "title": "dc.Control",
-  "type": "object",
-  "properties": {
-    "run_id": {"type": "integer"},
-    "simulation": {"type": "integer"},
-    "step": {"type": "integer"},
-    "kind": {"type": "string"},
-    "count": {"type": "integer"},
-    "details": {"type": "string"}
-  }
-}"#;
+pub static CONTROL_SCHEMA: LazyLock<String> = LazyLock::new(|| {
+    let sample = ControlJson { details: serde_json::json!({}), ..ControlJson::default() };
+    schema_of(
+        "dc.Control",
+        "Run and simulation start / end, node down / up",
+        &serde_json::to_value(sample).expect("serialises"),
+        serde_json::json!({}),
+    )
+});
 
 /// A control message as JSON.
 pub fn control_json(c: &msgs::Control, details: &[u8]) -> serde_json::Value {
@@ -453,14 +445,21 @@ pub fn control_json(c: &msgs::Control, details: &[u8]) -> serde_json::Value {
         Some(k) => format!("{k:?}"),
         None => format!("unknown({})", c.kind),
     };
-    serde_json::json!({
-        "run_id": c.step.run_id,
-        "simulation": c.step.simulation,
-        "step": c.step.step,
-        "kind": kind,
-        "count": c.count,
-        "details": String::from_utf8_lossy(details),
-    })
+    let (details, details_error) = match msgs::control::details_of(c, details) {
+        Ok(msgs::ControlDetails::None) => (serde_json::Value::Null, None),
+        Ok(d) => (serde_json::to_value(&d).expect("details serialise"), None),
+        Err(e) => (serde_json::Value::Null, Some(e.to_string())),
+    };
+    let json = ControlJson {
+        run_id: c.step.run_id,
+        simulation: c.step.simulation,
+        step: c.step.step,
+        kind,
+        count: c.count,
+        details,
+        details_error,
+    };
+    serde_json::to_value(json).expect("serialises")
 }
 
 #[cfg(test)]
@@ -481,7 +480,15 @@ mod tests {
             wall(0, 5.0, -0.5, 6.0, 0.5),
             ball(1, 1.0, 0.5, 0.5),
             ball(2, 2.0, 0.5, 0.5),
-            Body { id: 3, shape: Shape::Box as u32, size: [0.5, 0.25], x: 3.0, y: 0.25, angle: 0.3, ..Default::default() },
+            Body {
+                id: 3,
+                shape: Shape::Box as u32,
+                size: [0.5, 0.25],
+                x: 3.0,
+                y: 0.25,
+                angle: 0.3,
+                ..Default::default()
+            },
         ];
         let push = Contact { x: 1.0, y: 0.0, nx: 0.0, ny: 1.0, normal_impulse: 0.5, ..Default::default() };
         let idle = Contact { normal_impulse: 0.0, ..push };
@@ -540,18 +547,50 @@ mod tests {
 
     #[test]
     fn stats_json_matches_its_schema_fields() {
-        let schema: serde_json::Value = serde_json::from_str(SOLVE_STATS_SCHEMA).unwrap();
-        let h = SolveStatsHeader { sweeps: 12, model: msgs::name16("builtin"), ..Default::default() };
+        let schema: serde_json::Value = serde_json::from_str(&SOLVE_STATS_SCHEMA).unwrap();
+        let step = msgs::StepHeader { run_id: 1796139974837132098, simulation: 1, step: 2 };
+        let h = SolveStatsHeader { step, sweeps: 12, model: msgs::name16("builtin"), ..Default::default() };
         let v = solve_stats_json(&h, &[0.5, 0.1]);
         let props = schema["properties"].as_object().unwrap();
-        for key in v.as_object().unwrap().keys() {
-            assert!(props.contains_key(key), "`{key}` is missing from the schema");
+        for (key, value) in v.as_object().unwrap() {
+            let ty = props.get(key).unwrap_or_else(|| panic!("`{key}` is missing from the schema"))["type"]
+                .as_str()
+                .unwrap();
+            let ok = match ty {
+                "string" => value.is_string(),
+                "integer" => value.is_u64(),
+                "number" => value.is_number(),
+                "boolean" => value.is_boolean(),
+                "array" => value.is_array(),
+                _ => false,
+            };
+            assert!(ok, "`{key}` = {value} is not of its schema type {ty}");
         }
         assert_eq!(v["sweeps"], 12);
         assert_eq!(v["model"], "builtin");
-        let m: serde_json::Value = serde_json::from_str(METRICS_STEP_SCHEMA).unwrap();
-        assert!(m["properties"]["sweeps"].is_object());
-        let _: serde_json::Value = serde_json::from_str(CONTROL_SCHEMA).unwrap();
+        // Ids beyond 2^53 travel as text, or a JavaScript client rounds them.
+        assert_eq!(v["run_id"], "1796139974837132098");
+        let m: serde_json::Value = serde_json::from_str(&METRICS_STEP_SCHEMA).unwrap();
+        assert_eq!(m["properties"]["sweeps"]["type"], "number");
+        assert_eq!(metrics_step_json(&h, &[3.0, 1.0])["run_id"], "1796139974837132098");
+        let c: serde_json::Value = serde_json::from_str(&CONTROL_SCHEMA).unwrap();
+        assert_eq!(c["properties"]["run_id"]["type"], "string");
+    }
+
+    #[test]
+    fn control_json_has_typed_details() {
+        let n = msgs::NodeNotice {
+            node: "sph".into(),
+            host: "a".into(),
+            publishes: vec!["grid/contacts".into()],
+            status: "signal 9".into(),
+        };
+        let m = msgs::ControlMsg::node_notice(false, &n);
+        let v = control_json(&m.header, &m.items);
+        assert_eq!(v["kind"], "NodeDown");
+        assert_eq!(v["details"]["NodeDown"]["node"], "sph");
+        let v = control_json(&m.header, b"\xffjunk");
+        assert!(v["details_error"].as_str().unwrap().contains("NodeDown"), "{v}");
     }
 
     #[test]

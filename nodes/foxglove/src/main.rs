@@ -6,8 +6,8 @@ use anyhow::Context as _;
 use clap::{Parser, Subcommand};
 use foxglove_bridge::convert::SceneStyle;
 use foxglove_bridge::{Bridge, BridgeConfig};
+use msgs::FrameKind;
 use msgs::{topics, ControlKind, FrameHeader, FrameItem};
-use recorder::FrameKind;
 use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -103,7 +103,7 @@ const DEFAULT_TOPICS: &[&str] = &[
 ];
 
 fn main() -> anyhow::Result<()> {
-    let args: Args = runtime::parse_args();
+    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     match args.command {
         Some(Command::Viz { input, output, convert }) => viz(&input, &output, convert.config()),
@@ -180,7 +180,7 @@ impl<H: FrameHeader, T: FrameItem> Source for Typed<H, T> {
 
 fn source(node: &runtime::Node, topic: &str) -> anyhow::Result<Box<dyn Source>> {
     let kind = FrameKind::of_topic(topic)
-        .with_context(|| format!("unknown topic `{topic}` (known: {})", topics::ALL.join(", ")))?;
+        .with_context(|| format!("unknown topic `{topic}` (known: {})", topics::names_list()))?;
     Ok(match kind {
         FrameKind::Bodies => Box::new(Typed {
             sub: node.subscriber_named::<msgs::StepHeader, msgs::Body>(topic)?,
@@ -301,7 +301,14 @@ fn serve(args: NodeArgs) -> anyhow::Result<()> {
         tracing::info!(topic = %topic, sent = n, hz = format!("{:.1}", *n as f64 / secs.max(1e-9)), "foxglove topic");
     }
     let (scene, grids, stats) = bridge.throttled();
-    tracing::info!(clients, bad_grids = bridge.counters.bad_grids, throttled_scene = scene, throttled_grids = grids, throttled_stats = stats, "foxglove bridge done");
+    tracing::info!(
+        clients,
+        bad_grids = bridge.counters.bad_grids,
+        throttled_scene = scene,
+        throttled_grids = grids,
+        throttled_stats = stats,
+        "foxglove bridge done"
+    );
     Ok(())
 }
 

@@ -171,7 +171,9 @@ async fn watch(port: u16, deadline: Instant) -> Seen {
         match data.topic.as_str() {
             "/scene" => {
                 let update = SceneUpdate::decode(data.payload.as_slice()).expect("a SceneUpdate");
-                let entity = |id: &str| update.entities.iter().find(|e| e.id == id).unwrap_or_else(|| panic!("no `{id}` entity"));
+                let entity = |id: &str| {
+                    update.entities.iter().find(|e| e.id == id).unwrap_or_else(|| panic!("no `{id}` entity"))
+                };
                 seen.circles = entity("balls").cylinders.len();
                 seen.walls = entity("walls").cubes.len();
                 assert!(update.entities.iter().all(|e| e.frame_id == "box"));

@@ -1,80 +1,32 @@
 //! Per-step solver records and their aggregation per model, simulation and step.
 
-use msgs::{name16_str, SolveStatsHeader};
+use msgs::{SolveStatsHeader, StepStats};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
-/// One step's solve, as the simulator reported it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+// Re-exported: `metrics::aggregate::{quantile, median}` were defined here before `stats`.
+pub use crate::stats::{median, quantile};
+
+/// One step's solve as the simulator reported it (`msgs::StepStats`, the one definition of the
+/// statistics: its fields read through `Deref`), with the residual after each sweep.
+#[derive(Debug, Clone, PartialEq)]
 pub struct StepRecord {
-    pub run_id: u64,
-    pub model: String,
-    pub used_model: String,
-    pub simulation: u32,
-    pub step: u32,
-    pub contacts: u32,
-    pub persisting_contacts: u32,
-    pub sweeps: u32,
-    pub converged: bool,
-    pub fallback: bool,
-    pub final_residual: f32,
-    pub warm_error_normal_mse: f32,
-    pub warm_error_normal_max: f32,
-    pub warm_error_tangent_mse: f32,
-    pub warm_error_tangent_max: f32,
-    pub solve_us: f32,
-    pub step_us: f32,
-    pub warm_start_us: f32,
-    pub kinetic_energy: f32,
-    pub max_speed: f32,
+    pub stats: StepStats,
     /// Residual (largest impulse change) after each sweep.
-    #[serde(skip)]
     pub residuals: Vec<f32>,
+}
+
+impl std::ops::Deref for StepRecord {
+    type Target = StepStats;
+    fn deref(&self) -> &StepStats {
+        &self.stats
+    }
 }
 
 impl StepRecord {
     pub fn from_msg(h: &SolveStatsHeader, residuals: &[f32]) -> StepRecord {
-        StepRecord {
-            run_id: h.step.run_id,
-            model: name16_str(&h.model).to_string(),
-            used_model: name16_str(&h.used_model).to_string(),
-            simulation: h.step.simulation,
-            step: h.step.step,
-            contacts: h.contacts,
-            persisting_contacts: h.persisting_contacts,
-            sweeps: h.sweeps,
-            converged: h.converged != 0,
-            fallback: h.fallback != 0,
-            final_residual: h.final_residual,
-            warm_error_normal_mse: h.warm_error_normal_mse,
-            warm_error_normal_max: h.warm_error_normal_max,
-            warm_error_tangent_mse: h.warm_error_tangent_mse,
-            warm_error_tangent_max: h.warm_error_tangent_max,
-            solve_us: h.solve_us,
-            step_us: h.step_us,
-            warm_start_us: h.warm_start_us,
-            kinetic_energy: h.kinetic_energy,
-            max_speed: h.max_speed,
-            residuals: residuals.to_vec(),
-        }
+        StepRecord { stats: StepStats::from_header(h), residuals: residuals.to_vec() }
     }
-}
-
-/// The `q` quantile (0..=1) with linear interpolation between order statistics (numpy's default),
-/// so the median of an even count is the mean of the two middle values. NaN for no values.
-pub fn quantile(values: &[f64], q: f64) -> f64 {
-    if values.is_empty() {
-        return f64::NAN;
-    }
-    let mut v = values.to_vec();
-    v.sort_by(|a, b| a.total_cmp(b));
-    let pos = q.clamp(0.0, 1.0) * (v.len() - 1) as f64;
-    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    v[lo] + (v[hi] - v[lo]) * (pos - lo as f64)
-}
-
-pub fn median(values: &[f64]) -> f64 {
-    quantile(values, 0.5)
 }
 
 /// Which part of a simulation a step belongs to.
@@ -92,10 +44,7 @@ pub enum Phase {
 /// ball-box scene found the count stable from step ~150 while balls still flew at 2-5 m/s into
 /// the pile, so a count-based rule called a still-moving pile settled.
 pub fn settle_step(max_speed_per_step: &[f32], settle_speed: f32) -> usize {
-    max_speed_per_step
-        .iter()
-        .rposition(|&v| !(v <= settle_speed))
-        .map_or(0, |last_fast| last_fast + 1)
+    max_speed_per_step.iter().rposition(|&v| !(v <= settle_speed)).map_or(0, |last_fast| last_fast + 1)
 }
 
 /// Totals over a set of steps.
@@ -176,12 +125,7 @@ impl Aggregate {
 
     /// Adds a record; a repeated (model, simulation, step) replaces the earlier one.
     pub fn add(&mut self, r: StepRecord) {
-        self.models
-            .entry(r.model.clone())
-            .or_default()
-            .entry(r.simulation)
-            .or_default()
-            .insert(r.step, r);
+        self.models.entry(r.model.clone()).or_default().entry(r.simulation).or_default().insert(r.step, r);
     }
 
     pub fn is_empty(&self) -> bool {
@@ -227,8 +171,12 @@ impl Aggregate {
                     settled: Totals::of(in_phase(Phase::Settled)),
                     ratio_to_builtin: None,
                     persisting_share: if contacts == 0 { f64::NAN } else { persisting as f64 / contacts as f64 },
-                    median_warm_error_normal_mse: median(&with_contacts().map(|r| r.warm_error_normal_mse as f64).collect::<Vec<_>>()),
-                    median_warm_error_tangent_mse: median(&with_contacts().map(|r| r.warm_error_tangent_mse as f64).collect::<Vec<_>>()),
+                    median_warm_error_normal_mse: median(
+                        &with_contacts().map(|r| r.warm_error_normal_mse as f64).collect::<Vec<_>>(),
+                    ),
+                    median_warm_error_tangent_mse: median(
+                        &with_contacts().map(|r| r.warm_error_tangent_mse as f64).collect::<Vec<_>>(),
+                    ),
                 }
             })
             .collect();
@@ -262,15 +210,14 @@ impl Aggregate {
         if sweeps.is_empty() {
             return Vec::new();
         }
-        (1..=max)
-            .map(|n| (n, sweeps.iter().filter(|&&s| s <= n).count() as f64 / sweeps.len() as f64))
-            .collect()
+        (1..=max).map(|n| (n, sweeps.iter().filter(|&&s| s <= n).count() as f64 / sweeps.len() as f64)).collect()
     }
 
     /// Median over the model's solves (steps with contacts) of the residual after n sweeps, for
     /// n = 1..=max; a solve that stopped earlier keeps its last residual.
     pub fn convergence(&self, model: &str, max: usize) -> Vec<(usize, f64)> {
-        let solves: Vec<&Vec<f32>> = self.records(model).filter(|r| !r.residuals.is_empty()).map(|r| &r.residuals).collect();
+        let solves: Vec<&Vec<f32>> =
+            self.records(model).filter(|r| !r.residuals.is_empty()).map(|r| &r.residuals).collect();
         if solves.is_empty() {
             return Vec::new();
         }
@@ -289,7 +236,7 @@ mod tests {
     use super::*;
 
     pub(crate) fn record(model: &str, simulation: u32, step: u32, contacts: u32, sweeps: u32) -> StepRecord {
-        StepRecord {
+        let stats = StepStats {
             run_id: 1,
             model: model.into(),
             used_model: model.into(),
@@ -300,6 +247,7 @@ mod tests {
             sweeps,
             converged: sweeps < 1000,
             fallback: false,
+            fallbacks_total: 0,
             final_residual: 0.0,
             warm_error_normal_mse: sweeps as f32,
             warm_error_normal_max: 0.0,
@@ -310,17 +258,8 @@ mod tests {
             warm_start_us: 1.0,
             kinetic_energy: 0.0,
             max_speed: 0.0,
-            residuals: (0..sweeps).map(|i| 1.0 / (i + 1) as f32).collect(),
-        }
-    }
-
-    #[test]
-    fn quantiles_interpolate_like_numpy() {
-        assert_eq!(median(&[3.0, 1.0, 2.0, 4.0]), 2.5);
-        assert_eq!(median(&[5.0]), 5.0);
-        assert_eq!(quantile(&[0.0, 10.0], 0.1), 1.0);
-        assert_eq!(quantile(&(0..=10).map(f64::from).collect::<Vec<_>>(), 0.9), 9.0);
-        assert!(median(&[]).is_nan());
+        };
+        StepRecord { stats, residuals: (0..sweeps).map(|i| 1.0 / (i + 1) as f32).collect() }
     }
 
     #[test]

@@ -26,12 +26,14 @@ pub struct Completeness {
 }
 
 impl Completeness {
-    /// Records a control message; `details` is its JSON text (the model name of a run start).
-    pub fn control(&mut self, c: &Control, details: &str) {
+    /// Records a control message; `details` are its item bytes (a run start names its model).
+    pub fn control(&mut self, c: &Control, details: &[u8]) {
         // Launcher notices (node down / up) and shutdowns belong to no run.
         if !matches!(
             c.kind(),
-            Some(ControlKind::RunStart | ControlKind::RunEnd | ControlKind::SimulationStart | ControlKind::SimulationEnd)
+            Some(
+                ControlKind::RunStart | ControlKind::RunEnd | ControlKind::SimulationStart | ControlKind::SimulationEnd
+            )
         ) {
             return;
         }
@@ -39,9 +41,13 @@ impl Completeness {
         match c.kind() {
             Some(ControlKind::RunStart) => {
                 run.simulations_announced = Some(c.count);
-                run.model = serde_json::from_str::<serde_json::Value>(details)
-                    .ok()
-                    .and_then(|v| v.get("model").and_then(|m| m.as_str()).map(str::to_string));
+                run.model = match msgs::control::details_of(c, details) {
+                    Ok(msgs::ControlDetails::RunStart(p)) => Some(p.model),
+                    other => {
+                        tracing::warn!("control: a run start whose details do not decode: {other:?}");
+                        None
+                    }
+                };
             }
             Some(ControlKind::RunEnd) => run.ended = true,
             Some(ControlKind::SimulationStart) => {
@@ -117,15 +123,32 @@ mod tests {
         Control { step: StepHeader { run_id, simulation, step: 0 }, kind: kind as u32, count }
     }
 
+    /// The details of a run start of `model`.
+    fn started(model: &str) -> Vec<u8> {
+        let p = msgs::RunParams {
+            scene: "ball-box".into(),
+            n: 100,
+            seeds: vec![0],
+            steps: 2,
+            model: model.into(),
+            fallback: "builtin".into(),
+            tolerance: 1e-4,
+            max_sweeps: 1000,
+            sampler: "native".into(),
+            dt: 0.01,
+        };
+        msgs::ControlMsg::run_start(StepHeader::default(), &p).items
+    }
+
     #[test]
     fn complete_run_has_nothing_missing() {
         let mut k = Completeness::default();
-        k.control(&c(1, 0, ControlKind::RunStart, 1), r#"{"model":"none"}"#);
-        k.control(&c(1, 0, ControlKind::SimulationStart, 2), "");
+        k.control(&c(1, 0, ControlKind::RunStart, 1), &started("none"));
+        k.control(&c(1, 0, ControlKind::SimulationStart, 2), &[]);
         k.step(1, 0, "none");
         k.step(1, 0, "none");
-        k.control(&c(1, 0, ControlKind::SimulationEnd, 2), "");
-        k.control(&c(1, 0, ControlKind::RunEnd, 1), "");
+        k.control(&c(1, 0, ControlKind::SimulationEnd, 2), &[]);
+        k.control(&c(1, 0, ControlKind::RunEnd, 1), &[]);
         assert!(k.missing().is_empty(), "{:?}", k.missing());
         assert_eq!(k.runs_ended(), 1);
     }
@@ -133,14 +156,22 @@ mod tests {
     #[test]
     fn a_sim_that_died_is_named_with_its_missing_steps() {
         let mut k = Completeness::default();
-        k.control(&c(1, 0, ControlKind::RunStart, 2), r#"{"model":"builtin"}"#);
-        k.control(&c(1, 7, ControlKind::SimulationStart, 250), "");
+        k.control(&c(1, 0, ControlKind::RunStart, 2), &started("builtin"));
+        k.control(&c(1, 7, ControlKind::SimulationStart, 250), &[]);
         for _ in 0..120 {
             k.step(1, 7, "builtin");
         }
         let m = k.missing();
-        assert!(m.contains(&"run 1 (model builtin): no run end (the simulator stopped or died before finishing)".to_string()), "{m:?}");
+        assert!(
+            m.contains(
+                &"run 1 (model builtin): no run end (the simulator stopped or died before finishing)".to_string()
+            ),
+            "{m:?}"
+        );
         assert!(m.contains(&"run 1 (model builtin): 0 of 2 announced simulations finished".to_string()), "{m:?}");
-        assert!(m.contains(&"run 1 (model builtin): simulation 7 has 120 of 250 steps and no end".to_string()), "{m:?}");
+        assert!(
+            m.contains(&"run 1 (model builtin): simulation 7 has 120 of 250 steps and no end".to_string()),
+            "{m:?}"
+        );
     }
 }

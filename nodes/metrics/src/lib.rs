@@ -3,11 +3,14 @@
 //!
 //! The numbers follow the thesis's measurements (chapter 7.4-7.5) with its timing flaw fixed:
 //! solve time and whole-step time are reported separately.
+//!
+//! [`stats`] holds the workspace's one quantile / median (other nodes' reports use it too).
 
 pub mod aggregate;
 pub mod completeness;
 pub mod plot;
 pub mod report;
+pub mod stats;
 
 pub use aggregate::{Aggregate, ModelSummary, StepRecord};
 pub use completeness::Completeness;

@@ -28,7 +28,7 @@ struct Args {
 }
 
 fn main() -> Result<()> {
-    let args: Args = runtime::parse_args();
+    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     let node = runtime::Node::from_env("dc-metrics")?;
     let mut stats = node.subscriber(topics::SOLVE_STATS)?;
@@ -63,8 +63,7 @@ fn main() -> Result<()> {
 
     loop {
         while let Some(c) = control.try_recv()? {
-            let details = String::from_utf8_lossy(c.items()).into_owned();
-            completeness.control(c.header(), &details);
+            completeness.control(c.header(), c.items());
             node.observe_control(c.header());
         }
         if args.runs > 0 && completeness.runs_ended() >= args.runs {
@@ -83,7 +82,7 @@ fn main() -> Result<()> {
         handle_stats(&r, &mut aggregate, &mut completeness)?;
     }
     while let Some(c) = control.try_recv()? {
-        completeness.control(c.header(), &String::from_utf8_lossy(c.items()));
+        completeness.control(c.header(), c.items());
     }
 
     let missing = completeness.missing();

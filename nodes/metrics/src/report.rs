@@ -28,12 +28,11 @@ pub struct Written {
     pub summaries: Vec<ModelSummary>,
 }
 
-/// Models in a stable, meaningful order: the thesis's table order, then the others.
+/// Models in a stable, meaningful order: the contract's table order (the thesis's), then others.
 fn model_order(a: &Aggregate) -> Vec<String> {
-    const ORDER: [&str; 11] =
-        ["none", "builtin", "extrapolate", "copy", "copy0", "copy2", "bad", "random", "copy-grid", "grid", "unet"];
+    let order = msgs::models::MODELS;
     let mut models: Vec<String> = a.models.keys().cloned().collect();
-    models.sort_by_key(|m| (ORDER.iter().position(|o| o == m).unwrap_or(ORDER.len()), m.clone()));
+    models.sort_by_key(|m| (order.iter().position(|o| o.name == m).unwrap_or(order.len()), m.clone()));
     models
 }
 
@@ -45,32 +44,93 @@ fn fmt(v: f64, digits: usize) -> String {
     }
 }
 
+/// Columns of the summary table (markdown and HTML).
+pub const SUMMARY_COLUMNS: [&str; 14] = [
+    "model",
+    "sims",
+    "steps",
+    "total sweeps",
+    "vs builtin",
+    "median sweeps",
+    "falling: median",
+    "settled: median",
+    "cap hits",
+    "fallbacks",
+    "persisting",
+    "warm err n (median MSE)",
+    "median solve us",
+    "median step us",
+];
+
+/// The summary table as formatted cells, one row per model: what both the markdown table and the
+/// HTML page show (one formatting, so they cannot disagree).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SummaryTable {
+    /// One row per model, a cell per [`SUMMARY_COLUMNS`] entry.
+    pub rows: Vec<[String; SUMMARY_COLUMNS.len()]>,
+}
+
+impl SummaryTable {
+    pub fn new(summaries: &[ModelSummary]) -> SummaryTable {
+        let rows = summaries
+            .iter()
+            .map(|m| {
+                [
+                    m.model.clone(),
+                    m.simulations.to_string(),
+                    m.all.steps.to_string(),
+                    m.all.total_sweeps.to_string(),
+                    m.ratio_to_builtin.map(|r| format!("{r:.3}x")).unwrap_or_else(|| "-".into()),
+                    fmt(m.all.median_sweeps, 1),
+                    fmt(m.falling.median_sweeps, 1),
+                    fmt(m.settled.median_sweeps, 1),
+                    m.all.cap_hits.to_string(),
+                    m.all.fallbacks.to_string(),
+                    fmt(m.persisting_share * 100.0, 1) + "%",
+                    fmt(m.median_warm_error_normal_mse, 4),
+                    fmt(m.all.median_solve_us, 1),
+                    fmt(m.all.median_step_us, 1),
+                ]
+            })
+            .collect();
+        SummaryTable { rows }
+    }
+
+    /// A markdown table: the model column left-aligned, the numbers right-aligned.
+    pub fn to_markdown(&self) -> String {
+        let line = |cells: &[&str]| format!("| {} |\n", cells.join(" | "));
+        let mut s = line(&SUMMARY_COLUMNS);
+        s.push_str("|---|");
+        s.push_str(&"---:|".repeat(SUMMARY_COLUMNS.len() - 1));
+        s.push('\n');
+        for row in &self.rows {
+            s.push_str(&line(&row.each_ref().map(String::as_str)));
+        }
+        s
+    }
+
+    /// An HTML `<table>`: a header row, then one row per model (cells escaped).
+    pub fn to_html(&self) -> String {
+        let mut html = String::from("<table>");
+        let mut row = |tag: &str, cells: &[&str]| {
+            html.push_str("<tr>");
+            for c in cells {
+                let _ = write!(html, "<{tag}>{}</{tag}>", escape(c));
+            }
+            html.push_str("</tr>");
+        };
+        row("th", &SUMMARY_COLUMNS);
+        for r in &self.rows {
+            row("td", &r.each_ref().map(String::as_str));
+        }
+        html.push_str("</table>");
+        html
+    }
+}
+
 /// The summary as a markdown table.
 pub fn summary_markdown(summaries: &[ModelSummary]) -> String {
-    let mut s = String::new();
-    s.push_str("| model | sims | steps | total sweeps | vs builtin | median sweeps | falling: median | settled: median | cap hits | fallbacks | persisting | warm err n (median MSE) | median solve us | median step us |\n");
-    s.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
-    for m in summaries {
-        let _ = writeln!(
-            s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            m.model,
-            m.simulations,
-            m.all.steps,
-            m.all.total_sweeps,
-            m.ratio_to_builtin.map(|r| format!("{r:.3}x")).unwrap_or_else(|| "-".into()),
-            fmt(m.all.median_sweeps, 1),
-            fmt(m.falling.median_sweeps, 1),
-            fmt(m.settled.median_sweeps, 1),
-            m.all.cap_hits,
-            m.all.fallbacks,
-            fmt(m.persisting_share * 100.0, 1) + "%",
-            fmt(m.median_warm_error_normal_mse, 4),
-            fmt(m.all.median_solve_us, 1),
-            fmt(m.all.median_step_us, 1),
-        );
-    }
-    s
+    SummaryTable::new(summaries).to_markdown()
 }
 
 /// Writes the report for `aggregate` into `dir`; `missing` lists what a partial run lacks.
@@ -84,10 +144,12 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
     // Every step.
     let steps_csv = dir.join("steps.csv");
     {
-        let mut w = csv::Writer::from_path(&steps_csv).map_err(|source| ReportError::Csv { path: steps_csv.display().to_string(), source })?;
+        let mut w = csv::Writer::from_path(&steps_csv)
+            .map_err(|source| ReportError::Csv { path: steps_csv.display().to_string(), source })?;
         for m in &models {
             for r in aggregate.records(m) {
-                w.serialize(r).map_err(|source| ReportError::Csv { path: steps_csv.display().to_string(), source })?;
+                w.serialize(&r.stats)
+                    .map_err(|source| ReportError::Csv { path: steps_csv.display().to_string(), source })?;
             }
         }
         w.flush().map_err(io(&steps_csv))?;
@@ -97,12 +159,30 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
     // Summary.
     let summary_csv = dir.join("summary.csv");
     {
-        let mut w = csv::Writer::from_path(&summary_csv).map_err(|source| ReportError::Csv { path: summary_csv.display().to_string(), source })?;
+        let mut w = csv::Writer::from_path(&summary_csv)
+            .map_err(|source| ReportError::Csv { path: summary_csv.display().to_string(), source })?;
         w.write_record([
-            "model", "simulations", "steps", "total_sweeps", "ratio_to_builtin", "median_sweeps", "mean_sweeps",
-            "falling_steps", "falling_total_sweeps", "falling_median_sweeps", "settled_steps", "settled_total_sweeps",
-            "settled_median_sweeps", "cap_hits", "fallbacks", "persisting_share", "median_warm_error_normal_mse",
-            "median_warm_error_tangent_mse", "median_solve_us", "median_step_us", "total_solve_ms",
+            "model",
+            "simulations",
+            "steps",
+            "total_sweeps",
+            "ratio_to_builtin",
+            "median_sweeps",
+            "mean_sweeps",
+            "falling_steps",
+            "falling_total_sweeps",
+            "falling_median_sweeps",
+            "settled_steps",
+            "settled_total_sweeps",
+            "settled_median_sweeps",
+            "cap_hits",
+            "fallbacks",
+            "persisting_share",
+            "median_warm_error_normal_mse",
+            "median_warm_error_tangent_mse",
+            "median_solve_us",
+            "median_step_us",
+            "total_solve_ms",
         ])
         .map_err(|source| ReportError::Csv { path: summary_csv.display().to_string(), source })?;
         for m in &summaries {
@@ -129,14 +209,15 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
                 m.all.median_step_us.to_string(),
                 m.all.total_solve_ms.to_string(),
             ];
-            w.write_record(&row).map_err(|source| ReportError::Csv { path: summary_csv.display().to_string(), source })?;
+            w.write_record(&row)
+                .map_err(|source| ReportError::Csv { path: summary_csv.display().to_string(), source })?;
         }
         w.flush().map_err(io(&summary_csv))?;
     }
     files.push(summary_csv);
-    let table = summary_markdown(&summaries);
+    let table = SummaryTable::new(&summaries);
     let summary_md = dir.join("summary.md");
-    let mut md = format!("# {title}\n\n{table}\n");
+    let mut md = format!("# {title}\n\n{}\n", table.to_markdown());
     if !missing.is_empty() {
         md.push_str("\n## Missing data (partial run)\n\n");
         for m in missing {
@@ -162,24 +243,68 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
                 })
                 .collect()
         };
-        let mut chart = |file: &str, caption: &str, x: &str, y: &str, series: Vec<Series>, scale: YScale| -> Result<(), ReportError> {
+        let mut chart = |file: &str,
+                         caption: &str,
+                         x: &str,
+                         y: &str,
+                         series: Vec<Series>,
+                         scale: YScale|
+         -> Result<(), ReportError> {
             let path = dir.join(file);
             line_chart(&path, caption, x, y, &series, scale)?;
             plots.push((caption.to_string(), path));
             Ok(())
         };
-        chart("sweeps_per_step.png", "Sweeps per step (median, 10-90% band across simulations)", "step", "sweeps", per_step(&|r| r.sweeps as f64, true), YScale::Linear)?;
-        chart("contacts_per_step.png", "Contacts per step (median, 10-90% band)", "step", "contacts", per_step(&|r| r.contacts as f64, true), YScale::Linear)?;
-        chart("solve_time_per_step.png", "Solve time per step (velocity solve only, median)", "step", "microseconds", per_step(&|r| r.solve_us as f64, false), YScale::Linear)?;
-        chart("step_time_per_step.png", "Whole step time (collision + warm start + solve + integrate, median)", "step", "microseconds", per_step(&|r| r.step_us as f64, false), YScale::Linear)?;
-        chart("warm_error_normal.png", "Warm-start error vs solution, normal impulse (median MSE)", "step", "MSE", per_step(&|r| r.warm_error_normal_mse as f64, false), YScale::Log)?;
-        chart("warm_error_tangent.png", "Warm-start error vs solution, tangent impulse (median MSE)", "step", "MSE", per_step(&|r| r.warm_error_tangent_mse as f64, false), YScale::Log)?;
-        let max_sweeps = models
-            .iter()
-            .flat_map(|m| aggregate.records(m).map(|r| r.sweeps))
-            .max()
-            .unwrap_or(1)
-            .clamp(1, 1000);
+        chart(
+            "sweeps_per_step.png",
+            "Sweeps per step (median, 10-90% band across simulations)",
+            "step",
+            "sweeps",
+            per_step(&|r| r.sweeps as f64, true),
+            YScale::Linear,
+        )?;
+        chart(
+            "contacts_per_step.png",
+            "Contacts per step (median, 10-90% band)",
+            "step",
+            "contacts",
+            per_step(&|r| r.contacts as f64, true),
+            YScale::Linear,
+        )?;
+        chart(
+            "solve_time_per_step.png",
+            "Solve time per step (velocity solve only, median)",
+            "step",
+            "microseconds",
+            per_step(&|r| r.solve_us as f64, false),
+            YScale::Linear,
+        )?;
+        chart(
+            "step_time_per_step.png",
+            "Whole step time (collision + warm start + solve + integrate, median)",
+            "step",
+            "microseconds",
+            per_step(&|r| r.step_us as f64, false),
+            YScale::Linear,
+        )?;
+        chart(
+            "warm_error_normal.png",
+            "Warm-start error vs solution, normal impulse (median MSE)",
+            "step",
+            "MSE",
+            per_step(&|r| r.warm_error_normal_mse as f64, false),
+            YScale::Log,
+        )?;
+        chart(
+            "warm_error_tangent.png",
+            "Warm-start error vs solution, tangent impulse (median MSE)",
+            "step",
+            "MSE",
+            per_step(&|r| r.warm_error_tangent_mse as f64, false),
+            YScale::Log,
+        )?;
+        let max_sweeps =
+            models.iter().flat_map(|m| aggregate.records(m).map(|r| r.sweeps)).max().unwrap_or(1).clamp(1, 1000);
         let within = models
             .iter()
             .map(|m| Series {
@@ -188,7 +313,14 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
                 band: None,
             })
             .collect();
-        chart("converged_within.png", "Share of steps converged within n sweeps", "sweeps n", "share of steps", within, YScale::Linear)?;
+        chart(
+            "converged_within.png",
+            "Share of steps converged within n sweeps",
+            "sweeps n",
+            "share of steps",
+            within,
+            YScale::Linear,
+        )?;
         let convergence = models
             .iter()
             .map(|m| Series {
@@ -197,7 +329,14 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
                 band: None,
             })
             .collect();
-        chart("convergence.png", "Convergence: median residual after n sweeps", "sweeps n", "largest impulse change", convergence, YScale::Log)?;
+        chart(
+            "convergence.png",
+            "Convergence: median residual after n sweeps",
+            "sweeps n",
+            "largest impulse change",
+            convergence,
+            YScale::Log,
+        )?;
     }
     files.extend(plots.iter().map(|(_, p)| p.clone()));
 
@@ -219,7 +358,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
         html.push_str("<p><b>No solver statistics arrived.</b> Nothing to summarise or plot.</p>");
     }
     html.push_str("<h2>Summary</h2>");
-    html.push_str(&markdown_table_to_html(&table));
+    html.push_str(&table.to_html());
     html.push_str("<p>Phases: a step is <i>settled</i> once every body of its simulation stays slower than the settle speed (default 0.1 m/s) for the rest of the simulation; earlier steps are <i>falling</i> (a dash: no step settled). Times are wall-clock on the machine that ran the simulator.</p>");
     for (caption, path) in &plots {
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
@@ -235,20 +374,63 @@ fn escape(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
 }
 
-fn markdown_table_to_html(table: &str) -> String {
-    let mut html = String::from("<table>");
-    for (i, line) in table.lines().enumerate() {
-        if i == 1 {
-            continue; // the alignment row
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::aggregate::Totals;
+
+    fn summary(model: &str, ratio: Option<f64>) -> ModelSummary {
+        let all = Totals {
+            steps: 60,
+            total_sweeps: 900,
+            median_sweeps: 15.0,
+            median_solve_us: 45.0,
+            median_step_us: 50.0,
+            ..Default::default()
+        };
+        ModelSummary {
+            model: model.into(),
+            simulations: 3,
+            all: all.clone(),
+            falling: Totals { median_sweeps: f64::NAN, ..all.clone() },
+            settled: all,
+            ratio_to_builtin: ratio,
+            persisting_share: 0.25,
+            median_warm_error_normal_mse: 0.012345,
+            median_warm_error_tangent_mse: 0.1,
         }
-        let cells: Vec<&str> = line.trim_matches('|').split('|').map(str::trim).collect();
-        let tag = if i == 0 { "th" } else { "td" };
-        html.push_str("<tr>");
-        for c in cells {
-            let _ = write!(html, "<{tag}>{}</{tag}>", escape(c));
-        }
-        html.push_str("</tr>");
     }
-    html.push_str("</table>");
-    html
+
+    #[test]
+    fn markdown_and_html_show_the_same_cells() {
+        let table = SummaryTable::new(&[summary("none", Some(3.0)), summary("a<b", None)]);
+        let md = table.to_markdown();
+        let lines: Vec<&str> = md.lines().collect();
+        assert_eq!(lines[0], "| model | sims | steps | total sweeps | vs builtin | median sweeps | falling: median | settled: median | cap hits | fallbacks | persisting | warm err n (median MSE) | median solve us | median step us |");
+        assert_eq!(lines[1], "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+        assert_eq!(
+            lines[2],
+            "| none | 3 | 60 | 900 | 3.000x | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 |"
+        );
+        assert_eq!(lines[3], "| a<b | 3 | 60 | 900 | - | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 |");
+        assert_eq!(lines.len(), 4);
+        let html = table.to_html();
+        assert!(
+            html.starts_with("<table><tr><th>model</th><th>sims</th>") && html.ends_with("</td></tr></table>"),
+            "{html}"
+        );
+        assert!(
+            html.contains("<tr><td>none</td><td>3</td><td>60</td><td>900</td><td>3.000x</td><td>15.0</td><td>-</td>"),
+            "{html}"
+        );
+        assert!(
+            html.contains("<td>a&lt;b</td>")
+                && html.contains("<td>25.0%</td><td>0.0123</td><td>45.0</td><td>50.0</td></tr>"),
+            "{html}"
+        );
+        assert_eq!(html.matches("<tr>").count(), 3);
+        assert_eq!(html.matches("<th>").count(), SUMMARY_COLUMNS.len());
+        assert_eq!(html.matches("<td>").count(), 2 * SUMMARY_COLUMNS.len());
+        assert_eq!(summary_markdown(&[]).lines().count(), 2);
+    }
 }

@@ -48,7 +48,19 @@ fn report_folder_has_csv_summary_plots_and_html() {
     let none = w.summaries.iter().find(|s| s.model == "none").unwrap();
     assert_eq!(none.all.total_sweeps, 3 * 20 * 15);
     assert_eq!(none.ratio_to_builtin, Some(3.0));
-    for f in ["steps.csv", "summary.csv", "summary.md", "report.html", "sweeps_per_step.png", "convergence.png", "converged_within.png", "warm_error_normal.png", "solve_time_per_step.png", "step_time_per_step.png", "contacts_per_step.png"] {
+    for f in [
+        "steps.csv",
+        "summary.csv",
+        "summary.md",
+        "report.html",
+        "sweeps_per_step.png",
+        "convergence.png",
+        "converged_within.png",
+        "warm_error_normal.png",
+        "solve_time_per_step.png",
+        "step_time_per_step.png",
+        "contacts_per_step.png",
+    ] {
         assert!(dir.join(f).is_file(), "{f} missing");
     }
     for f in w.files.iter().filter(|f| f.extension().is_some_and(|e| e == "png")) {

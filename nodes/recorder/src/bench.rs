@@ -41,7 +41,8 @@ pub fn process_cpu_seconds() -> f64 {
 /// `simulations` simulations each published `steps` steps (0..steps) on each of `topics`. A topic
 /// missing from the file entirely misses all of them.
 pub fn missing_steps(path: &Path, topics: &[&str], simulations: u64, steps: u32) -> Result<BTreeMap<String, u64>> {
-    let mut seen: BTreeMap<String, BTreeSet<(u64, u32, u32)>> = topics.iter().map(|t| (t.to_string(), BTreeSet::new())).collect();
+    let mut seen: BTreeMap<String, BTreeSet<(u64, u32, u32)>> =
+        topics.iter().map(|t| (t.to_string(), BTreeSet::new())).collect();
     let mut reader = RecordingReader::open(path)?;
     while let Some(message) = reader.next_message() {
         let message = message?;

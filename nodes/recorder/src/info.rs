@@ -62,7 +62,8 @@ impl Info {
                     let t = info.topics.entry(c.topic.clone()).or_default();
                     t.topic = c.topic.clone();
                     t.encoding = c.encoding.clone();
-                    t.type_name = c.kind.map(|k| k.type_name().to_string()).unwrap_or_else(|| format!("({})", c.encoding));
+                    t.type_name =
+                        c.kind.map(|k| k.type_name().to_string()).unwrap_or_else(|| format!("({})", c.encoding));
                 }
                 Item::Message(m) => {
                     info.messages += 1;
@@ -78,7 +79,11 @@ impl Info {
                         Err(_) => t.undecodable += 1,
                         Ok(s) if kind == crate::FrameKind::Bodies && m.channel.topic == msgs::topics::BODIES.name => {
                             let key = (s.run_id, s.simulation);
-                            let r = info.simulations.entry(key).or_insert(StepRange { first: s.step, last: s.step, steps: 0 });
+                            let r = info.simulations.entry(key).or_insert(StepRange {
+                                first: s.step,
+                                last: s.step,
+                                steps: 0,
+                            });
                             r.first = r.first.min(s.step);
                             r.last = r.last.max(s.step);
                             if last_step.insert(key, s.step) != Some(s.step) {

@@ -20,14 +20,14 @@
 pub mod bench;
 pub mod info;
 pub mod join;
-pub mod kind;
 pub mod read;
 pub mod recover;
 pub mod write;
 
 pub use info::Info;
 pub use join::{Step, Steps};
-pub use kind::FrameKind;
+/// The frame kinds live in the contract crate (`msgs::topics`).
+pub use msgs::{FrameKind, HasStep};
 pub use read::{Item, Message, RecordingReader};
 pub use write::RecordingWriter;
 

@@ -37,7 +37,11 @@ pub enum Item {
     Message(Message),
     Metadata(mcap::records::Metadata),
     /// A chunk was read: its sizes and compression (before the messages it holds).
-    Chunk { compression: String, compressed: u64, uncompressed: u64 },
+    Chunk {
+        compression: String,
+        compressed: u64,
+        uncompressed: u64,
+    },
 }
 
 /// How to read a file.
@@ -201,7 +205,9 @@ impl RecordingReader {
             }
             Record::Message { header, data } => {
                 let Some(channel) = self.channels.get(&header.channel_id).cloned() else {
-                    return Err(self.damaged(format!("a message on channel {} that was never declared", header.channel_id)));
+                    return Err(
+                        self.damaged(format!("a message on channel {} that was never declared", header.channel_id))
+                    );
                 };
                 self.pending.push_back(Item::Message(Message {
                     channel,
@@ -229,7 +235,7 @@ impl RecordingReader {
         };
         if kind.is_some() && !self.options.any_wire_version {
             if let Some(v) = c.metadata.get(META_WIRE_VERSION) {
-                if v.parse::<u32>().ok() != Some(msgs::WIRE_VERSION) {
+                if !v.parse::<u32>().is_ok_and(|v| (msgs::OLDEST_WIRE_VERSION..=msgs::WIRE_VERSION).contains(&v)) {
                     return Err(Error::WireVersion {
                         path: self.path.clone(),
                         topic: c.topic.clone(),

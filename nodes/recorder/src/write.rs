@@ -135,10 +135,7 @@ impl RecordingWriter {
         writer.finish().map_err(|e| self.err(e))?;
         let mut inner = writer.into_inner();
         inner.flush().map_err(|source| Error::Io { path: self.path.clone(), source })?;
-        inner
-            .get_ref()
-            .sync_all()
-            .map_err(|source| Error::Io { path: self.path.clone(), source })?;
+        inner.get_ref().sync_all().map_err(|source| Error::Io { path: self.path.clone(), source })?;
         Ok(self.messages)
     }
 }

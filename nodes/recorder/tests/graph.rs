@@ -27,12 +27,7 @@ fn text(out: &Output) -> String {
 fn launch(dir: &Path, name: &str, toml: &str) -> Output {
     let file = dir.join(format!("{name}.toml"));
     std::fs::write(&file, toml).unwrap();
-    Command::new(bin("dc"))
-        .arg("launch")
-        .arg(&file)
-        .args(["--namespace", &namespace(name)])
-        .output()
-        .expect("run dc")
+    Command::new(bin("dc")).arg("launch").arg(&file).args(["--namespace", &namespace(name)]).output().expect("run dc")
 }
 
 /// Every payload of a recording, per topic, in file order.
@@ -212,14 +207,21 @@ fn info_and_replay_refuse_bad_input_naming_the_file() {
 
     let future = dir.join("future.mcap");
     let mut w = recorder::RecordingWriter::create(&future).unwrap();
-    let meta = BTreeMap::from([("type".to_string(), "dc::Bodies".to_string()), ("wire_version".to_string(), "2".to_string())]);
+    let next = (msgs::WIRE_VERSION + 1).to_string();
+    let meta = BTreeMap::from([("type".to_string(), "dc::Bodies".to_string()), ("wire_version".to_string(), next.clone())]);
     let id = w.add_raw_channel("bodies", "cbor", &meta).unwrap();
     w.write_to_channel(id, 1, 1, b"from the future").unwrap();
     w.finish().unwrap();
 
-    for (file, reason) in [(&notes, "not an MCAP file"), (&truncated, "truncated"), (&future, "wire version 2")] {
+    let future_reason = format!("wire version {next}");
+    for (file, reason) in [(&notes, "not an MCAP file"), (&truncated, "truncated"), (&future, future_reason.as_str())] {
         let info = Command::new(DC_RECORD).arg("info").arg(file).output().unwrap();
-        let replay = Command::new(DC_REPLAY).arg("--input").arg(file).env("DC_BUS", r#"{"namespace":"unused"}"#).output().unwrap();
+        let replay = Command::new(DC_REPLAY)
+            .arg("--input")
+            .arg(file)
+            .env("DC_BUS", r#"{"namespace":"unused"}"#)
+            .output()
+            .unwrap();
         for out in [info, replay] {
             assert!(!out.status.success(), "{}", text(&out));
             let err = String::from_utf8_lossy(&out.stderr);

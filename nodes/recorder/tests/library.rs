@@ -153,7 +153,10 @@ fn an_unknown_wire_version_is_refused_naming_the_file_and_topic() {
     let dir = scratch("version");
     let file = dir.join("future.mcap");
     let mut w = RecordingWriter::create(&file).unwrap();
-    let meta = BTreeMap::from([("type".to_string(), "dc::Bodies".to_string()), ("wire_version".to_string(), "99".to_string())]);
+    let meta = BTreeMap::from([
+        ("type".to_string(), "dc::Bodies".to_string()),
+        ("wire_version".to_string(), "99".to_string()),
+    ]);
     let id = w.add_raw_channel("bodies", "cbor", &meta).unwrap();
     w.write_to_channel(id, 1, 1, b"whatever").unwrap();
     w.finish().unwrap();

@@ -20,13 +20,12 @@ fn python_reads_topics_counts_and_cbor_fields() {
     let expected = serde_json::json!({
         "counts": { "bodies": 8, "contacts": 8, "stats/solve": 8, "control": 6 },
         "first_body": { "run_id": 11, "simulation": 0, "step": 0, "n": 4, "x0": 0.0 },
+        // Names are text, and a run start's details are a CBOR map, for any reader.
+        "stats_model": "builtin",
+        "run_start": { "model": "builtin", "steps": 4, "seeds": [0, 1] },
+        "wire_version": msgs::WIRE_VERSION,
     });
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/read_with_python.py");
     let out = Command::new("python3").arg(script).arg(&file).arg(expected.to_string()).output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
 }

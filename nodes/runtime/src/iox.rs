@@ -61,7 +61,11 @@ impl IoxNode {
             .map_err(|e| err(topic, format!("open publish-subscribe service: {e:?}")))
     }
 
-    fn event(&self, bus: &BusConfig, topic: &str) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>> {
+    fn event(
+        &self,
+        bus: &BusConfig,
+        topic: &str,
+    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>> {
         self.node
             .service_builder(&service_name(bus, topic, "/@event")?)
             .event()
@@ -138,9 +142,7 @@ impl<H: msgs::FrameHeader, T: msgs::FrameItem> IoxPublisher<H, T> {
         *sample.user_header_mut() = header;
         after(&header, sample.payload())?;
         sample.send().map_err(|e| err(&self.topic, format!("send: {e:?}")))?;
-        self.notifier
-            .notify()
-            .map_err(|e| err(&self.topic, format!("notify: {e:?}")))?;
+        self.notifier.notify().map_err(|e| err(&self.topic, format!("notify: {e:?}")))?;
         Ok(())
     }
 
@@ -153,9 +155,7 @@ impl<H: msgs::FrameHeader, T: msgs::FrameItem> IoxPublisher<H, T> {
         *sample.user_header_mut() = *header;
         let sample = sample.write_from_slice(items);
         sample.send().map_err(|e| err(&self.topic, format!("send: {e:?}")))?;
-        self.notifier
-            .notify()
-            .map_err(|e| err(&self.topic, format!("notify: {e:?}")))?;
+        self.notifier.notify().map_err(|e| err(&self.topic, format!("notify: {e:?}")))?;
         Ok(())
     }
 }
@@ -184,9 +184,7 @@ pub(crate) struct IoxSubscriber<H: msgs::FrameHeader, T: msgs::FrameItem> {
 
 impl<H: msgs::FrameHeader, T: msgs::FrameItem> IoxSubscriber<H, T> {
     pub(crate) fn try_recv(&self) -> Result<Option<IoxSample<H, T>>> {
-        self.subscriber
-            .receive()
-            .map_err(|e| err(&self.topic, format!("receive: {e:?}")))
+        self.subscriber.receive().map_err(|e| err(&self.topic, format!("receive: {e:?}")))
     }
 
     /// Sleeps on the topic's event until a notification or `timeout`.

@@ -7,10 +7,10 @@
 //! # fn main() -> anyhow::Result<()> {
 //! #[derive(clap::Parser)]
 //! struct Args { #[arg(long, default_value_t = 10)] count: u32 }
-//! let args: Args = runtime::parse_args();
+//! let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) }; // only checked
 //! let node = runtime::Node::from_env("dc-example")?;
 //! let mut bodies = node.publisher(msgs::topics::BODIES)?;
-//! node.ready()?; // the launcher starts sources once every node's ports exist
+//! if !node.ready()? { return Ok(()); } // sources start once every node's ports exist
 //! bodies.publish(&msgs::StepHeader::default(), &[msgs::Body::default()])?;
 //! # Ok(()) }
 //! ```
@@ -19,9 +19,10 @@
 //! - `DC_NODE_NAME`: the node's name in the graph;
 //! - `DC_BUS`: JSON [`BusConfig`] (namespace, per-topic transport, zenoh endpoints);
 //! - `DC_LAUNCHED=1`: the node reports readiness on stdout and waits for `start` on stdin;
-//! - `DC_VALIDATE=1`: [`parse_args`] only checks the parameters and exits;
+//! - `DC_VALIDATE=1`: [`parse_args`] only checks the parameters (`None`: the node returns);
 //! - `DC_DESCRIBE=1`: the node creates no port; [`Node::ready`] prints the topics it would publish
-//!   and subscribe as JSON ([`Ports`]) and exits, so the launcher can route every topic.
+//!   and subscribe as JSON ([`Ports`]) and returns false (the node returns), so the launcher can
+//!   route every topic.
 
 mod iox;
 mod pubsub;
@@ -202,7 +203,8 @@ pub struct Node {
 impl Drop for Node {
     fn drop(&mut self) {
         // A node that never started sent nothing anybody could be reading.
-        if !self.launched || !self.running.get() || self.iox_publishers.borrow().is_empty() || std::thread::panicking() {
+        if !self.launched || !self.running.get() || self.iox_publishers.borrow().is_empty() || std::thread::panicking()
+        {
             return;
         }
         if say(DONE_MARKER).is_err() {
@@ -305,10 +307,7 @@ impl Node {
 
     /// A publisher on a topic given by name (remapped topics); the frame types must match the
     /// topic's, which iceoryx2 checks through the type names.
-    pub fn publisher_named<H: msgs::FrameHeader, T: msgs::FrameItem>(
-        &self,
-        topic: &str,
-    ) -> Result<Publisher<H, T>> {
+    pub fn publisher_named<H: msgs::FrameHeader, T: msgs::FrameItem>(&self, topic: &str) -> Result<Publisher<H, T>> {
         if let Some(ports) = &self.describe {
             ports.borrow_mut().publishes.insert(topic.to_string());
             return Ok(Publisher::new(topic, None, None));
@@ -347,10 +346,7 @@ impl Node {
     }
 
     /// A subscriber on a topic given by name.
-    pub fn subscriber_named<H: msgs::FrameHeader, T: msgs::FrameItem>(
-        &self,
-        topic: &str,
-    ) -> Result<Subscriber<H, T>> {
+    pub fn subscriber_named<H: msgs::FrameHeader, T: msgs::FrameItem>(&self, topic: &str) -> Result<Subscriber<H, T>> {
         if let Some(ports) = &self.describe {
             ports.borrow_mut().subscribes.insert(topic.to_string());
             return Ok(Subscriber::new(topic, pubsub::SubInner::Detached, self.shutdown.clone()));
@@ -390,7 +386,8 @@ impl Node {
     }
 
     /// Tells the launcher that this node's ports exist and waits for the whole graph to be ready.
-    /// Without a launcher it returns at once. Returns false when the graph was stopped meanwhile.
+    /// Without a launcher it returns at once. Returns false when the graph was stopped meanwhile,
+    /// and under `DC_DESCRIBE=1` once the ports are printed: the node then returns from `main`.
     ///
     /// Two phases, because an iceoryx2 publisher delivers (with back-pressure) only to subscribers
     /// that have attached to its connection, which a subscriber does when it polls: once every
@@ -401,7 +398,7 @@ impl Node {
         if let Some(ports) = &self.describe {
             let json = serde_json::to_string(&*ports.borrow()).expect("ports serialise");
             say(&format!("{PORTS_MARKER}{json}"))?;
-            std::process::exit(0);
+            return Ok(false);
         }
         if !self.launched {
             self.attach_subscribers();
@@ -429,10 +426,7 @@ impl Node {
         let mut line = String::new();
         loop {
             line.clear();
-            let n = std::io::stdin()
-                .lock()
-                .read_line(&mut line)
-                .map_err(|e| Error::Launcher(e.to_string()))?;
+            let n = std::io::stdin().lock().read_line(&mut line).map_err(|e| Error::Launcher(e.to_string()))?;
             if n == 0 {
                 // The launcher closed our stdin: the graph is going down.
                 self.request_shutdown();
@@ -461,10 +455,8 @@ impl Node {
         if let Some(s) = self.zenoh.get() {
             return Ok(s);
         }
-        let session = zen::open_session(&self.bus.zenoh).map_err(|what| Error::Zenoh {
-            topic: topic.to_string(),
-            what,
-        })?;
+        let session =
+            zen::open_session(&self.bus.zenoh).map_err(|what| Error::Zenoh { topic: topic.to_string(), what })?;
         Ok(self.zenoh.get_or_init(|| session))
     }
 }
@@ -504,7 +496,9 @@ pub fn init_logging() {
     use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         // zenoh's session chatter (ids, endpoints, start-up scouting) is not the node's news.
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh=warn,zenoh::net::runtime::orchestrator=error"));
+        .unwrap_or_else(|_| {
+            tracing_subscriber::EnvFilter::new("info,zenoh=warn,zenoh::net::runtime::orchestrator=error")
+        });
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
@@ -513,19 +507,17 @@ pub fn init_logging() {
         .try_init();
 }
 
-/// Parses a node's parameters with clap. Under `DC_VALIDATE=1` (the launcher checking a launch
-/// file) it only reports whether they parse: exit 0, or clap's message and exit 2.
-pub fn parse_args<A: clap::Parser>() -> A {
+/// Parses a node's parameters with clap (bad ones: clap's message and exit status 2, as
+/// `A::parse` does). Under `DC_VALIDATE=1` (the launcher checking a launch file) it only checks
+/// them: `None` when they parse, so the node's `main` returns at once with success.
+pub fn parse_args<A: clap::Parser>() -> Option<A> {
     if std::env::var("DC_VALIDATE").is_ok_and(|v| v == "1") {
-        match A::try_parse() {
-            Ok(_) => std::process::exit(0),
-            Err(e) => {
-                eprintln!("{}", e.render());
-                std::process::exit(2);
-            }
-        }
+        return match A::try_parse() {
+            Ok(_) => None,
+            Err(e) => e.exit(),
+        };
     }
-    A::parse()
+    Some(A::parse())
 }
 
 /// Sleeps up to `total`, waking early on shutdown; returns false if shut down.
@@ -538,4 +530,46 @@ pub fn sleep_unless_shutdown(node: &Node, total: Duration) -> bool {
         std::thread::sleep(Duration::from_millis(10).min(total));
     }
     !node.is_shutdown()
+}
+
+/// Parses a duration parameter: a number with a unit, `1500us`, `20ms`, `0.5s`, `120s`, or a plain
+/// number of milliseconds (`15`); whitespace around the number and the unit is allowed. Negative,
+/// non-finite and too large values are errors; the message quotes the input.
+pub fn parse_duration(s: &str) -> std::result::Result<Duration, String> {
+    let t = s.trim();
+    let (num, seconds_per_unit) = if let Some(v) = t.strip_suffix("ms") {
+        (v, 1e-3)
+    } else if let Some(v) = t.strip_suffix("us") {
+        (v, 1e-6)
+    } else if let Some(v) = t.strip_suffix('s') {
+        (v, 1.0)
+    } else {
+        (t, 1e-3)
+    };
+    let bad = || format!("`{s}`: expected a duration like 1500us, 20ms, 0.5s, or a plain number of milliseconds");
+    match num.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Duration::try_from_secs_f64(v * seconds_per_unit).map_err(|_| bad()),
+        _ => Err(bad()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations_parse_with_or_without_a_unit() {
+        let ok = |s: &str| parse_duration(s).unwrap();
+        assert_eq!(ok("20ms"), Duration::from_millis(20));
+        assert_eq!(ok("0.5s"), Duration::from_millis(500));
+        assert_eq!(ok("120s"), Duration::from_secs(120));
+        assert_eq!(ok("1500us"), Duration::from_micros(1500));
+        assert_eq!(ok("15"), Duration::from_millis(15), "a plain number is milliseconds");
+        assert_eq!(ok(" 2.5 ms "), Duration::from_micros(2500));
+        assert_eq!(ok("0"), Duration::ZERO);
+        for bad in ["", "none", "lockstep", "soon", "ms", "-1s", "NaN", "inf", "1e300s", "5m", "1h"] {
+            let err = parse_duration(bad).unwrap_err();
+            assert!(err.contains(&format!("`{bad}`")), "{bad}: {err}");
+        }
+    }
 }

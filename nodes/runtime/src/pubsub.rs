@@ -50,8 +50,8 @@ impl<H: FrameHeader, T: FrameItem> Publisher<H, T> {
     /// error naming the topic.
     pub fn publish_encoded(&mut self, bytes: &[u8]) -> Result<()> {
         if let Some(iox) = &self.iox {
-            let frame = msgs::decode::<H, T>(bytes)
-                .map_err(|source| Error::Codec { topic: self.topic.clone(), source })?;
+            let frame =
+                msgs::decode::<H, T>(bytes).map_err(|source| Error::Codec { topic: self.topic.clone(), source })?;
             iox.send_slice(&frame.header, &frame.items)?;
         }
         if let Some(zen) = &mut self.zen {

@@ -37,9 +37,7 @@ pub(crate) fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, String> 
         settings.push(("listen/endpoints", json(&listen)));
     }
     for (key, value) in settings {
-        config
-            .insert_json5(key, &value)
-            .map_err(|e| format!("config {key} = {value}: {e}"))?;
+        config.insert_json5(key, &value).map_err(|e| format!("config {key} = {value}: {e}"))?;
     }
     zenoh::open(config).wait().map_err(|e| format!("open session: {e}"))
 }
@@ -72,10 +70,7 @@ impl ZenPublisher {
         }
         msgs::encode_into(header, items, &mut self.buffer)
             .map_err(|source| Error::Codec { topic: self.topic.clone(), source })?;
-        self.publisher
-            .put(self.buffer.as_slice())
-            .wait()
-            .map_err(|e| err(&self.topic, format!("put: {e}")))
+        self.publisher.put(self.buffer.as_slice()).wait().map_err(|e| err(&self.topic, format!("put: {e}")))
     }
 
     /// Puts an already encoded payload as it is.
@@ -83,10 +78,7 @@ impl ZenPublisher {
         if !self.matched {
             self.wait_for_match();
         }
-        self.publisher
-            .put(bytes)
-            .wait()
-            .map_err(|e| err(&self.topic, format!("put: {e}")))
+        self.publisher.put(bytes).wait().map_err(|e| err(&self.topic, format!("put: {e}")))
     }
 
     /// Waits (bounded) until some subscriber matches, so the first frames are not routed nowhere.
@@ -124,15 +116,11 @@ impl ZenSubscriber {
     }
 
     pub(crate) fn recv_timeout(&self, timeout: Duration) -> Result<Option<Sample>> {
-        self.subscriber
-            .recv_timeout(timeout)
-            .map_err(|e| err(&self.topic, format!("receive: {e}")))
+        self.subscriber.recv_timeout(timeout).map_err(|e| err(&self.topic, format!("receive: {e}")))
     }
 
     pub(crate) fn try_recv(&self) -> Result<Option<Sample>> {
-        self.subscriber
-            .try_recv()
-            .map_err(|e| err(&self.topic, format!("receive: {e}")))
+        self.subscriber.try_recv().map_err(|e| err(&self.topic, format!("receive: {e}")))
     }
 }
 
@@ -145,9 +133,7 @@ pub fn open_router(endpoint: &str) -> Result<zenoh::Session, String> {
         ("scouting/multicast/enabled", "false".to_string()),
     ];
     for (key, value) in settings {
-        config
-            .insert_json5(key, &value)
-            .map_err(|e| format!("config {key} = {value}: {e}"))?;
+        config.insert_json5(key, &value).map_err(|e| format!("config {key} = {value}: {e}"))?;
     }
     zenoh::open(config).wait().map_err(|e| format!("open router on {endpoint}: {e}"))
 }

@@ -104,9 +104,9 @@ pub fn measure(config: &SceneConfig, params: WorldParams, model: ModelKind, step
     for _ in 0..steps {
         let s = world.step(&mut warm);
         if s.contacts > 0 {
-            sweeps.push(s.solve.sweeps);
+            sweeps.push(s.sweeps);
         }
-        unconverged += (!s.solve.converged) as u32;
+        unconverged += (!s.converged) as u32;
         solve_us += s.solve_us as f64;
         contacts += s.contacts as u64;
     }

@@ -7,7 +7,7 @@ pub enum SimError {
     #[error("unknown scene `{0}` (known: ball-box, drum, mixed)")]
     UnknownScene(String),
     /// A warm-start model name that none of the models answers to.
-    #[error("unknown warm-start model `{0}` (known: none, builtin, copy, copy0, copy2, bad, random, extrapolate, grid, unet)")]
+    #[error("unknown warm-start model `{0}` (known: {known})", known = msgs::models::names_list())]
     UnknownModel(String),
     /// A sampler name that none of the samplers answers to.
     #[error("unknown sampler `{0}` (known: native, numpy)")]
@@ -28,4 +28,7 @@ pub enum SimError {
     /// A grid-based model was asked for without a grid source to feed it.
     #[error("model `{0}` needs a grid source (run it inside a graph with the sph or unet node)")]
     NoGridSource(String),
+    /// Where a run's messages go (the bus, a recording) failed.
+    #[error("run output: {0}")]
+    Output(String),
 }

@@ -10,25 +10,32 @@
 //! Modules:
 //! - [`scene`]: ball-box (thesis), drum, mixed; numpy-exact or native sampling;
 //! - [`solver`]: velocity solve (PGS to tolerance) and Box2D's position pass;
+//! - [`contact`]: contact keys and points, the impulse history across steps;
 //! - [`warm`]: the [`warm::WarmStartModel`] trait and its models, fallback handling;
 //! - [`world`]: one step = detect, warm start, solve, integrate, correct;
-//! - [`grid`]: bilinear grid sampling for the grid-based models;
+//! - [`run`]: the step loop of a run, its control messages, a sink for each step's outputs;
+//! - [`source`]: grids from another node as warm starts, with the producer's fault handling;
 //! - [`bench`]: ms/step against rapier's full pipeline;
 //! - [`rng`]: MT19937 / numpy legacy `RandomState`, xoshiro256++.
 
 pub mod bench;
+pub mod contact;
 pub mod error;
 pub mod rng;
+pub mod run;
 pub mod scene;
 pub mod solver;
+pub mod source;
 pub mod warm;
 pub mod world;
 
+pub use contact::{ContactKey, ContactPoint, ImpulseHistory};
 pub use error::SimError;
+pub use msgs::StepStats;
 pub use scene::{SamplerKind, Scene, SceneConfig, SceneKind};
 pub use solver::{ContactSolver, Impulse, PositionParams, SolveParams, SolveReport};
-pub use warm::{ModelKind, WarmStarter, WarmStartModel};
-pub use world::{StepStats, World, WorldParams};
+pub use warm::{ModelKind, WarmStartModel, WarmStarter};
+pub use world::{World, WorldParams};
 
 use std::time::Duration;
 
@@ -45,25 +52,11 @@ pub fn parse_deadline(s: &str) -> Result<Option<Duration>, SimError> {
     if t.eq_ignore_ascii_case("none") || t.eq_ignore_ascii_case("lockstep") {
         return Ok(None);
     }
-    let bad = || SimError::InvalidParameter {
+    runtime::parse_duration(t).map(Some).map_err(|why| SimError::InvalidParameter {
         name: "deadline",
         value: s.to_string(),
-        why: "expected `none` or a duration like 20ms, 0.5s, 1500us".into(),
-    };
-    let (num, scale) = if let Some(v) = t.strip_suffix("ms") {
-        (v, 1e-3)
-    } else if let Some(v) = t.strip_suffix("us") {
-        (v, 1e-6)
-    } else if let Some(v) = t.strip_suffix('s') {
-        (v, 1.0)
-    } else {
-        (t, 1e-3)
-    };
-    let v: f64 = num.trim().parse().map_err(|_| bad())?;
-    if !(v.is_finite() && v >= 0.0) {
-        return Err(bad());
-    }
-    Ok(Some(Duration::from_secs_f64(v * scale)))
+        why: format!("{why}, or `none`"),
+    })
 }
 
 #[cfg(test)]

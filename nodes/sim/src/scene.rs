@@ -147,19 +147,16 @@ impl ShapeSpec {
         match self {
             ShapeSpec::Ball { radius } => *radius,
             ShapeSpec::Cuboid { half } => (half[0] * half[0] + half[1] * half[1]).sqrt(),
-            ShapeSpec::Polygon { vertices } => vertices
-                .iter()
-                .map(|v| (v[0] * v[0] + v[1] * v[1]).sqrt())
-                .fold(0.0, f32::max),
+            ShapeSpec::Polygon { vertices } => {
+                vertices.iter().map(|v| (v[0] * v[0] + v[1] * v[1]).sqrt()).fold(0.0, f32::max)
+            }
         }
     }
 
     /// The `msgs::Shape` code and size fields of a body message.
     pub fn msg_shape(&self, kind: BodyKind) -> (msgs::Shape, [f32; 2]) {
         match (self, kind) {
-            (ShapeSpec::Cuboid { half }, BodyKind::Static | BodyKind::Kinematic) => {
-                (msgs::Shape::Wall, *half)
-            }
+            (ShapeSpec::Cuboid { half }, BodyKind::Static | BodyKind::Kinematic) => (msgs::Shape::Wall, *half),
             (ShapeSpec::Ball { radius }, _) => (msgs::Shape::Ball, [*radius, *radius]),
             (ShapeSpec::Cuboid { half }, _) => (msgs::Shape::Box, *half),
             (ShapeSpec::Polygon { .. }, _) => {
@@ -210,9 +207,8 @@ impl SceneConfig {
 
     /// Checks the parameters; called by [`Scene::build`].
     pub fn validate(&self) -> Result<(), SimError> {
-        let bad = |name, value: String, why: &str| {
-            Err(SimError::InvalidParameter { name, value, why: why.to_string() })
-        };
+        let bad =
+            |name, value: String, why: &str| Err(SimError::InvalidParameter { name, value, why: why.to_string() });
         if self.n == 0 {
             return bad("n", self.n.to_string(), "at least one body");
         }
@@ -341,10 +337,7 @@ impl Placer {
     /// Places one body of bounding radius `rad`; `None` after [`MAX_TRIES`] rejections in a row.
     fn place(&mut self, rng: &mut dyn Sampler, rad: f64) -> Option<[f32; 2]> {
         for _ in 0..=MAX_TRIES {
-            let p = [
-                rng.normal(self.mu[0], self.sigma[0]) as f32,
-                rng.normal(self.mu[1], self.sigma[1]) as f32,
-            ];
+            let p = [rng.normal(self.mu[0], self.sigma[0]) as f32, rng.normal(self.mu[1], self.sigma[1]) as f32];
             if self.fits(p, rad) {
                 self.add(p, rad);
                 return Some(p);
@@ -367,15 +360,10 @@ fn walls(side: f32, kind: BodyKind) -> Vec<BodySpec> {
     let t = wall_half_thickness(side);
     let h = side / 2.0;
     let long = h + 2.0 * t;
-    [
-        ([h, -t], [long, t]),
-        ([h, side + t], [long, t]),
-        ([-t, h], [t, long]),
-        ([side + t, h], [t, long]),
-    ]
-    .into_iter()
-    .map(|(position, half)| BodySpec { kind, shape: ShapeSpec::Cuboid { half }, position, angle: 0.0 })
-    .collect()
+    [([h, -t], [long, t]), ([h, side + t], [long, t]), ([-t, h], [t, long]), ([side + t, h], [t, long])]
+        .into_iter()
+        .map(|(position, half)| BodySpec { kind, shape: ShapeSpec::Cuboid { half }, position, angle: 0.0 })
+        .collect()
 }
 
 /// A regular polygon of `k` vertices and circumradius `r`, counter-clockwise, centred at the origin.

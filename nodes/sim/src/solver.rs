@@ -140,10 +140,7 @@ pub fn relative_velocity(row: &ContactRow, bodies: &[SolverBody]) -> (f32, f32) 
 pub fn row_masses(row: &ContactRow, bodies: &[SolverBody]) -> (f32, f32) {
     let a = &bodies[row.body_a as usize];
     let b = &bodies[row.body_b as usize];
-    (
-        effective_mass(a, b, row.ra, row.rb, row.normal),
-        effective_mass(a, b, row.ra, row.rb, tangent_of(row.normal)),
-    )
+    (effective_mass(a, b, row.ra, row.rb, row.normal), effective_mass(a, b, row.ra, row.rb, tangent_of(row.normal)))
 }
 
 /// Sequential-impulse contact solver: reusable buffers only, no world state.
@@ -347,7 +344,7 @@ pub struct PoseBody {
 }
 
 #[inline]
-fn rotate(angle: f32, v: Vec2) -> Vec2 {
+pub(crate) fn rotate(angle: f32, v: Vec2) -> Vec2 {
     let (s, c) = angle.sin_cos();
     Vec2::new(c * v.x - s * v.y, s * v.x + c * v.y)
 }
@@ -365,13 +362,7 @@ pub fn measure(row: &PositionRow, poses: &[PoseBody]) -> (Vec2, Vec2, f32) {
             let pb = b.x - n * radius_b;
             (n, (pa + pb) * 0.5, len - radius_a - radius_b)
         }
-        PositionGeometry::Face {
-            reference_is_a,
-            local_normal,
-            local_plane_point,
-            local_clip_point,
-            clip_radius,
-        } => {
+        PositionGeometry::Face { reference_is_a, local_normal, local_plane_point, local_clip_point, clip_radius } => {
             let (r, i) = if reference_is_a { (a, b) } else { (b, a) };
             let n_ref = rotate(r.angle, local_normal);
             let plane = r.x + rotate(r.angle, local_plane_point);
@@ -430,14 +421,28 @@ mod tests {
     fn a_warm_start_outside_the_friction_cone_is_projected_not_a_panic() {
         // A learned model may predict a negative normal impulse (or NaN); the solve must still
         // converge to the same answer as from zero.
-        let row = ContactRow { body_a: 0, body_b: 1, ra: Vec2::ZERO, rb: Vec2::new(0.0, -0.5), normal: Vec2::Y, friction: 0.5 };
-        for guess in [Impulse { normal: -0.3, tangent: 0.2 }, Impulse { normal: f32::NAN, tangent: 1.0 }, Impulse { normal: 0.1, tangent: -9.0 }] {
+        let row = ContactRow {
+            body_a: 0,
+            body_b: 1,
+            ra: Vec2::ZERO,
+            rb: Vec2::new(0.0, -0.5),
+            normal: Vec2::Y,
+            friction: 0.5,
+        };
+        for guess in [
+            Impulse { normal: -0.3, tangent: 0.2 },
+            Impulse { normal: f32::NAN, tangent: 1.0 },
+            Impulse { normal: 0.1, tangent: -9.0 },
+        ] {
             let mut bodies = [SolverBody::default(), ball(Vec2::new(-5.0, -1.0))];
             let mut s = ContactSolver::new();
             let rep = s.solve(&[row], &mut bodies, &[guess], &SolveParams::default());
             assert!(rep.converged, "{guess:?}");
             let l = s.impulses()[0];
-            assert!((l.normal - 1.0).abs() < 1e-3 && (l.tangent.abs() - 0.5 * l.normal).abs() < 1e-4, "{guess:?} -> {l:?}");
+            assert!(
+                (l.normal - 1.0).abs() < 1e-3 && (l.tangent.abs() - 0.5 * l.normal).abs() < 1e-4,
+                "{guess:?} -> {l:?}"
+            );
         }
     }
 
@@ -481,11 +486,8 @@ mod tests {
             PoseBody { x: Vec2::ZERO, angle: 0.0, inv_mass: 0.0, inv_inertia: 0.0 },
             PoseBody { x: Vec2::new(0.0, 0.9), angle: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
         ];
-        let row = PositionRow {
-            body_a: 0,
-            body_b: 1,
-            geometry: PositionGeometry::Circles { radius_a: 0.5, radius_b: 0.5 },
-        };
+        let row =
+            PositionRow { body_a: 0, body_b: 1, geometry: PositionGeometry::Circles { radius_a: 0.5, radius_b: 0.5 } };
         let params = PositionParams { iterations: 100, ..Default::default() };
         correct_positions(&[row], &mut poses, &params);
         let (_, _, sep) = measure(&row, &poses);

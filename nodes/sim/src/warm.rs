@@ -6,60 +6,12 @@
 //! deliver (a late grid) answers [`Unavailable`] and the [`WarmStarter`] falls back to a named
 //! model, counting it.
 
+use crate::contact::{ContactPoint, ImpulseHistory};
 use crate::error::SimError;
-use sph::sample_bilinear;
 use crate::rng::{Sampler, Xoshiro};
 use crate::solver::Impulse;
-use crate::world::ContactPoint;
+use sph::sample_bilinear;
 use std::str::FromStr;
-
-/// Identifies a contact across steps: the body pair (a < b) and the feature pair within it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
-pub struct ContactKey {
-    /// The lower body id.
-    pub body_a: u32,
-    /// The higher body id.
-    pub body_b: u32,
-    /// The packed feature ids of both bodies (see `world::feature_key`).
-    pub feature: u32,
-}
-
-/// The final impulses of the last two steps, sorted by key, for temporal models.
-#[derive(Debug, Clone, Default)]
-pub struct ImpulseHistory {
-    previous: Vec<(ContactKey, Impulse)>,
-    before_previous: Vec<(ContactKey, Impulse)>,
-}
-
-impl ImpulseHistory {
-    /// The impulse of contact `key` in the previous step, if it existed then.
-    pub fn previous(&self, key: &ContactKey) -> Option<Impulse> {
-        lookup(&self.previous, key)
-    }
-
-    /// The impulse of contact `key` two steps ago, if it existed then.
-    pub fn before_previous(&self, key: &ContactKey) -> Option<Impulse> {
-        lookup(&self.before_previous, key)
-    }
-
-    /// Records the step's final impulses (`keys` sorted) and shifts the older step back.
-    pub fn push(&mut self, keys: impl Iterator<Item = ContactKey>, impulses: &[Impulse]) {
-        std::mem::swap(&mut self.previous, &mut self.before_previous);
-        self.previous.clear();
-        self.previous.extend(keys.zip(impulses.iter().copied()));
-        debug_assert!(self.previous.windows(2).all(|w| w[0].0 <= w[1].0), "keys must be sorted");
-    }
-
-    /// Forgets everything (a new simulation).
-    pub fn clear(&mut self) {
-        self.previous.clear();
-        self.before_previous.clear();
-    }
-}
-
-fn lookup(list: &[(ContactKey, Impulse)], key: &ContactKey) -> Option<Impulse> {
-    list.binary_search_by(|(k, _)| k.cmp(key)).ok().map(|i| list[i].1)
-}
 
 /// What a model may look at to produce a warm start.
 pub struct WarmStartInput<'a> {
@@ -406,27 +358,24 @@ impl ModelKind {
         ModelKind::Unet,
     ];
 
+    /// The model's row in the contract's model table (`msgs::models::MODELS`, same order).
+    pub fn info(self) -> &'static msgs::models::ModelInfo {
+        &msgs::models::MODELS[self as usize]
+    }
+
     /// The model's name.
     pub fn name(self) -> &'static str {
-        match self {
-            ModelKind::None => "none",
-            ModelKind::Builtin => "builtin",
-            ModelKind::Copy => "copy",
-            ModelKind::Copy0 => "copy0",
-            ModelKind::Copy2 => "copy2",
-            ModelKind::Bad => "bad",
-            ModelKind::Random => "random",
-            ModelKind::Extrapolate => "extrapolate",
-            ModelKind::CopyGrid => "copy-grid",
-            ModelKind::CopyGridSph => "copy-grid-sph",
-            ModelKind::Grid => "grid",
-            ModelKind::Unet => "unet",
-        }
+        self.info().name
     }
 
     /// Whether the model needs a [`GridSource`].
     pub fn is_grid_based(self) -> bool {
-        matches!(self, ModelKind::Grid | ModelKind::Unet)
+        self.info().is_grid_based()
+    }
+
+    /// The topic a grid-based model reads its warm starts from.
+    pub fn grid_topic(self) -> Option<msgs::topics::Topic<msgs::GridHeader, f32>> {
+        self.info().grid_topic.map(msgs::topics::Topic::new)
     }
 
     /// Builds a local model; grid-based ones need [`ModelKind::build_with_source`].
@@ -459,13 +408,13 @@ impl ModelKind {
     }
 }
 
+// The enum mirrors the contract's table, row for row (checked in the tests too).
+const _: () = assert!(ModelKind::ALL.len() == msgs::models::MODELS.len());
+
 impl FromStr for ModelKind {
     type Err = SimError;
     fn from_str(s: &str) -> Result<Self, SimError> {
-        ModelKind::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| SimError::UnknownModel(s.to_string()))
+        ModelKind::ALL.into_iter().find(|m| m.name() == s).ok_or_else(|| SimError::UnknownModel(s.to_string()))
     }
 }
 
@@ -518,5 +467,23 @@ impl WarmStarter {
                 true
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn model_kinds_mirror_the_contract_table() {
+        for (i, kind) in ModelKind::ALL.into_iter().enumerate() {
+            assert_eq!(kind as usize, i);
+            assert_eq!(kind.name(), msgs::models::MODELS[i].name);
+            assert_eq!(kind.name().parse::<ModelKind>().unwrap(), kind);
+        }
+        assert_eq!(ModelKind::Unet.grid_topic().unwrap().name, msgs::topics::GRID_UNET.name);
+        assert!(ModelKind::Builtin.grid_topic().is_none());
+        let err = "nope".parse::<ModelKind>().unwrap_err().to_string();
+        assert!(err.contains("copy-grid-sph"), "{err}");
     }
 }

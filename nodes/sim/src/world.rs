@@ -14,15 +14,16 @@
 //! Our body states are the source of truth; rapier only mirrors poses. Everything that affects the
 //! physics is iterated in sorted order, so a run is bit-identical given the same scene and models.
 
+use crate::contact::{feature_key, ContactKey, ContactPoint, ImpulseHistory};
 use crate::error::SimError;
 use crate::scene::{BodyKind, Scene, SceneConfig, ShapeSpec};
 use crate::solver::{
-    correct_positions, ContactRow, ContactSolver, Impulse, PoseBody, PositionGeometry, PositionParams,
+    correct_positions, rotate, ContactRow, ContactSolver, Impulse, PoseBody, PositionGeometry, PositionParams,
     PositionRow, SolveParams, SolveReport, SolverBody,
 };
-use crate::warm::{ContactKey, ImpulseHistory, WarmStartInput, WarmStarter};
+use crate::warm::{WarmStartInput, WarmStarter};
+use msgs::StepStats;
 use rapier2d::math::{Pose, Vec2};
-use rapier2d::parry::shape::PackedFeatureId;
 use rapier2d::prelude::{ColliderBuilder, PhysicsWorld, RigidBodyBuilder, RigidBodyHandle};
 use std::time::Instant;
 
@@ -67,9 +68,8 @@ impl Default for WorldParams {
 impl WorldParams {
     /// Checks the parameters.
     pub fn validate(&self) -> Result<(), SimError> {
-        let bad = |name, value: String, why: &str| {
-            Err(SimError::InvalidParameter { name, value, why: why.to_string() })
-        };
+        let bad =
+            |name, value: String, why: &str| Err(SimError::InvalidParameter { name, value, why: why.to_string() });
         if !(self.solve.tolerance.is_finite() && self.solve.tolerance > 0.0) {
             return bad("tolerance", self.solve.tolerance.to_string(), "must be > 0");
         }
@@ -128,101 +128,6 @@ impl BodyState {
     }
 }
 
-/// One contact point of the current step.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ContactPoint {
-    /// Identifies the contact across steps.
-    pub key: ContactKey,
-    /// World contact point (midway between the two surfaces).
-    pub point: Vec2,
-    /// Unit normal from body a to body b.
-    pub normal: Vec2,
-    /// Overlap depth (positive when overlapping).
-    pub penetration: f32,
-    /// Friction coefficient.
-    pub friction: f32,
-}
-
-/// What one step measured (the content of a `msgs::SolveStatsHeader`).
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct StepStats {
-    /// Step index.
-    pub step: u32,
-    /// Contact points solved.
-    pub contacts: u32,
-    /// Contacts whose key existed in the previous step.
-    pub persisting_contacts: u32,
-    /// The velocity solve's report.
-    pub solve: SolveReport,
-    /// Whether the model fell back.
-    pub fallback: bool,
-    /// Fallbacks so far in this simulation.
-    pub fallbacks_total: u32,
-    /// Mean squared error of the warm start's normal impulses vs the solution.
-    pub warm_error_normal_mse: f32,
-    /// Largest absolute error of the warm start's normal impulses.
-    pub warm_error_normal_max: f32,
-    /// Mean squared error of the warm start's tangent impulses.
-    pub warm_error_tangent_mse: f32,
-    /// Largest absolute error of the warm start's tangent impulses.
-    pub warm_error_tangent_max: f32,
-    /// Wall time of the velocity solve, microseconds.
-    pub solve_us: f32,
-    /// Wall time of the warm start (including waiting for a grid), microseconds.
-    pub warm_start_us: f32,
-    /// Wall time of the whole step, microseconds.
-    pub step_us: f32,
-    /// Smallest separation after the position pass (negative: overlap).
-    pub min_separation: f32,
-    /// Kinetic energy of the dynamic bodies after the step.
-    pub kinetic_energy: f32,
-    /// Largest speed of a dynamic body after the step.
-    pub max_speed: f32,
-}
-
-impl StepStats {
-    /// The statistics as a message header, for `model` (asked for) and `used` (model or fallback).
-    pub fn to_msg(&self, step: msgs::StepHeader, model: &str, used: &str) -> msgs::SolveStatsHeader {
-        msgs::SolveStatsHeader {
-            step,
-            model: msgs::name16(model),
-            used_model: msgs::name16(used),
-            contacts: self.contacts,
-            persisting_contacts: self.persisting_contacts,
-            sweeps: self.solve.sweeps,
-            converged: self.solve.converged as u32,
-            fallback: self.fallback as u32,
-            fallbacks_total: self.fallbacks_total,
-            final_residual: self.solve.final_residual,
-            warm_error_normal_mse: self.warm_error_normal_mse,
-            warm_error_normal_max: self.warm_error_normal_max,
-            warm_error_tangent_mse: self.warm_error_tangent_mse,
-            warm_error_tangent_max: self.warm_error_tangent_max,
-            solve_us: self.solve_us,
-            step_us: self.step_us,
-            warm_start_us: self.warm_start_us,
-            kinetic_energy: self.kinetic_energy,
-            max_speed: self.max_speed,
-        }
-    }
-}
-
-/// Packs one feature id into 16 bits: 2 bits of type (vertex/face), 14 bits of index.
-fn pack_feature(f: PackedFeatureId) -> u32 {
-    ((f.0 >> 30) << 14) | (f.0 & 0x3fff)
-}
-
-/// The feature part of a [`ContactKey`]: body a's feature in the high half, body b's in the low.
-pub fn feature_key(fa: PackedFeatureId, fb: PackedFeatureId) -> u32 {
-    (pack_feature(fa) << 16) | pack_feature(fb)
-}
-
-#[inline]
-fn rotate(angle: f32, v: Vec2) -> Vec2 {
-    let (s, c) = angle.sin_cos();
-    Vec2::new(c * v.x - s * v.y, s * v.x + c * v.y)
-}
-
 /// A simulation: scene, body states, rapier's collision structures, the solver and its buffers.
 pub struct World {
     scene: Scene,
@@ -246,6 +151,8 @@ pub struct World {
     history: ImpulseHistory,
     staging: Vec<(ContactKey, ContactPoint, PositionRow)>,
     stats: StepStats,
+    last_solve: SolveReport,
+    min_separation: f32,
     oracle_report: Option<SolveReport>,
 }
 
@@ -325,6 +232,8 @@ impl World {
             history: ImpulseHistory::default(),
             staging: Vec::new(),
             stats: StepStats::default(),
+            last_solve: SolveReport::default(),
+            min_separation: 0.0,
             oracle_report: None,
         };
         world.set_kinematic_state(0.0);
@@ -393,9 +302,19 @@ impl World {
         self.oracle_report
     }
 
-    /// Statistics of the last step.
+    /// Statistics of the last step (what `stats/solve` carries).
     pub fn stats(&self) -> &StepStats {
         &self.stats
+    }
+
+    /// The velocity solve's report of the last step.
+    pub fn last_solve(&self) -> SolveReport {
+        self.last_solve
+    }
+
+    /// Smallest separation after the last step's position pass (negative: overlap).
+    pub fn min_separation(&self) -> f32 {
+        self.min_separation
     }
 
     /// Kinetic energy (linear + rotational) and largest speed of the dynamic bodies.
@@ -478,11 +397,8 @@ impl World {
             let (ba, bb) = (&self.bodies[ia as usize], &self.bodies[ib as usize]);
             for manifold in pair.manifolds() {
                 let friction = manifold.data.friction;
-                let (ln_a, ln_b) = if swap {
-                    (manifold.local_n2, manifold.local_n1)
-                } else {
-                    (manifold.local_n1, manifold.local_n2)
-                };
+                let (ln_a, ln_b) =
+                    if swap { (manifold.local_n2, manifold.local_n1) } else { (manifold.local_n1, manifold.local_n2) };
                 let normal = if swap { -manifold.data.normal } else { manifold.data.normal };
                 for p in &manifold.points {
                     if p.dist > self.params.contact_margin {
@@ -496,13 +412,7 @@ impl World {
                     let wa = ba.x + rotate(ba.angle, lp_a);
                     let wb = bb.x + rotate(bb.angle, lp_b);
                     let key = ContactKey { body_a: ia, body_b: ib, feature: feature_key(f_a, f_b) };
-                    let point = ContactPoint {
-                        key,
-                        point: (wa + wb) * 0.5,
-                        normal,
-                        penetration: -p.dist,
-                        friction,
-                    };
+                    let point = ContactPoint { key, point: (wa + wb) * 0.5, normal, penetration: -p.dist, friction };
                     let geometry = match (&ba.shape, &bb.shape) {
                         (ShapeSpec::Ball { radius: ra }, ShapeSpec::Ball { radius: rb }) => {
                             PositionGeometry::Circles { radius_a: *ra, radius_b: *rb }
@@ -660,13 +570,20 @@ impl World {
         }
         let count = self.contacts.len().max(1) as f64;
         self.history.push(self.contacts.iter().map(|c| c.key), final_impulses);
+        let used = if fallback { warm.fallback.name() } else { warm.model.name() };
         self.stats = StepStats {
+            run_id: self.run_id,
+            simulation: self.simulation,
             step: self.step - 1,
+            model: warm.model.name().to_string(),
+            used_model: used.to_string(),
             contacts: self.contacts.len() as u32,
             persisting_contacts: persisting as u32,
-            solve: report,
+            sweeps: report.sweeps,
+            converged: report.converged,
             fallback,
             fallbacks_total: warm.fallbacks_total(),
+            final_residual: report.final_residual,
             warm_error_normal_mse: (n_mse / count) as f32,
             warm_error_normal_max: n_max,
             warm_error_tangent_mse: (t_mse / count) as f32,
@@ -674,10 +591,11 @@ impl World {
             solve_us,
             warm_start_us,
             step_us: t_step.elapsed().as_secs_f32() * 1e6,
-            min_separation,
             kinetic_energy: 0.0,
             max_speed: 0.0,
         };
+        self.last_solve = report;
+        self.min_separation = min_separation;
         // Measured after the step's timer stopped: bookkeeping, not simulation.
         (self.stats.kinetic_energy, self.stats.max_speed) = self.motion();
         &self.stats

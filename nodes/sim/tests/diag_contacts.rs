@@ -29,7 +29,13 @@ fn pre_solve(rows: &[ContactRow], post: &[SolverBody], imp: &[Impulse]) -> Vec<[
 }
 
 /// f64 PGS from zero on the same rows; returns residual per sweep.
-fn pgs64(rows: &[ContactRow], bodies: &[SolverBody], v0: &[[f64; 3]], sweeps: usize, mu_override: Option<f64>) -> Vec<f64> {
+fn pgs64(
+    rows: &[ContactRow],
+    bodies: &[SolverBody],
+    v0: &[[f64; 3]],
+    sweeps: usize,
+    mu_override: Option<f64>,
+) -> Vec<f64> {
     let mut v = v0.to_vec();
     let mut lam = vec![[0.0f64; 2]; rows.len()];
     let im: Vec<(f64, f64)> = bodies.iter().map(|b| (b.inv_mass as f64, b.inv_inertia as f64)).collect();
@@ -118,8 +124,7 @@ fn diagnose_ball_box() {
             world.contacts().iter().map(|c| c.key).zip(world.impulses().iter().copied()).collect();
         let added = keys.keys().filter(|k| !prev.contains_key(*k)).count();
         let removed = prev.keys().filter(|k| !keys.contains_key(*k)).count();
-        let removed_loaded =
-            prev.iter().filter(|(k, l)| !keys.contains_key(*k) && l.normal > 1e-3).count();
+        let removed_loaded = prev.iter().filter(|(k, l)| !keys.contains_key(*k) && l.normal > 1e-3).count();
         let mut dmax = 0.0f32;
         for (k, l) in &keys {
             if let Some(p) = prev.get(k) {
@@ -134,10 +139,10 @@ fn diagnose_ball_box() {
         let oracle = world.oracle_report().map(|o| format!(" oracle {} {}", o.sweeps, o.converged)).unwrap_or_default();
         println!(
             "step {:3} c {:3} +{:2} -{:2} (-loaded {:2}) sweeps {:4} conv {} dmax {:.2e} ke {:.2e} maxpen {:.2e} tail[{:.1e},{:.1e}] minsep {:.2e}{}",
-            s.step, s.contacts, added, removed, removed_loaded, s.solve.sweeps, s.solve.converged as u8, dmax, ke, maxpen,
-            tmin, tmax, s.min_separation, oracle
+            s.step, s.contacts, added, removed, removed_loaded, s.sweeps, s.converged as u8, dmax, ke, maxpen,
+            tmin, tmax, world.min_separation(), oracle
         );
-        if !s.solve.converged && s.step > dump_after && dumped < 2 {
+        if !s.converged && s.step > dump_after && dumped < 2 {
             dumped += 1;
             let r: Vec<String> = res.iter().step_by(25).map(|x| format!("{x:.1e}")).collect();
             println!("  residual curve (every 25): {}", r.join(" "));
@@ -155,7 +160,10 @@ fn diagnose_ball_box() {
             }
             // Largest impulses and which rows change most in the last sweep: count rows with big impulses.
             let maxn = world.impulses().iter().map(|l| l.normal).fold(0.0f32, f32::max);
-            println!("  max normal impulse {maxn:.3e}, mass*g*dt of a ball {:.3e}", world.bodies()[0].mass * 9.81 * 0.01);
+            println!(
+                "  max normal impulse {maxn:.3e}, mass*g*dt of a ball {:.3e}",
+                world.bodies()[0].mass * 9.81 * 0.01
+            );
         }
         prev = keys;
     }
@@ -181,7 +189,7 @@ fn diagnose_motion() {
             .collect();
         ke.sort_by(|a, b| b.0.partial_cmp(&a.0).unwrap());
         let total: f32 = ke.iter().map(|k| k.0).sum();
-        let mut line = format!("step {} sweeps {:4} ke {:.2e}:", s.step, s.solve.sweeps, total);
+        let mut line = format!("step {} sweeps {:4} ke {:.2e}:", s.step, s.sweeps, total);
         for &(k, i) in &ke[..3] {
             let b = &world.bodies()[i];
             let nc = world.contacts().iter().filter(|c| c.key.body_a == i as u32 || c.key.body_b == i as u32).count();
@@ -191,7 +199,13 @@ fn diagnose_motion() {
             );
         }
         let deep = world.contacts().iter().max_by(|a, b| a.penetration.partial_cmp(&b.penetration).unwrap()).unwrap();
-        line += &format!(" deepest {:?} pen {:.2e} n ({:.2},{:.2})", (deep.key.body_a, deep.key.body_b, deep.key.feature), deep.penetration, deep.normal.x, deep.normal.y);
+        line += &format!(
+            " deepest {:?} pen {:.2e} n ({:.2},{:.2})",
+            (deep.key.body_a, deep.key.body_b, deep.key.feature),
+            deep.penetration,
+            deep.normal.x,
+            deep.normal.y
+        );
         println!("{line}");
     }
 }
@@ -240,13 +254,21 @@ fn diagnose_pair() {
         let sep = (ba.x - bb.x).length() - 1.0;
         let mut line = format!(
             "step {} sweeps {:4} a ({:.4},{:.4}) va ({:.3},{:.3}) wa {:.2} b ({:.4},{:.4}) vb ({:.3},{:.3}) sep_after {:.2e}",
-            s.step, s.solve.sweeps, ba.x.x, ba.x.y, ba.v.x, ba.v.y, ba.w, bb.x.x, bb.x.y, bb.v.x, bb.v.y, sep
+            s.step, s.sweeps, ba.x.x, ba.x.y, ba.v.x, ba.v.y, ba.w, bb.x.x, bb.x.y, bb.v.x, bb.v.y, sep
         );
         for (c, (l, w)) in world.contacts().iter().zip(world.impulses().iter().zip(world.warm_start_used())) {
             if c.key.body_a == a || c.key.body_b == a || c.key.body_a == b || c.key.body_b == b {
                 line += &format!(
                     "\n    ({},{}) pen {:.2e} n ({:.3},{:.3}) l ({:.3},{:.3}) warm ({:.3},{:.3})",
-                    c.key.body_a, c.key.body_b, c.penetration, c.normal.x, c.normal.y, l.normal, l.tangent, w.normal, w.tangent
+                    c.key.body_a,
+                    c.key.body_b,
+                    c.penetration,
+                    c.normal.x,
+                    c.normal.y,
+                    l.normal,
+                    l.tangent,
+                    w.normal,
+                    w.tangent
                 );
             }
         }

@@ -45,9 +45,7 @@ fn native_sampler_differs_from_numpy_but_has_the_same_spread() {
     assert_ne!(numpy.bodies[0].position, native.bodies[0].position);
     // Same distribution: centroid near the box centre for both.
     for scene in [&numpy, &native] {
-        let (sx, sy) = scene.bodies[..100]
-            .iter()
-            .fold((0.0, 0.0), |(x, y), b| (x + b.position[0], y + b.position[1]));
+        let (sx, sy) = scene.bodies[..100].iter().fold((0.0, 0.0), |(x, y), b| (x + b.position[0], y + b.position[1]));
         assert!((sx / 100.0 - 7.5).abs() < 1.0 && (sy / 100.0 - 7.5).abs() < 1.0, "centroid {sx} {sy}");
     }
 }

@@ -49,7 +49,7 @@ fn complementarity_conditions_hold_at_convergence_for_every_contact() {
         let mut checked = 0;
         for _ in 0..250 {
             let s = world.step(&mut warm).clone();
-            if s.solve.converged {
+            if s.converged {
                 checked += check_complementarity(&world, params.solve.tolerance);
             }
         }
@@ -73,8 +73,8 @@ fn copy_warm_start_converges_in_two_sweeps() {
         let oracle = world.oracle_report().expect("copy runs the oracle every step");
         if s.contacts > 0 && oracle.converged {
             checked += 1;
-            assert!(s.solve.sweeps <= 2, "step {}: {} sweeps from the solution", s.step, s.solve.sweeps);
-            assert!(s.solve.converged);
+            assert!(s.sweeps <= 2, "step {}: {} sweeps from the solution", s.step, s.sweeps);
+            assert!(s.converged);
             assert!(s.warm_error_normal_max <= 1e-3, "step {}: {}", s.step, s.warm_error_normal_max);
         }
     }
@@ -92,11 +92,11 @@ fn copy_with_friction_restarts_from_a_converged_solution_cheaply() {
     for _ in 0..250 {
         let s = world.step(&mut warm).clone();
         let oracle = world.oracle_report().unwrap();
-        restart_sweeps += s.solve.sweeps as u64;
+        restart_sweeps += s.sweeps as u64;
         oracle_sweeps += oracle.sweeps as u64;
         if s.contacts > 0 && oracle.converged && oracle.final_residual <= 0.5 * world.params().solve.tolerance {
             margin_steps += 1;
-            assert!(s.solve.sweeps <= 2, "step {}: {} sweeps (oracle {oracle:?})", s.step, s.solve.sweeps);
+            assert!(s.sweeps <= 2, "step {}: {} sweeps (oracle {oracle:?})", s.step, s.sweeps);
         }
     }
     assert!(margin_steps >= 10, "{margin_steps}");
@@ -112,8 +112,8 @@ fn unconverged_solves_are_reported_as_such() {
     for _ in 0..150 {
         let s = world.step(&mut warm);
         if s.contacts > 20 {
-            assert_eq!(s.solve.sweeps, 3);
-            capped += (!s.solve.converged) as u32;
+            assert_eq!(s.sweeps, 3);
+            capped += (!s.converged) as u32;
         }
     }
     assert!(capped > 0);
@@ -128,7 +128,7 @@ fn total_sweeps(model: ModelKind) -> u64 {
         let mut warm = WarmStarter::local(model, 0).unwrap();
         warm.begin_simulation(seed as u32, seed);
         for _ in 0..250 {
-            total += world.step(&mut warm).solve.sweeps as u64;
+            total += world.step(&mut warm).sweeps as u64;
         }
     }
     total

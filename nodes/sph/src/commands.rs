@@ -55,7 +55,13 @@ pub struct GridArgs {
 impl GridArgs {
     /// The transfer configuration these arguments describe.
     pub fn transfer_config(&self) -> TransferConfig {
-        TransferConfig { kernel: self.kernel, h: self.h, mode: self.mode, search: self.search, weight_channel: self.weight_channel }
+        TransferConfig {
+            kernel: self.kernel,
+            h: self.h,
+            mode: self.mode,
+            search: self.search,
+            weight_channel: self.weight_channel,
+        }
     }
 }
 
@@ -168,9 +174,9 @@ fn study_frames(args: &StudyArgs) -> Result<(Vec<StudyFrame>, Option<Bounds>)> {
         "scattered" => (0..args.frames)
             .map(|s| frame(format!("scattered-{s}"), synth::scattered(s, 300, bounds, &sph::CONTACT_CHANNELS)))
             .collect(),
-        "isolated" => (0..args.frames)
-            .map(|s| frame(format!("isolated-{s}"), synth::isolated(s, 40, bounds, 1.1)))
-            .collect(),
+        "isolated" => {
+            (0..args.frames).map(|s| frame(format!("isolated-{s}"), synth::isolated(s, 40, bounds, 1.1))).collect()
+        }
         other => match other.strip_prefix("csv:") {
             Some(path) => {
                 let text = std::fs::read_to_string(path).with_context(|| format!("reading {path}"))?;
@@ -191,10 +197,7 @@ fn run_study(args: StudyArgs) -> Result<()> {
     eprintln!("grid rectangle {bounds:?}");
     let cases = study::cases(&args.kernels, &args.hs, &args.ress, &args.modes);
     eprintln!("{} cases x {} frames ({})", cases.len(), frames.len(), args.dataset);
-    let results = cases
-        .iter()
-        .map(|&c| study::run_case(c, &frames, bounds))
-        .collect::<Result<Vec<_>, _>>()?;
+    let results = cases.iter().map(|&c| study::run_case(c, &frames, bounds)).collect::<Result<Vec<_>, _>>()?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     std::fs::write(args.out.join("study.csv"), study::to_csv(&results))?;
     let mut md = format!("# SPH transfer-error study: {} ({} frames)\n\n", args.dataset, frames.len());

@@ -62,9 +62,7 @@ impl Bounds {
         let x1 = side(&|a| (a[0] >= cx).then_some(a[0]), f32::min, outer[2]);
         let y0 = side(&|a| (a[3] <= cy).then_some(a[3]), f32::max, outer[1]);
         let y1 = side(&|a| (a[1] >= cy).then_some(a[1]), f32::min, outer[3]);
-        Bounds::new([x0, y0], [x1, y1])
-            .or_else(|_| Bounds::new([outer[0], outer[1]], [outer[2], outer[3]]))
-            .ok()
+        Bounds::new([x0, y0], [x1, y1]).or_else(|_| Bounds::new([outer[0], outer[1]], [outer[2], outer[3]])).ok()
     }
 }
 
@@ -172,10 +170,7 @@ impl GridGeometry {
 
     /// World position `(x, y)` of node `(row, col)`.
     pub fn node_position(&self, row: usize, col: usize) -> [f32; 2] {
-        [
-            self.origin[0] + col as f32 * self.spacing,
-            self.origin[1] + row as f32 * self.spacing,
-        ]
+        [self.origin[0] + col as f32 * self.spacing, self.origin[1] + row as f32 * self.spacing]
     }
 
     /// Continuous grid coordinates `(col, row)` of a world point: node `(r, c)` maps to `(c, r)`.
@@ -196,15 +191,15 @@ impl GridGeometry {
     pub fn contains(&self, x: f32, y: f32) -> bool {
         let [c, r] = self.grid_coords(x, y);
         // NaN fails every comparison, so non-finite points are outside.
-        (0.0..=(self.width.max(1) - 1) as f32).contains(&c)
-            && (0.0..=(self.height.max(1) - 1) as f32).contains(&r)
+        (0.0..=(self.width.max(1) - 1) as f32).contains(&c) && (0.0..=(self.height.max(1) - 1) as f32).contains(&r)
     }
 
     /// Whether `(x, y)` lies within `margin` (world units) of the node rectangle.
     pub fn contains_within(&self, x: f32, y: f32, margin: f32) -> bool {
         let [c, r] = self.grid_coords(x, y);
         let m = margin / self.spacing;
-        (-m..=(self.width.max(1) - 1) as f32 + m).contains(&c) && (-m..=(self.height.max(1) - 1) as f32 + m).contains(&r)
+        (-m..=(self.width.max(1) - 1) as f32 + m).contains(&c)
+            && (-m..=(self.height.max(1) - 1) as f32 + m).contains(&r)
     }
 
     /// World position of every node, row-major (the order of a channel's values).

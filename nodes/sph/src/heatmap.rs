@@ -9,7 +9,12 @@ use std::path::Path;
 /// Pixels of one channel: `scale x scale` pixels per node, a black-red-yellow-white ramp from the
 /// channel's minimum to its maximum, and `marks` (world points, e.g. the particles) drawn as cyan
 /// dots. Returns `(width, height, rgb)` with image row 0 at the top (= the grid's highest row).
-pub fn heatmap_rgb(geometry: &GridGeometry, channel: &[f32], marks: &[[f32; 2]], scale: usize) -> (usize, usize, Vec<u8>) {
+pub fn heatmap_rgb(
+    geometry: &GridGeometry,
+    channel: &[f32],
+    marks: &[[f32; 2]],
+    scale: usize,
+) -> (usize, usize, Vec<u8>) {
     let (gw, gh) = (geometry.width, geometry.height);
     let (iw, ih) = (gw * scale, gh * scale);
     let lo = channel.iter().copied().fold(f32::INFINITY, f32::min);
@@ -47,7 +52,13 @@ fn ramp(t: f32) -> [u8; 3] {
 }
 
 /// Writes [`heatmap_rgb`] to a PNG file.
-pub fn write_heatmap(path: &Path, geometry: &GridGeometry, channel: &[f32], marks: &[[f32; 2]], scale: usize) -> Result<()> {
+pub fn write_heatmap(
+    path: &Path,
+    geometry: &GridGeometry,
+    channel: &[f32],
+    marks: &[[f32; 2]],
+    scale: usize,
+) -> Result<()> {
     let (w, h, rgb) = heatmap_rgb(geometry, channel, marks, scale);
     let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), w as u32, h as u32);

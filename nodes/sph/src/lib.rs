@@ -15,22 +15,27 @@
 //!   [`Transfer::contacts_grid`]; or the one-shot [`contacts_to_grid`].
 //!
 //! The library depends on `msgs`, `kiddo` and `thiserror` only; the `dc-sph` binary (node, study,
-//! bench) sits behind the default `node` feature.
+//! bench) and the `study` module (which takes its median from `metrics`) sit behind the default
+//! `node` feature.
 
 pub mod geometry;
 pub mod kernel;
+pub mod mode;
 pub mod pairing;
 pub mod particles;
 mod scatter;
+#[cfg(feature = "node")]
 pub mod study;
 pub mod synth;
 pub mod transfer;
 
 pub use geometry::{Bounds, GridGeometry};
 pub use kernel::{Kernel, KernelKind};
+pub use mode::Mode;
 pub use pairing::StepPairer;
 pub use particles::{ParticleSet, Source, BODY_CHANNELS, CONTACT_CHANNELS, TEMPORAL_CHANNELS, WEIGHT_CHANNEL};
-pub use transfer::{sample_bilinear, Mode, Search, SplatReport, Transfer, TransferConfig};
+pub use synth::SplitMix64;
+pub use transfer::{sample_bilinear, Search, SplatReport, Transfer, TransferConfig};
 
 use msgs::{Body, Contact, Grid, StepHeader};
 
@@ -139,11 +144,28 @@ mod tests {
     fn contact_impulses_survive_the_grid_round_trip_in_preserving_mode() {
         // The copy-grid model: exact solution -> grid -> sampled at the contacts.
         let contacts = [
-            Contact { body_a: 1, body_b: 2, x: 3.0, y: 0.0, normal_impulse: 0.8, tangent_impulse: -0.1, ..Default::default() },
-            Contact { body_a: 2, body_b: 3, x: 9.2, y: 4.4, normal_impulse: 0.3, tangent_impulse: 0.05, ..Default::default() },
+            Contact {
+                body_a: 1,
+                body_b: 2,
+                x: 3.0,
+                y: 0.0,
+                normal_impulse: 0.8,
+                tangent_impulse: -0.1,
+                ..Default::default()
+            },
+            Contact {
+                body_a: 2,
+                body_b: 3,
+                x: 9.2,
+                y: 4.4,
+                normal_impulse: 0.3,
+                tangent_impulse: 0.05,
+                ..Default::default()
+            },
         ];
         let (grid, report) =
-            contacts_to_grid(StepHeader::default(), &contacts, TransferConfig::default(), Bounds::THESIS_BOX, 0.125).unwrap();
+            contacts_to_grid(StepHeader::default(), &contacts, TransferConfig::default(), Bounds::THESIS_BOX, 0.125)
+                .unwrap();
         assert_eq!(report.outside, 0);
         let (n, t) = (grid.header.channel("normal").unwrap(), grid.header.channel("tangent").unwrap());
         for c in &contacts {
@@ -158,7 +180,8 @@ mod tests {
         let geometry = GridGeometry::from_bounds(Bounds::new([0.0, 0.0], [4.0, 4.0]).unwrap(), 0.25, 1).unwrap();
         let cfg = TransferConfig { weight_channel: true, ..Default::default() };
         let mut t = Transfer::new(cfg, geometry).unwrap();
-        let bodies = [Body { id: 0, shape: Shape::Ball as u32, x: 1.0, y: 1.0, vx: 2.0, mass: 3.0, ..Default::default() }];
+        let bodies =
+            [Body { id: 0, shape: Shape::Ball as u32, x: 1.0, y: 1.0, vx: 2.0, mass: 3.0, ..Default::default() }];
         let contacts = [Contact { x: 3.0, y: 3.0, normal_impulse: 5.0, ..Default::default() }];
         let (grid, _) = t.bodies_grid(StepHeader::default(), &bodies, Some(&contacts)).unwrap();
         let names: Vec<&str> = (0..grid.header.channels as usize).map(|c| grid.header.channel_name(c)).collect();

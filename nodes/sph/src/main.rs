@@ -13,7 +13,11 @@ use sph::{Bounds, GridGeometry, StepPairer, Transfer};
 use std::time::{Duration, Instant};
 
 #[derive(Parser, Debug)]
-#[command(name = "dc-sph", about = "SPH grid transfer node; `study` and `bench` subcommands", args_conflicts_with_subcommands = true)]
+#[command(
+    name = "dc-sph",
+    about = "SPH grid transfer node; `study` and `bench` subcommands",
+    args_conflicts_with_subcommands = true
+)]
 struct Args {
     #[command(subcommand)]
     command: Option<commands::Command>,
@@ -33,7 +37,7 @@ struct NodeArgs {
 }
 
 fn main() -> Result<()> {
-    let args: Args = runtime::parse_args();
+    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     match args.command {
         Some(command) => commands::run(command),
@@ -75,9 +79,13 @@ fn run_node(args: NodeArgs) -> Result<()> {
         }
         // Wait on the stream that is behind, so a step goes out as soon as its second half lands.
         let waited = if pairer.pending_a() > 0 {
-            contacts_sub.recv_timeout(Duration::from_millis(50)).map(|r| r.map(|r| pairer.push_b(*r.header(), r.into_frame())))
+            contacts_sub
+                .recv_timeout(Duration::from_millis(50))
+                .map(|r| r.map(|r| pairer.push_b(*r.header(), r.into_frame())))
         } else {
-            bodies_sub.recv_timeout(Duration::from_millis(50)).map(|r| r.map(|r| pairer.push_a(*r.header(), r.into_frame())))
+            bodies_sub
+                .recv_timeout(Duration::from_millis(50))
+                .map(|r| r.map(|r| pairer.push_a(*r.header(), r.into_frame())))
         };
         let waited = match waited {
             // Ctrl-C / SIGTERM interrupts the wait: that is a shutdown, not a failure.
@@ -115,7 +123,11 @@ fn run_node(args: NodeArgs) -> Result<()> {
                     steps += 1;
                     let outside = (br.outside + cr.outside) as u64;
                     if outside > 0 && outside_total == 0 {
-                        tracing::warn!(step = step.step, outside, "particles outside the grid are skipped (counted from now on)");
+                        tracing::warn!(
+                            step = step.step,
+                            outside,
+                            "particles outside the grid are skipped (counted from now on)"
+                        );
                     }
                     outside_total += outside;
                 }

@@ -65,11 +65,7 @@ impl ParticleSet {
             return Err(SphError::ChannelCount { expected: self.names.len(), got: values.len() });
         }
         if let Some(c) = values.iter().position(|v| !v.is_finite()) {
-            return Err(SphError::NonFinite {
-                particle: source,
-                what: self.names[c].clone(),
-                value: values[c],
-            });
+            return Err(SphError::NonFinite { particle: source, what: self.names[c].clone(), value: values[c] });
         }
         if let Some(axis) = position.iter().position(|v| !v.is_finite()) {
             return Err(SphError::NonFinite {

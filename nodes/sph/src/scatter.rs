@@ -2,8 +2,8 @@
 //!
 //! Layout and order, chosen by `dc-sph bench` (10,000 particles, 7 channels, 121 x 121 nodes):
 //! - particles are visited in node order, from packed copies of their positions and values (the
-//!   sort happens in [`crate::Transfer`]), so consecutive particles hit overlapping, cached nodes
-//!   and the loads are sequential;
+//!   transfer sorts them before calling in), so consecutive particles hit overlapping, cached
+//!   nodes and the loads are sequential;
 //! - each particle's window is a fixed `side x side` square of nodes (`side = ceil(2 h /
 //!   spacing)`, 8 for the thesis's h = 4 spacings): constant trip counts, which the branch
 //!   predictor learns, where a per-row chord (~50 instead of 64 nodes) lost more to mispredicted
@@ -19,7 +19,7 @@
 
 use crate::geometry::GridGeometry;
 use crate::kernel::Kernel;
-use crate::transfer::Mode;
+use crate::mode::Mode;
 use std::ops::Range;
 
 /// What every band of one frame shares.
@@ -208,7 +208,9 @@ pub(crate) fn add_row<const N: usize, const AVX: bool>(acc: &mut [f32], weights:
 #[target_feature(enable = "avx2,fma")]
 #[inline]
 unsafe fn add_row_avx<const N: usize>(acc: &mut [f32], weights: &[f32], scale: f32, v: &[f32; N]) {
-    use std::arch::x86_64::{_mm256_fmadd_ps, _mm256_maskload_ps, _mm256_maskstore_ps, _mm256_set1_epi32, _mm256_set1_ps};
+    use std::arch::x86_64::{
+        _mm256_fmadd_ps, _mm256_maskload_ps, _mm256_maskstore_ps, _mm256_set1_epi32, _mm256_set1_ps,
+    };
     let all = _mm256_set1_epi32(-1);
     let node_ptr = acc.as_mut_ptr();
     for (j, &w) in weights.iter().enumerate() {
@@ -240,7 +242,14 @@ unsafe fn add_row_sse<const N: usize>(acc: &mut [f32], weights: &[f32], scale: f
 /// Node-major accumulator blocks of one band -> the band's part of each output channel: the
 /// channel sums (divided by the summed weight in preserving mode; below `empty` a node counts as
 /// unreached and is 0), then, when `outs` has one more slice, the summed weight.
-pub(crate) fn finish_band(acc: &mut [f32], stride: usize, c_count: usize, mode: Mode, empty: f32, outs: &mut [&mut [f32]]) {
+pub(crate) fn finish_band(
+    acc: &mut [f32],
+    stride: usize,
+    c_count: usize,
+    mode: Mode,
+    empty: f32,
+    outs: &mut [&mut [f32]],
+) {
     if mode == Mode::Preserving {
         for block in acc.chunks_exact_mut(stride) {
             let w = block[c_count];

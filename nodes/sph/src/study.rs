@@ -5,9 +5,11 @@
 
 use crate::geometry::{Bounds, GridGeometry};
 use crate::kernel::KernelKind;
+use crate::mode::Mode;
 use crate::particles::{ParticleSet, Source, CONTACT_CHANNELS};
-use crate::transfer::{Mode, Search, Transfer, TransferConfig};
+use crate::transfer::{Search, Transfer, TransferConfig};
 use crate::SphError;
+use metrics::stats::median;
 use msgs::Contact;
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -60,7 +62,13 @@ pub struct CaseResult {
 /// Runs one case over `frames` on a grid covering `bounds`.
 pub fn run_case(case: StudyCase, frames: &[StudyFrame], bounds: Bounds) -> Result<CaseResult, SphError> {
     let geometry = GridGeometry::from_bounds(bounds, case.res, 1)?;
-    let config = TransferConfig { kernel: case.kernel, h: case.h, mode: case.mode, search: Search::IndexWindow, weight_channel: false };
+    let config = TransferConfig {
+        kernel: case.kernel,
+        h: case.h,
+        mode: case.mode,
+        search: Search::IndexWindow,
+        weight_channel: false,
+    };
     let mut transfer = Transfer::new(config, geometry)?;
     let (mut sq_err, mut sq_true, mut count, mut outside, mut particles) = (0.0f64, 0.0f64, 0usize, 0, 0);
     let mut ratios = Vec::new();
@@ -90,19 +98,9 @@ pub fn run_case(case: StudyCase, frames: &[StudyFrame], bounds: Bounds) -> Resul
         outside,
         mse: if count > 0 { sq_err / count as f64 } else { 0.0 },
         rel_error: if sq_true > 0.0 { (sq_err / sq_true).sqrt() } else { 0.0 },
-        scale_bias: median(&mut ratios),
+        scale_bias: median(&ratios),
         us_per_frame: if frames.is_empty() { 0.0 } else { 1e6 * elapsed / frames.len() as f64 },
     })
-}
-
-/// Median of `v` (NaN when empty).
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_unstable_by(f64::total_cmp);
-    let m = v.len() / 2;
-    if v.len() % 2 == 1 { v[m] } else { 0.5 * (v[m - 1] + v[m]) }
 }
 
 /// Every combination of the given parameters, kernel-major.
@@ -122,13 +120,25 @@ pub fn cases(kernels: &[KernelKind], hs: &[f32], ress: &[f32], modes: &[Mode]) -
 
 /// The study's results as CSV, one line per case.
 pub fn to_csv(results: &[CaseResult]) -> String {
-    let mut s = String::from("kernel,h,res,mode,width,height,particles,outside,mse,rel_error,scale_bias,us_per_frame\n");
+    let mut s =
+        String::from("kernel,h,res,mode,width,height,particles,outside,mse,rel_error,scale_bias,us_per_frame\n");
     for r in results {
         let c = r.case;
         let _ = writeln!(
             s,
             "{},{},{},{},{},{},{},{},{:.6e},{:.6},{:.6},{:.1}",
-            c.kernel, c.h, c.res, c.mode, r.grid.0, r.grid.1, r.particles, r.outside, r.mse, r.rel_error, r.scale_bias, r.us_per_frame
+            c.kernel,
+            c.h,
+            c.res,
+            c.mode,
+            r.grid.0,
+            r.grid.1,
+            r.particles,
+            r.outside,
+            r.mse,
+            r.rel_error,
+            r.scale_bias,
+            r.us_per_frame
         );
     }
     s
@@ -167,7 +177,8 @@ pub fn frames_from_contacts_csv(name: &str, text: &str) -> Result<Vec<StudyFrame
             continue;
         }
         let cols: Vec<&str> = line.split(',').map(str::trim).collect();
-        let bad = || SphError::BadParameter(format!("{name}:{}: expected frame,x,y,normal,tangent: `{line}`", line_no + 1));
+        let bad =
+            || SphError::BadParameter(format!("{name}:{}: expected frame,x,y,normal,tangent: `{line}`", line_no + 1));
         if cols.len() != 5 {
             return Err(bad());
         }
@@ -176,7 +187,10 @@ pub fn frames_from_contacts_csv(name: &str, text: &str) -> Result<Vec<StudyFrame
             Some(i) => i,
             None => {
                 keys.push(cols[0].to_string());
-                frames.push(StudyFrame { name: format!("{name}#{}", cols[0]), particles: ParticleSet::new(&CONTACT_CHANNELS) });
+                frames.push(StudyFrame {
+                    name: format!("{name}#{}", cols[0]),
+                    particles: ParticleSet::new(&CONTACT_CHANNELS),
+                });
                 frames.len() - 1
             }
         };

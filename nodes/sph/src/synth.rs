@@ -1,24 +1,33 @@
 //! Synthetic frames with known values, for the transfer-error study, the benchmark and the tests:
 //! a settled ball pile like the thesis's scene, uniformly scattered particles, and isolated ones.
-//! Deterministic from a seed (a small SplitMix64 generator, so the library needs no `rand`).
+//! Deterministic from a seed (a small [`SplitMix64`] generator, so the library needs no `rand`).
+//!
+//! [`SplitMix64`] is the workspace's one seeded generator for data (the U-Net's split and batch
+//! shuffles use it too); it is part of the light library (no feature needed).
 
 use crate::geometry::Bounds;
 use crate::particles::{ParticleSet, Source};
 use msgs::{Body, Contact, Shape};
 
-/// SplitMix64: tiny, fast, good enough for test data.
-#[derive(Debug, Clone)]
-pub struct Rng(u64);
+/// SplitMix64's increment, the golden gamma `2^64 / phi`.
+const GOLDEN_GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
 
-impl Rng {
-    /// A generator from a seed.
-    pub fn new(seed: u64) -> Rng {
-        Rng(seed ^ 0x9e37_79b9_7f4a_7c15)
+/// SplitMix64 (Steele, Lea and Flood 2014, as in Vigna's reference `splitmix64.c`): tiny, fast,
+/// deterministic across platforms and builds; good enough for test data and shuffles, not for
+/// cryptography. The state is public: `SplitMix64(s)` continues the reference generator from state
+/// `s` (its first output mixes `s + gamma`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SplitMix64(pub u64);
+
+impl SplitMix64 {
+    /// The generator with state `state` (the reference seeding: no scrambling of the seed).
+    pub fn new(state: u64) -> SplitMix64 {
+        SplitMix64(state)
     }
 
     /// The next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        self.0 = self.0.wrapping_add(GOLDEN_GAMMA);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
         z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
@@ -43,6 +52,12 @@ impl Rng {
     }
 }
 
+/// The generator of the synthetic frames for `seed`: state `seed ^ gamma` (what these frames have
+/// always used; changing it would change every synthetic frame and the study's numbers).
+fn frame_rng(seed: u64) -> SplitMix64 {
+    SplitMix64(seed ^ GOLDEN_GAMMA)
+}
+
 /// A synthetic simulation frame: bodies (walls included) and contacts with impulses.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SynthFrame {
@@ -63,7 +78,7 @@ const GRAVITY_DT: f32 = 9.81 / 100.0;
 /// number of layers above (the weight the contact carries, `m g dt` per layer) times a random factor
 /// in [0.7, 1.3], the tangent impulse is within +-0.25 of it (inside a friction cone of 0.5).
 pub fn ball_pile(seed: u64, n: usize) -> SynthFrame {
-    let mut rng = Rng::new(seed);
+    let mut rng = frame_rng(seed);
     let r = BALL_RADIUS;
     let side = Bounds::THESIS_BOX.max[0];
     let mass = std::f32::consts::PI * r * r;
@@ -119,11 +134,18 @@ pub fn ball_pile(seed: u64, n: usize) -> SynthFrame {
     .into_iter()
     .enumerate()
     {
-        bodies.push(Body { id: first_wall + k as u32, shape: Shape::Wall as u32, size: [hx, hy], x, y, ..Default::default() });
+        bodies.push(Body {
+            id: first_wall + k as u32,
+            shape: Shape::Wall as u32,
+            size: [hx, hy],
+            x,
+            y,
+            ..Default::default()
+        });
     }
 
     let mut contacts = Vec::new();
-    let mut contact = |a: u32, b: u32, p: [f32; 2], normal: [f32; 2], rng: &mut Rng| {
+    let mut contact = |a: u32, b: u32, p: [f32; 2], normal: [f32; 2], rng: &mut SplitMix64| {
         let layers_above = ((top - p[1]) / row_height).max(0.0) + 1.0;
         let lambda = mass * GRAVITY_DT * layers_above * rng.uniform(0.7, 1.3);
         contacts.push(Contact {
@@ -166,7 +188,7 @@ pub fn ball_pile(seed: u64, n: usize) -> SynthFrame {
 /// `n` particles uniformly in `bounds` with `channels` values each, smooth in space (a sum of two
 /// sinusoids per channel) plus 10% noise: a stand-in for any field on any layout, e.g. for timing.
 pub fn scattered(seed: u64, n: usize, bounds: Bounds, channels: &[&str]) -> ParticleSet {
-    let mut rng = Rng::new(seed);
+    let mut rng = frame_rng(seed);
     let mut set = ParticleSet::new(channels);
     set.reserve(n);
     let mut values = vec![0.0; channels.len()];
@@ -184,7 +206,7 @@ pub fn scattered(seed: u64, n: usize, bounds: Bounds, channels: &[&str]) -> Part
 /// Up to `n` particles in `bounds`, at least `separation` apart (rejection sampling), one channel
 /// `value` uniform in [0.1, 5]: each particle alone within its kernel support when `separation > 2h`.
 pub fn isolated(seed: u64, n: usize, bounds: Bounds, separation: f32) -> ParticleSet {
-    let mut rng = Rng::new(seed);
+    let mut rng = frame_rng(seed);
     let mut set = ParticleSet::new(&["value"]);
     let mut tries = 0;
     while set.len() < n && tries < 100 * n {
@@ -204,6 +226,19 @@ mod tests {
     use super::*;
 
     #[test]
+    fn splitmix64_matches_the_reference_sequence() {
+        // Vigna's splitmix64.c from state 0 and from state 42.
+        let mut g = SplitMix64::new(0);
+        assert_eq!(
+            [g.next_u64(), g.next_u64(), g.next_u64()],
+            [0xe220a8397b1dcdaf, 0x6e789e6aa1b965f4, 0x06c45d188009454f]
+        );
+        let mut g = SplitMix64(42);
+        assert_eq!([g.next_u64(), g.next_u64()], [0xbdd732262feb6e95, 0x28efe333b266f103]);
+        assert_eq!(g, SplitMix64(42u64.wrapping_add(GOLDEN_GAMMA.wrapping_mul(2))), "the state advances by gamma");
+    }
+
+    #[test]
     fn ball_pile_has_100_balls_inside_the_box_touching_each_other() {
         let f = ball_pile(3, 100);
         let balls: Vec<&Body> = f.bodies.iter().filter(|b| b.shape == Shape::Ball as u32).collect();
@@ -216,7 +251,10 @@ mod tests {
                 assert!((a.x - b.x).hypot(a.y - b.y) > 0.98, "overlap");
             }
         }
-        assert!(f.contacts.iter().all(|c| c.normal_impulse > 0.0 && c.tangent_impulse.abs() <= 0.25 * c.normal_impulse));
+        assert!(f
+            .contacts
+            .iter()
+            .all(|c| c.normal_impulse > 0.0 && c.tangent_impulse.abs() <= 0.25 * c.normal_impulse));
         assert_eq!(ball_pile(3, 100), f, "deterministic from the seed");
     }
 

@@ -25,6 +25,8 @@
 
 use crate::geometry::GridGeometry;
 use crate::kernel::{Kernel, KernelKind};
+// Re-exported: `sph::transfer::Mode` was defined here before it moved beside the kernels.
+pub use crate::mode::Mode;
 use crate::particles::{ParticleSet, WEIGHT_CHANNEL};
 use crate::scatter;
 use crate::SphError;
@@ -33,42 +35,6 @@ use kiddo::SquaredEuclidean;
 use msgs::{Grid, GridHeader, StepHeader};
 use std::fmt;
 use std::str::FromStr;
-
-/// How particle values become node values.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Mode {
-    /// Thesis SPH: weights normalised per particle (sum over its nodes = 1); conserves totals,
-    /// shrinks values.
-    Sph,
-    /// Shepard / SPH gather: weights normalised per node; preserves values.
-    Preserving,
-}
-
-impl Mode {
-    /// Both modes, in the order of the study's tables.
-    pub const ALL: [Mode; 2] = [Mode::Sph, Mode::Preserving];
-}
-
-impl fmt::Display for Mode {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Mode::Sph => "sph",
-            Mode::Preserving => "preserving",
-        })
-    }
-}
-
-impl FromStr for Mode {
-    type Err = SphError;
-    /// `sph` or `preserving`.
-    fn from_str(s: &str) -> Result<Mode, SphError> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "sph" => Ok(Mode::Sph),
-            "preserving" | "shepard" => Ok(Mode::Preserving),
-            _ => Err(SphError::BadParameter(format!("unknown mode `{s}` (sph, preserving)"))),
-        }
-    }
-}
 
 /// How the nodes within reach of a particle are found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -35,7 +35,15 @@ fn node_publishes_value_preserving_grids_for_each_step_and_exits_on_shutdown() {
     let mut grid_bodies = node.subscriber(topics::GRID_BODIES).unwrap();
 
     let ball = Body { id: 0, shape: Shape::Ball as u32, x: 4.0, y: 2.0, vx: 1.5, mass: 0.8, ..Default::default() };
-    let contact = Contact { body_a: 0, body_b: 1, x: 10.3, y: 6.1, normal_impulse: 0.42, tangent_impulse: -0.07, ..Default::default() };
+    let contact = Contact {
+        body_a: 0,
+        body_b: 1,
+        x: 10.3,
+        y: 6.1,
+        normal_impulse: 0.42,
+        tangent_impulse: -0.07,
+        ..Default::default()
+    };
     // Publish steps until one comes back (the first may go out before the ports are connected).
     let deadline = Instant::now() + Duration::from_secs(20);
     let mut step = 0;
@@ -64,7 +72,7 @@ fn node_publishes_value_preserving_grids_for_each_step_and_exits_on_shutdown() {
     assert!((vx - 1.5).abs() < 1e-5, "{vx}");
     assert!((sph::sample_bilinear(&bg.header, bg.channel_data(prev_normal), contact.x, contact.y) - 0.42).abs() < 1e-5);
 
-    let shutdown = ControlMsg::control(StepHeader::default(), ControlKind::Shutdown, 0, "");
+    let shutdown = ControlMsg::simple(StepHeader::default(), ControlKind::Shutdown, 0);
     let stop = Instant::now() + Duration::from_secs(10);
     loop {
         control.publish_frame(&shutdown).unwrap();

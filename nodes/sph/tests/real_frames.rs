@@ -36,7 +36,10 @@ fn preserving_transfer_keeps_the_scale_of_real_contact_impulses_within_5_percent
     for frame in &frames {
         let r = study::run_case(THESIS(Mode::Preserving), std::slice::from_ref(frame), bounds).unwrap();
         assert_eq!(r.outside, 0, "{}: wall contacts reach the grid", frame.name);
-        eprintln!("{}: {} contacts, preserving scale bias {:.4}, rel. error {:.3}", frame.name, r.particles, r.scale_bias, r.rel_error);
+        eprintln!(
+            "{}: {} contacts, preserving scale bias {:.4}, rel. error {:.3}",
+            frame.name, r.particles, r.scale_bias, r.rel_error
+        );
         assert!((r.scale_bias - 1.0).abs() <= 0.05, "{}: preserving scale bias {}", frame.name, r.scale_bias);
         biases.push(r.scale_bias);
     }

@@ -10,7 +10,7 @@ use crate::{Result, UnetError};
 use msgs::{Body, Contact, StepHeader};
 use recorder::Steps;
 use serde::{Deserialize, Serialize};
-use sph::{Bounds, GridGeometry, KernelKind, Mode, Search, Transfer, TransferConfig};
+use sph::{Bounds, GridGeometry, KernelKind, Mode, Search, SplitMix64, Transfer, TransferConfig};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
@@ -51,7 +51,8 @@ impl GridSpec {
     /// chooses it.
     pub fn geometry(&self, bodies: &[Body]) -> Result<GridGeometry> {
         let bounds = Bounds::from_walls(bodies).unwrap_or(Bounds::THESIS_BOX);
-        GridGeometry::from_bounds(bounds, self.res, self.pad_to).map_err(|e| UnetError::Config(format!("grid spec: {e}")))
+        GridGeometry::from_bounds(bounds, self.res, self.pad_to)
+            .map_err(|e| UnetError::Config(format!("grid spec: {e}")))
     }
 
     /// Input channel names, in order.
@@ -103,9 +104,11 @@ impl Split {
     /// non-zero fraction gets at least one simulation.
     pub fn by_simulation(simulations: &BTreeSet<SimKey>, validation: f64, test: f64, seed: u64) -> Split {
         let mut keys: Vec<SimKey> = simulations.iter().copied().collect();
-        let mut rng = SplitMix64(seed);
+        // The seed is the generator's state as is (not `sph::synth`'s frame seeding): splits stay as
+        // they were.
+        let mut rng = SplitMix64::new(seed);
         for i in (1..keys.len()).rev() {
-            keys.swap(i, (rng.next() % (i as u64 + 1)) as usize);
+            keys.swap(i, (rng.next_u64() % (i as u64 + 1)) as usize);
         }
         let n = keys.len();
         let at_least = |f: f64| if n >= 3 && f > 0.0 { ((f * n as f64).round() as usize).max(1) } else { 0 };
@@ -137,20 +140,6 @@ impl Split {
             Part::Validation => &self.validation,
             Part::Test => &self.test,
         }
-    }
-}
-
-/// A tiny seeded generator for shuffles (SplitMix64): deterministic across platforms and builds.
-#[derive(Debug, Clone)]
-pub struct SplitMix64(pub u64);
-
-impl SplitMix64 {
-    pub fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
     }
 }
 
@@ -210,7 +199,8 @@ impl SampleStream {
         let sim = (key.run_id, key.simulation);
         if self.transfer.as_ref().map(|(k, _)| *k) != Some(sim) {
             let geometry = self.spec.geometry(bodies)?;
-            self.transfer = Some((sim, Transfer::new(self.config, geometry).map_err(|e| UnetError::Config(e.to_string()))?));
+            self.transfer =
+                Some((sim, Transfer::new(self.config, geometry).map_err(|e| UnetError::Config(e.to_string()))?));
         }
         let (_, transfer) = self.transfer.as_mut().expect("set above");
         let context = |e: sph::SphError| {
@@ -239,9 +229,10 @@ impl Iterator for SampleStream {
             }
             let current = (key, step.bodies.items, step.contacts.items);
             // Only a direct predecessor of the same run and simulation pairs with this step.
-            let pair = self.previous.take().filter(|(p, _, _)| {
-                p.run_id == key.run_id && p.simulation == key.simulation && p.step + 1 == key.step
-            });
+            let pair = self
+                .previous
+                .take()
+                .filter(|(p, _, _)| p.run_id == key.run_id && p.simulation == key.simulation && p.step + 1 == key.step);
             let out = pair.map(|p| self.make(&p, &current.2));
             self.previous = Some(current);
             if let Some(sample) = out {

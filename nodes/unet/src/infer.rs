@@ -1,8 +1,8 @@
 //! Inference: a received bodies grid in, the predicted impulse grid out (de-normalised, with the
 //! input's geometry so the simulator samples it where the nodes really are).
 
-use crate::modelfile::{ModelFile, ModelMeta};
 use crate::model::UNet;
+use crate::modelfile::{ModelFile, ModelMeta};
 use crate::{Result, UnetError};
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
@@ -61,7 +61,11 @@ impl Predictor {
             )));
         }
         if grid.items.len() != h.len() {
-            return Err(UnetError::Input(format!("grid holds {} values, its header announces {}", grid.items.len(), h.len())));
+            return Err(UnetError::Input(format!(
+                "grid holds {} values, its header announces {}",
+                grid.items.len(),
+                h.len()
+            )));
         }
         Ok(())
     }

@@ -9,7 +9,6 @@
 
 pub mod data;
 pub mod infer;
-pub mod inprocess;
 pub mod model;
 pub mod modelfile;
 pub mod schedule;
@@ -66,7 +65,11 @@ pub fn device(name: &str) -> Result<Device> {
         "libtorch" | "tch" => Ok(Device::libtorch()),
         #[cfg(feature = "tch")]
         n if n == "cuda" || n.starts_with("cuda:") => {
-            let index = n.strip_prefix("cuda:").map(|i| i.parse::<usize>()).transpose().map_err(|e| UnetError::Config(format!("device `{n}`: {e}")))?;
+            let index = n
+                .strip_prefix("cuda:")
+                .map(|i| i.parse::<usize>())
+                .transpose()
+                .map_err(|e| UnetError::Config(format!("device `{n}`: {e}")))?;
             Ok(Device::libtorch_cuda(index.unwrap_or(0)))
         }
         other => Err(UnetError::Config(format!(

@@ -12,7 +12,11 @@ use unet::train::{OptimizerKind, TrainOptions};
 use unet::{GridSpec, ModelFile, Predictor, UNetConfig};
 
 #[derive(Parser, Debug)]
-#[command(name = "dc-unet", about = "U-Net warm-start node; `train`, `lr-find`, `info`, `bench` subcommands", args_conflicts_with_subcommands = true)]
+#[command(
+    name = "dc-unet",
+    about = "U-Net warm-start node; `train`, `lr-find`, `info`, `bench` subcommands",
+    args_conflicts_with_subcommands = true
+)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -45,28 +49,6 @@ enum Command {
     SphArgs { model: PathBuf },
     /// Inference and training-step timings per backend.
     Bench(BenchArgs),
-    /// The closed loop (sim, SPH, U-Net, statistics, recording) in this one process, no bus;
-    /// prints one JSON line (steps, loop seconds, sweeps, fallbacks). `dc bench loop` compares it
-    /// with the same loop as a graph.
-    LoopBench(LoopBenchArgs),
-}
-
-#[derive(Args, Debug)]
-struct LoopBenchArgs {
-    #[arg(long, default_value = "models/unet-demo.dcu")]
-    model: PathBuf,
-    #[arg(long, default_value = "0..2")]
-    seeds: String,
-    #[arg(long, default_value_t = 100)]
-    steps: u32,
-    /// Dynamic bodies (ball-box scene).
-    #[arg(long, default_value_t = 40)]
-    n: usize,
-    /// Where the recording goes.
-    #[arg(long)]
-    record: PathBuf,
-    #[arg(long, default_value = "flex")]
-    device: String,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -105,7 +87,14 @@ struct NetArgs {
 
 impl NetArgs {
     fn grid(&self) -> GridSpec {
-        GridSpec { kernel: self.kernel.clone(), h: self.h, res: self.res, mode: self.mode.clone(), pad_to: self.pad_to, temporal: !self.no_temporal }
+        GridSpec {
+            kernel: self.kernel.clone(),
+            h: self.h,
+            res: self.res,
+            mode: self.mode.clone(),
+            pad_to: self.pad_to,
+            temporal: !self.no_temporal,
+        }
     }
     fn net(&self) -> UNetConfig {
         let temporal = !self.no_temporal;
@@ -213,7 +202,7 @@ struct BenchArgs {
 }
 
 fn main() -> Result<()> {
-    let cli: Cli = runtime::parse_args();
+    let Some(cli) = runtime::parse_args::<Cli>() else { return Ok(()) };
     runtime::init_logging();
     match cli.command {
         None => run_node(cli.node),
@@ -251,15 +240,6 @@ fn main() -> Result<()> {
             Ok(())
         }
         Some(Command::Bench(a)) => bench(&a),
-        Some(Command::LoopBench(a)) => {
-            let device = unet::device(&a.device)?;
-            let predictor = unet::Predictor::load(&a.model, &device)?;
-            let seeds = msgs::parse_seeds(&a.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
-            let scene = sim::SceneConfig { n: a.n, ..Default::default() };
-            let run = unet::inprocess::run_loop(&predictor, &scene, sim::WorldParams::default(), &seeds, a.steps, &a.record)?;
-            println!("{}", serde_json::to_string(&run)?);
-            Ok(())
-        }
     }
 }
 
@@ -277,7 +257,10 @@ fn print_summary(path: &std::path::Path, meta: &unet::ModelMeta) {
     );
     println!("  epochs: {}, {:.0} s", t.epochs, t.seconds);
     println!("  train loss per epoch: {:?}", t.train_loss.iter().map(|l| format!("{l:.4}")).collect::<Vec<_>>());
-    println!("  validation loss per epoch: {:?}", t.validation_loss.iter().map(|l| format!("{l:.4}")).collect::<Vec<_>>());
+    println!(
+        "  validation loss per epoch: {:?}",
+        t.validation_loss.iter().map(|l| format!("{l:.4}")).collect::<Vec<_>>()
+    );
     if let Some(p) = t.validation_loss_previous {
         println!("  validation loss of the previous step's impulses (the `grid` model): {p:.4}");
     }
@@ -286,7 +269,8 @@ fn print_summary(path: &std::path::Path, meta: &unet::ModelMeta) {
 /// The node: one prediction per received bodies grid, batched when several wait.
 fn run_node(args: NodeArgs) -> Result<()> {
     let device = unet::device(&args.device)?;
-    let predictor = Predictor::load(&args.model, &device).with_context(|| format!("loading the model {}", args.model.display()))?;
+    let predictor =
+        Predictor::load(&args.model, &device).with_context(|| format!("loading the model {}", args.model.display()))?;
     let node = runtime::Node::from_env("dc-unet")?;
     let mut grids_in = node.subscriber::<GridHeader, f32>(topics::GRID_BODIES)?;
     let mut control = node.subscriber(topics::CONTROL)?;
@@ -318,9 +302,13 @@ fn run_node(args: NodeArgs) -> Result<()> {
         while let Some(c) = control.try_recv()? {
             node.observe_control(c.header());
             if c.header().kind() == Some(ControlKind::RunStart) {
-                let details: serde_json::Value = serde_json::from_str(&String::from_utf8_lossy(c.items())).unwrap_or_default();
-                let model = details.get("model").and_then(|m| m.as_str()).unwrap_or("");
-                run_uses_unet.insert(c.header().step.run_id, model == "unet");
+                match msgs::control::details_of(c.header(), c.items()) {
+                    Ok(msgs::ControlDetails::RunStart(p)) => {
+                        run_uses_unet.insert(c.header().step.run_id, p.model == "unet");
+                    }
+                    // Unknown runs are served (see below).
+                    other => tracing::warn!("control: a run start whose details do not decode: {other:?}"),
+                }
             }
         }
         // Grids of runs with another warm-start model (an evaluation runs several) are drained
@@ -364,17 +352,15 @@ fn run_node(args: NodeArgs) -> Result<()> {
     Ok(())
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 fn bench(args: &BenchArgs) -> Result<()> {
     use burn::module::Module;
     use burn::optim::{AdamConfig, GradientsParams};
     use burn::tensor::{Distribution, Tensor};
-    let devices: Vec<String> =
-        if args.devices.is_empty() { unet::backends().iter().filter(|d| **d != "cuda").map(|d| d.to_string()).collect() } else { args.devices.clone() };
+    let devices: Vec<String> = if args.devices.is_empty() {
+        unet::backends().iter().filter(|d| **d != "cuda").map(|d| d.to_string()).collect()
+    } else {
+        args.devices.clone()
+    };
     let reps = args.reps.max(1);
     println!("dc-unet bench: median of {reps} runs after one warm-up; input 128 x 128, 5 channels (thesis input)");
     println!("| net | params | device | infer b=1 ms | infer b=16 ms | train step b=8 ms |");
@@ -383,7 +369,14 @@ fn bench(args: &BenchArgs) -> Result<()> {
     for net_name in &args.nets {
         let config = match net_name.as_str() {
             "demo" => UNetConfig { in_channels: 5, residual: None, ..UNetConfig::default() },
-            "thesis" => UNetConfig { in_channels: 5, out_channels: 2, levels: 4, base_width: 16, dilations: vec![2, 4, 8], residual: None },
+            "thesis" => UNetConfig {
+                in_channels: 5,
+                out_channels: 2,
+                levels: 4,
+                base_width: 16,
+                dilations: vec![2, 4, 8],
+                residual: None,
+            },
             other => bail!("unknown net `{other}` (demo, thesis)"),
         };
         for name in &devices {
@@ -402,7 +395,7 @@ fn bench(args: &BenchArgs) -> Result<()> {
                         times.push(t.elapsed().as_secs_f64() * 1e3);
                     }
                 }
-                Ok(median(times))
+                Ok(metrics::stats::median(&times))
             };
             let b1 = time(1)?;
             let b16 = time(16)?;
@@ -422,7 +415,7 @@ fn bench(args: &BenchArgs) -> Result<()> {
                     times.push(t.elapsed().as_secs_f64() * 1e3);
                 }
             }
-            let step = median(times);
+            let step = metrics::stats::median(&times);
             println!("| {net_name} | {} | {name} | {b1:.2} | {b16:.1} | {step:.0} |", model.num_params());
             rows.push((net_name.clone(), name.clone(), b1));
         }

@@ -34,7 +34,14 @@ pub struct UNetConfig {
 
 impl Default for UNetConfig {
     fn default() -> Self {
-        UNetConfig { in_channels: 7, out_channels: 2, levels: 3, base_width: 8, dilations: vec![2, 4, 8], residual: Some([5, 6]) }
+        UNetConfig {
+            in_channels: 7,
+            out_channels: 2,
+            levels: 3,
+            base_width: 8,
+            dilations: vec![2, 4, 8],
+            residual: Some([5, 6]),
+        }
     }
 }
 

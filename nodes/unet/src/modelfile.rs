@@ -123,9 +123,9 @@ fn parse(bytes: &[u8]) -> std::result::Result<(ModelMeta, &[u8]), String> {
             .get(at..at + 8)
             .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize)
             .ok_or_else(|| format!("file ends before the {what} length (truncated?)"))?;
-        let body = bytes
-            .get(at + 8..at + 8 + len)
-            .ok_or_else(|| format!("{what} announces {len} bytes, the file holds {} (truncated?)", bytes.len().saturating_sub(at + 8)))?;
+        let body = bytes.get(at + 8..at + 8 + len).ok_or_else(|| {
+            format!("{what} announces {len} bytes, the file holds {} (truncated?)", bytes.len().saturating_sub(at + 8))
+        })?;
         at += 8 + len;
         Ok(body)
     };

@@ -8,12 +8,23 @@ use std::f64::consts::PI;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
 pub enum Schedule {
-    Constant { lr: f64 },
+    Constant {
+        lr: f64,
+    },
     /// Smith's triangular cycle: `min -> max -> min` over `2 * half_cycle` steps, repeated.
-    Triangular { min: f64, max: f64, half_cycle: usize },
+    Triangular {
+        min: f64,
+        max: f64,
+        half_cycle: usize,
+    },
     /// SGDR: cosine from `max` down to `min` over `period` steps, then restart; each period is
     /// `mult` times the previous one.
-    CosineRestarts { min: f64, max: f64, period: usize, mult: f64 },
+    CosineRestarts {
+        min: f64,
+        max: f64,
+        period: usize,
+        mult: f64,
+    },
 }
 
 impl Schedule {
@@ -44,10 +55,18 @@ impl Schedule {
     pub fn parse(s: &str) -> Result<Schedule, String> {
         let parts: Vec<&str> = s.split(':').collect();
         let f = |i: usize| -> Result<f64, String> {
-            parts.get(i).ok_or_else(|| format!("schedule `{s}`: missing field {i}"))?.parse::<f64>().map_err(|e| format!("schedule `{s}`: {e}"))
+            parts
+                .get(i)
+                .ok_or_else(|| format!("schedule `{s}`: missing field {i}"))?
+                .parse::<f64>()
+                .map_err(|e| format!("schedule `{s}`: {e}"))
         };
         let n = |i: usize| -> Result<usize, String> {
-            parts.get(i).ok_or_else(|| format!("schedule `{s}`: missing field {i}"))?.parse::<usize>().map_err(|e| format!("schedule `{s}`: {e}"))
+            parts
+                .get(i)
+                .ok_or_else(|| format!("schedule `{s}`: missing field {i}"))?
+                .parse::<usize>()
+                .map_err(|e| format!("schedule `{s}`: {e}"))
         };
         let schedule = match parts[0] {
             "constant" => Schedule::Constant { lr: f(1)? },
@@ -62,7 +81,9 @@ impl Schedule {
         };
         let rates_ok = match schedule {
             Schedule::Constant { lr } => lr > 0.0,
-            Schedule::Triangular { min, max, .. } | Schedule::CosineRestarts { min, max, .. } => min >= 0.0 && max > min,
+            Schedule::Triangular { min, max, .. } | Schedule::CosineRestarts { min, max, .. } => {
+                min >= 0.0 && max > min
+            }
         };
         if !rates_ok {
             return Err(format!("schedule `{s}`: rates must be positive with max > min"));

@@ -2,16 +2,17 @@
 //! a schedule, validation each epoch, checkpoints with resume, loss curves as PNG, and the
 //! learning-rate finder.
 
-use crate::data::{GridSpec, Normalization, Part, Sample, SampleStream, Split, SplitMix64};
+use crate::data::{GridSpec, Normalization, Part, Sample, SampleStream, Split};
 use crate::model::{UNet, UNetConfig};
 use crate::modelfile::{ModelFile, ModelMeta, TrainingSummary};
 use crate::schedule::{self, Schedule};
 use crate::{Result, UnetError};
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer, SgdConfig, momentum::MomentumConfig};
+use burn::optim::{momentum::MomentumConfig, AdamConfig, GradientsParams, ModuleOptimizer, SgdConfig};
 use burn::tensor::{Bytes, Device, Tensor, TensorData};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
+use sph::SplitMix64;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -131,7 +132,7 @@ struct Batcher {
 
 impl Batcher {
     fn new(stream: SampleStream, capacity: usize, seed: u64) -> Batcher {
-        Batcher { stream, buffer: Vec::new(), capacity: capacity.max(1), rng: SplitMix64(seed), exhausted: false }
+        Batcher { stream, buffer: Vec::new(), capacity: capacity.max(1), rng: SplitMix64::new(seed), exhausted: false }
     }
 
     /// Tops the buffer up to capacity from the stream.
@@ -154,7 +155,7 @@ impl Batcher {
             if self.buffer.is_empty() {
                 break;
             }
-            let i = (self.rng.next() % self.buffer.len() as u64) as usize;
+            let i = (self.rng.next_u64() % self.buffer.len() as u64) as usize;
             out.push(self.buffer.swap_remove(i));
         }
         Ok(out)
@@ -186,7 +187,15 @@ fn optimizer(kind: OptimizerKind) -> ModuleOptimizer {
 
 /// Validation losses: the model's (normalised MSE, unweighted) and, for residual models, the
 /// loss of answering "the previous impulses".
-pub fn evaluate(model: &UNet, meta: &ModelMeta, data: &Path, part: Part, split: &Split, batch: usize, device: &Device) -> Result<(f64, Option<f64>, usize)> {
+pub fn evaluate(
+    model: &UNet,
+    meta: &ModelMeta,
+    data: &Path,
+    part: Part,
+    split: &Split,
+    batch: usize,
+    device: &Device,
+) -> Result<(f64, Option<f64>, usize)> {
     let model = model.valid();
     let stream = SampleStream::open(data, &meta.grid, split, part)?;
     let (mut sum, mut sum_prev, mut n) = (0.0f64, 0.0f64, 0usize);
@@ -232,7 +241,12 @@ fn prepare(opts: &TrainOptions) -> Result<(ModelMeta, usize)> {
     if split.train.is_empty() {
         return Err(UnetError::Data(format!("{}: no simulation left for training", opts.data.display())));
     }
-    tracing::info!(train = split.train.len(), validation = split.validation.len(), test = split.test.len(), "split by simulation");
+    tracing::info!(
+        train = split.train.len(),
+        validation = split.validation.len(),
+        test = split.test.len(),
+        "split by simulation"
+    );
     let stream = SampleStream::open(&opts.data, &opts.grid, &split, Part::Train)?;
     let mut shape = None;
     let shaped = stream.map(|s| {
@@ -240,7 +254,8 @@ fn prepare(opts: &TrainOptions) -> Result<(ModelMeta, usize)> {
         shape.get_or_insert([s.height, s.width]);
         Ok(s)
     });
-    let (normalization, train_samples) = Normalization::compute(shaped, opts.net.in_channels, opts.net.out_channels, opts.net.residual)?;
+    let (normalization, train_samples) =
+        Normalization::compute(shaped, opts.net.in_channels, opts.net.out_channels, opts.net.residual)?;
     let grid_shape = shape.expect("at least one sample");
     if grid_shape.iter().any(|&n| n % opts.net.size_multiple() != 0) {
         return Err(UnetError::Config(format!(
@@ -309,7 +324,11 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
     let split = meta.training.split.clone();
     let batches_per_epoch = {
         let full = meta.training.train_samples.div_ceil(opts.batch.max(1));
-        if opts.max_batches > 0 { full.min(opts.max_batches) } else { full }
+        if opts.max_batches > 0 {
+            full.min(opts.max_batches)
+        } else {
+            full
+        }
     };
     tracing::info!(
         params = model.num_params(),
@@ -330,7 +349,8 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
     let mut step_losses: Vec<(f64, f64)> = Vec::new();
     for epoch in first_epoch..opts.epochs {
         let stream = SampleStream::open(&opts.data, &meta.grid, &split, Part::Train)?;
-        let mut batcher = Batcher::new(stream, opts.shuffle_buffer, opts.seed ^ (epoch as u64 + 1).wrapping_mul(0x9E37_79B9));
+        let mut batcher =
+            Batcher::new(stream, opts.shuffle_buffer, opts.seed ^ (epoch as u64 + 1).wrapping_mul(0x9E37_79B9));
         let bar = progress_bar(batches_per_epoch as u64, opts.progress, format!("epoch {}/{}", epoch + 1, opts.epochs));
         let (mut sum, mut seen) = (0.0f64, 0usize);
         let epoch_start = Instant::now();
@@ -383,10 +403,19 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
     Ok(meta)
 }
 
-fn save_checkpoint(dir: &Path, epoch: usize, step: usize, meta: &ModelMeta, model: &UNet, optim: &ModuleOptimizer) -> Result<()> {
+fn save_checkpoint(
+    dir: &Path,
+    epoch: usize,
+    step: usize,
+    meta: &ModelMeta,
+    model: &UNet,
+    optim: &ModuleOptimizer,
+) -> Result<()> {
     let io = |p: &Path, e: std::io::Error| UnetError::Io(p.display().to_string(), e);
     ModelFile::save(meta, model, &dir.join("model.dcu"))?;
-    let bytes = optim.into_bytes().map_err(|e| UnetError::Model(dir.display().to_string(), format!("optimiser state: {e:?}")))?;
+    let bytes = optim
+        .into_bytes()
+        .map_err(|e| UnetError::Model(dir.display().to_string(), format!("optimiser state: {e:?}")))?;
     let opt_path = dir.join("optimizer.bpk");
     std::fs::write(&opt_path, &*bytes).map_err(|e| io(&opt_path, e))?;
     let state = CheckpointState { epoch, optimizer_step: step, meta: meta.clone() };
@@ -466,7 +495,13 @@ fn write_loss_plot(out: &Path, meta: &ModelMeta, step_losses: &[(f64, f64)]) -> 
 /// The learning-rate finder: trains a fresh model for `steps` batches with the rate growing
 /// exponentially from `start` to `end`, stops when the loss blows up, writes the curve as CSV and
 /// PNG beside `opts.out`, and returns the curve and the suggested rate.
-pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: &Device) -> Result<(Vec<(f64, f64)>, Option<f64>)> {
+pub fn find_lr(
+    opts: &TrainOptions,
+    start: f64,
+    end: f64,
+    steps: usize,
+    device: &Device,
+) -> Result<(Vec<(f64, f64)>, Option<f64>)> {
     let (meta, _) = prepare(opts)?;
     let train_device = device.clone().autodiff();
     train_device.seed(opts.seed);
@@ -476,7 +511,11 @@ pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: 
     let mut best = f64::INFINITY;
     let bar = progress_bar(steps as u64, opts.progress, "lr finder".into());
     let mut epoch = 0u64;
-    let mut batcher = Batcher::new(SampleStream::open(&opts.data, &meta.grid, &meta.training.split, Part::Train)?, opts.shuffle_buffer, opts.seed);
+    let mut batcher = Batcher::new(
+        SampleStream::open(&opts.data, &meta.grid, &meta.training.split, Part::Train)?,
+        opts.shuffle_buffer,
+        opts.seed,
+    );
     for i in 0..steps {
         let mut samples = batcher.next_batch(opts.batch)?;
         if samples.is_empty() {

@@ -4,8 +4,9 @@
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Distribution, Tensor};
+use msgs::FrameKind;
 use msgs::{ControlKind, ControlMsg, StepHeader};
-use recorder::{FrameKind, RecordingWriter};
+use recorder::RecordingWriter;
 use std::path::{Path, PathBuf};
 use unet::data::{list_simulations, Normalization, Part, SampleStream, Split};
 use unet::schedule::Schedule;
@@ -35,7 +36,7 @@ fn record_simulations(path: &Path, run_id: u64, seeds: &[u64], steps: u32) {
         w.write(topic, FrameKind::of_topic(topic).unwrap(), t, t, &data).unwrap();
     };
     let run = StepHeader { run_id, simulation: 0, step: 0 };
-    put(&mut w, "control", msgs::encode(&ControlMsg::control(run, ControlKind::RunStart, seeds.len() as u32, "{}")).unwrap());
+    put(&mut w, "control", msgs::encode(&ControlMsg::simple(run, ControlKind::RunStart, seeds.len() as u32)).unwrap());
     let (mut bodies, mut contacts) = (Vec::new(), Vec::new());
     for &seed in seeds {
         let config = SceneConfig { n: 20, seed, side: Some(15.0), ..SceneConfig::default() };
@@ -67,8 +68,16 @@ fn small_net() -> UNetConfig {
 #[test]
 fn shapes_hold_for_several_sizes_levels_and_batches() {
     let d = device();
-    for (levels, [h, w], batch, c_in) in [(1, [8, 8], 1, 5), (2, [32, 64], 3, 7), (3, [64, 32], 2, 7), (4, [128, 128], 1, 5)] {
-        let config = UNetConfig { in_channels: c_in, levels, base_width: 4, residual: (c_in == 7).then_some([5, 6]), ..UNetConfig::default() };
+    for (levels, [h, w], batch, c_in) in
+        [(1, [8, 8], 1, 5), (2, [32, 64], 3, 7), (3, [64, 32], 2, 7), (4, [128, 128], 1, 5)]
+    {
+        let config = UNetConfig {
+            in_channels: c_in,
+            levels,
+            base_width: 4,
+            residual: (c_in == 7).then_some([5, 6]),
+            ..UNetConfig::default()
+        };
         let model = config.init(&d);
         let y = model.forward(Tensor::<4>::random([batch, c_in, h, w], Distribution::Default, &d));
         assert_eq!(y.dims(), [batch, 2, h, w], "levels {levels}, {h} x {w}");
@@ -107,7 +116,10 @@ fn overfitting_a_tiny_batch_cuts_the_loss_a_hundredfold() {
     let mut model = config.init(&d);
     // A target the input determines: a smooth function of two input channels.
     let x = Tensor::<4>::random([2, 5, 16, 16], Distribution::Default, &d);
-    let y = Tensor::cat(vec![x.clone().slice([0..2, 0..1, 0..16, 0..16]) * 0.5, x.clone().slice([0..2, 1..2, 0..16, 0..16]).tanh()], 1);
+    let y = Tensor::cat(
+        vec![x.clone().slice([0..2, 0..1, 0..16, 0..16]) * 0.5, x.clone().slice([0..2, 1..2, 0..16, 0..16]).tanh()],
+        1,
+    );
     let mut optim = AdamConfig::new().init();
     let mut first = None;
     let mut last = f32::NAN;
@@ -127,7 +139,12 @@ fn meta_for(config: &UNetConfig, shape: [usize; 2]) -> unet::ModelMeta {
     unet::ModelMeta {
         config: config.clone(),
         grid: small_spec(),
-        normalization: Normalization { input_mean: vec![0.1; c], input_std: vec![2.0; c], target_mean: vec![0.2, -0.1], target_std: vec![3.0, 0.5] },
+        normalization: Normalization {
+            input_mean: vec![0.1; c],
+            input_std: vec![2.0; c],
+            target_mean: vec![0.2, -0.1],
+            target_std: vec![3.0, 0.5],
+        },
         input_channels: small_spec().input_channels(),
         output_channels: vec!["normal".into(), "tangent".into()],
         grid_shape: shape,
@@ -221,7 +238,12 @@ fn a_grid_of_the_wrong_size_or_channels_is_rejected_with_both_shapes() {
 
 #[test]
 fn normalisation_round_trips_and_residual_channels_share_the_target_statistics() {
-    let n = Normalization { input_mean: vec![1.0, -2.0], input_std: vec![0.5, 4.0], target_mean: vec![0.3, 0.0], target_std: vec![2.0, 1.0] };
+    let n = Normalization {
+        input_mean: vec![1.0, -2.0],
+        input_std: vec![0.5, 4.0],
+        target_mean: vec![0.3, 0.0],
+        target_std: vec![2.0, 1.0],
+    };
     let original: Vec<f32> = (0..8).map(|i| i as f32 * 0.7 - 1.0).collect();
     let mut v = original.clone();
     n.normalize_target(&mut v);
@@ -324,7 +346,11 @@ fn training_writes_a_usable_model_and_resume_continues_where_it_stopped() {
 
     // The written model predicts a recorded frame's grid.
     let predictor = Predictor::load(&out, &d).unwrap();
-    let sample = SampleStream::open(&data, &small_spec(), &meta.training.split, Part::Validation).unwrap().next().unwrap().unwrap();
+    let sample = SampleStream::open(&data, &small_spec(), &meta.training.split, Part::Validation)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap();
     let names = small_spec().input_channels();
     let names: Vec<&str> = names.iter().map(String::as_str).collect();
     let mut grid = msgs::Grid::zeros(sample.key, [0.0, 0.0], 0.25, 64, 64, &names);

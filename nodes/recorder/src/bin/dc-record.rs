@@ -3,8 +3,8 @@
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
+use msgs::HasStep;
 use msgs::{ControlKind, FrameHeader, FrameItem};
-use recorder::kind::HasStep;
 use recorder::{FrameKind, RecordingWriter};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -48,7 +48,7 @@ enum Command {
 }
 
 fn main() -> anyhow::Result<()> {
-    let args: Args = runtime::parse_args();
+    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     match &args.command {
         Some(Command::Info { file }) => {
@@ -117,12 +117,18 @@ impl<H: FrameHeader + HasStep, T: FrameItem> RecordedTopic for Typed<H, T> {
 
 fn subscribe(node: &runtime::Node, topic: &str) -> anyhow::Result<Box<dyn RecordedTopic>> {
     let kind = FrameKind::of_topic(topic)
-        .with_context(|| format!("unknown topic `{topic}` (known: {})", msgs::topics::ALL.join(", ")))?;
+        .with_context(|| format!("unknown topic `{topic}` (known: {})", msgs::topics::names_list()))?;
     Ok(match kind {
-        FrameKind::Bodies => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::Body>(topic)? }),
-        FrameKind::Contacts => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::Contact>(topic)? }),
+        FrameKind::Bodies => {
+            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::Body>(topic)? })
+        }
+        FrameKind::Contacts => {
+            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::Contact>(topic)? })
+        }
         FrameKind::Grid => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::GridHeader, f32>(topic)? }),
-        FrameKind::SolveStats => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::SolveStatsHeader, f32>(topic)? }),
+        FrameKind::SolveStats => {
+            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::SolveStatsHeader, f32>(topic)? })
+        }
         FrameKind::Control => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::Control, u8>(topic)? }),
     })
 }
@@ -211,11 +217,8 @@ impl Files<'_> {
 
 fn record(args: &Args) -> anyhow::Result<()> {
     let node = runtime::Node::from_env("dc-record")?;
-    let names: Vec<String> = if args.topics.is_empty() {
-        msgs::topics::ALL.iter().map(|s| s.to_string()).collect()
-    } else {
-        args.topics.clone()
-    };
+    let names: Vec<String> =
+        if args.topics.is_empty() { msgs::topics::names().map(str::to_string).collect() } else { args.topics.clone() };
     let mut subs = names.iter().map(|t| subscribe(&node, t)).collect::<anyhow::Result<Vec<_>>>()?;
     // Control last in every pass: the data a control message follows is taken first.
     subs.sort_by_key(|s| s.kind() == FrameKind::Control);
@@ -290,8 +293,15 @@ fn record(args: &Args) -> anyhow::Result<()> {
                             open.last_flush = Instant::now();
                         }
                         Some(ControlKind::RunStart) => {
-                            let details = msgs::decode::<msgs::Control, u8>(&data)?;
-                            let details = String::from_utf8_lossy(&details.items).into_owned();
+                            // The run's parameters as JSON text, readable by any MCAP tool.
+                            let msg = msgs::decode::<msgs::Control, u8>(&data)?;
+                            let details = match msg.details() {
+                                Ok(msgs::ControlDetails::RunStart(p)) => serde_json::to_string(&p)?,
+                                other => {
+                                    tracing::warn!("control: a run start whose details do not decode: {other:?}");
+                                    String::new()
+                                }
+                            };
                             let meta = BTreeMap::from([
                                 ("run_id".to_string(), step.run_id.to_string()),
                                 ("details".to_string(), details),
@@ -356,7 +366,8 @@ fn record(args: &Args) -> anyhow::Result<()> {
             wall_s: elapsed,
             cpu_s: recorder::bench::process_cpu_seconds(),
         };
-        std::fs::write(path, serde_json::to_string_pretty(&stats)?).with_context(|| format!("writing {}", path.display()))?;
+        std::fs::write(path, serde_json::to_string_pretty(&stats)?)
+            .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
 }

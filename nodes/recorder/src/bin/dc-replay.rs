@@ -78,7 +78,7 @@ fn publisher(node: &runtime::Node, kind: FrameKind, topic: &str) -> anyhow::Resu
 }
 
 fn main() -> anyhow::Result<()> {
-    let args: Args = runtime::parse_args();
+    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     let files = recorder::recording_files(&args.input)?;
     let remap: HashMap<String, String> = args.remap.iter().cloned().collect();

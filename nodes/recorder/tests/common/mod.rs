@@ -23,20 +23,35 @@ pub fn namespace(test: &str) -> String {
 
 pub fn bodies(s: StepHeader, n: usize) -> msgs::Bodies {
     let items = (0..n)
-        .map(|i| Body { id: i as u32, x: s.step as f32 + i as f32 * 0.5, y: s.simulation as f32, mass: 1.0, ..Default::default() })
+        .map(|i| Body {
+            id: i as u32,
+            x: s.step as f32 + i as f32 * 0.5,
+            y: s.simulation as f32,
+            mass: 1.0,
+            ..Default::default()
+        })
         .collect();
     msgs::Frame::new(s, items)
 }
 
 pub fn contacts(s: StepHeader, n: usize) -> msgs::Contacts {
     let items = (0..n)
-        .map(|i| Contact { body_a: i as u32, body_b: i as u32 + 1, normal_impulse: s.step as f32 * 0.25, ny: 1.0, ..Default::default() })
+        .map(|i| Contact {
+            body_a: i as u32,
+            body_b: i as u32 + 1,
+            normal_impulse: s.step as f32 * 0.25,
+            ny: 1.0,
+            ..Default::default()
+        })
         .collect();
     msgs::Frame::new(s, items)
 }
 
 pub fn stats(s: StepHeader) -> msgs::SolveStats {
-    msgs::Frame::new(SolveStatsHeader { step: s, sweeps: 3 + s.step, converged: 1, ..Default::default() }, vec![0.1, 0.01, 0.001])
+    let model = msgs::name16("builtin");
+    let header =
+        SolveStatsHeader { step: s, model, used_model: model, sweeps: 3 + s.step, converged: 1, ..Default::default() };
+    msgs::Frame::new(header, vec![0.1, 0.01, 0.001])
 }
 
 /// Writes one run the way `dc-record` lays it out: control, then per step bodies, contacts and
@@ -55,28 +70,46 @@ pub fn write_run(
         w.write(topic, FrameKind::of_topic(topic).unwrap(), t, t, &data).unwrap();
     };
     let run = StepHeader { run_id, simulation: 0, step: 0 };
-    put(writer, "control", msgs::encode(&ControlMsg::control(run, ControlKind::RunStart, simulations, "{\"model\":\"builtin\"}")).unwrap());
+    let params = msgs::RunParams {
+        scene: "ball-box".into(),
+        n: 4,
+        seeds: (0..simulations as u64).collect(),
+        steps,
+        model: "builtin".into(),
+        fallback: "builtin".into(),
+        tolerance: 1e-4,
+        max_sweeps: 1000,
+        sampler: "native".into(),
+        dt: 0.01,
+    };
+    put(writer, "control", msgs::encode(&ControlMsg::run_start(run, &params)).unwrap());
     for sim in 0..simulations {
         let s0 = StepHeader { run_id, simulation: sim, step: 0 };
-        put(writer, "control", msgs::encode(&ControlMsg::control(s0, ControlKind::SimulationStart, steps, "")).unwrap());
+        let scene = msgs::SceneInfo { seed: sim as u64, side: 15.0, bodies: 8, dynamic: 4, omega: 0.0 };
+        put(writer, "control", msgs::encode(&ControlMsg::simulation_start(s0, steps, &scene)).unwrap());
         for step in 0..steps {
             let s = StepHeader { run_id, simulation: sim, step };
             put(writer, "bodies", msgs::encode(&bodies(s, 4)).unwrap());
             put(writer, "contacts", msgs::encode(&contacts(s, step as usize % 3)).unwrap());
             put(writer, "stats/solve", msgs::encode(&stats(s)).unwrap());
         }
-        put(writer, "control", msgs::encode(&ControlMsg::control(s0, ControlKind::SimulationEnd, steps, "")).unwrap());
+        put(writer, "control", msgs::encode(&ControlMsg::simple(s0, ControlKind::SimulationEnd, steps)).unwrap());
         writer.flush().unwrap();
         hook(writer, sim);
     }
-    put(writer, "control", msgs::encode(&ControlMsg::control(run, ControlKind::RunEnd, simulations, "")).unwrap());
+    put(writer, "control", msgs::encode(&ControlMsg::simple(run, ControlKind::RunEnd, simulations)).unwrap());
     writer.messages()
 }
 
 /// A finished recording of one run.
 pub fn fixture(path: &Path, run_id: u64, simulations: u32, steps: u32) -> u64 {
     let mut w = RecordingWriter::create(path).unwrap();
-    for (topic, kind) in [("control", FrameKind::Control), ("bodies", FrameKind::Bodies), ("contacts", FrameKind::Contacts), ("stats/solve", FrameKind::SolveStats)] {
+    for (topic, kind) in [
+        ("control", FrameKind::Control),
+        ("bodies", FrameKind::Bodies),
+        ("contacts", FrameKind::Contacts),
+        ("stats/solve", FrameKind::SolveStats),
+    ] {
         w.add_channel(topic, kind).unwrap();
     }
     let n = write_run(&mut w, run_id, simulations, steps, |_, _| {});

@@ -36,7 +36,10 @@ fn find_dc() -> Result<PathBuf> {
     let beside = std::env::current_exe().ok().and_then(|exe| exe.parent().map(|d| d.join("dc")));
     beside
         .filter(|p| p.is_file())
-        .or_else(|| std::env::var_os("PATH").and_then(|paths| std::env::split_paths(&paths).map(|d| d.join("dc")).find(|p| p.is_file())))
+        .or_else(|| {
+            std::env::var_os("PATH")
+                .and_then(|paths| std::env::split_paths(&paths).map(|d| d.join("dc")).find(|p| p.is_file()))
+        })
         .context("no `dc` beside dc-record or on PATH (cargo build --workspace --bins)")
 }
 
@@ -44,7 +47,8 @@ fn launch_file(args: &BenchArgs, recording: &Path, stats: &Path) -> Result<Strin
     let topics = match args.transport.as_str() {
         "iceoryx2" => String::new(),
         "zenoh" | "both" => {
-            let lines: String = STEP_TOPICS.iter().chain(&["control"]).map(|t| format!("\"{t}\" = \"{}\"\n", args.transport)).collect();
+            let lines: String =
+                STEP_TOPICS.iter().chain(&["control"]).map(|t| format!("\"{t}\" = \"{}\"\n", args.transport)).collect();
             format!("[topics]\n{lines}\n")
         }
         other => bail!("unknown transport `{other}` (iceoryx2, zenoh, both)"),
@@ -111,7 +115,8 @@ fn run_in(args: &BenchArgs, dir: &Path, namespace: &str) -> Result<()> {
         bail!("the graph failed ({}):\n{}", out.status, tail.into_iter().rev().collect::<Vec<_>>().join("\n"));
     }
     let stats: RecorderStats = serde_json::from_str(
-        &std::fs::read_to_string(&stats_file).with_context(|| format!("the recorder wrote no counts to {}", stats_file.display()))?,
+        &std::fs::read_to_string(&stats_file)
+            .with_context(|| format!("the recorder wrote no counts to {}", stats_file.display()))?,
     )?;
     let info = recorder::Info::read(&recording)?;
     // One simulation (seed 0) publishes `steps` frames on each step topic.

@@ -1,0 +1,142 @@
+//! The per-step solver statistics, defined once: [`StepStats`] is what the simulator measures,
+//! what the metrics node aggregates and writes as CSV, and what the Foxglove bridge shows as JSON
+//! (all through serde); [`SolveStatsHeader`] is its fixed-size wire form.
+
+use crate::{name16, name16_str, SolveStatsHeader, StepHeader};
+use serde::{Deserialize, Serialize};
+
+/// One step's solve, as the simulator reported it.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct StepStats {
+    /// The run (a text string in JSON and CSV: ids exceed 2^53, which JavaScript numbers lose).
+    #[serde(with = "crate::id_text")]
+    pub run_id: u64,
+    pub simulation: u32,
+    pub step: u32,
+    /// The warm-start model that was asked for.
+    pub model: String,
+    /// The model actually used (differs from `model` on a fallback).
+    pub used_model: String,
+    pub contacts: u32,
+    /// Contacts that persisted from the previous step (matched by body pair and feature).
+    pub persisting_contacts: u32,
+    pub sweeps: u32,
+    /// Whether the solve reached the tolerance before the sweep cap.
+    pub converged: bool,
+    /// Whether the model's warm start was late or missing and `used_model` stood in.
+    pub fallback: bool,
+    /// Fallbacks in this simulation so far.
+    pub fallbacks_total: u32,
+    /// Largest impulse change of the last sweep.
+    pub final_residual: f32,
+    /// Mean squared error of the warm start's normal impulses vs the solution.
+    pub warm_error_normal_mse: f32,
+    /// Largest absolute error of the warm start's normal impulses.
+    pub warm_error_normal_max: f32,
+    pub warm_error_tangent_mse: f32,
+    pub warm_error_tangent_max: f32,
+    /// Wall time of the velocity solve only, microseconds.
+    pub solve_us: f32,
+    /// Wall time of the whole step (collision, warm start, solve, integrate), microseconds.
+    pub step_us: f32,
+    /// Wall time spent obtaining the warm start (including waiting for a grid), microseconds.
+    pub warm_start_us: f32,
+    /// Kinetic energy (linear + rotational) of the dynamic bodies after the step, J.
+    pub kinetic_energy: f32,
+    /// Largest speed of a dynamic body after the step, m/s.
+    pub max_speed: f32,
+}
+
+impl StepStats {
+    /// The statistics of a `stats/solve` header.
+    pub fn from_header(h: &SolveStatsHeader) -> StepStats {
+        StepStats {
+            run_id: h.step.run_id,
+            simulation: h.step.simulation,
+            step: h.step.step,
+            model: name16_str(&h.model).to_string(),
+            used_model: name16_str(&h.used_model).to_string(),
+            contacts: h.contacts,
+            persisting_contacts: h.persisting_contacts,
+            sweeps: h.sweeps,
+            converged: h.converged != 0,
+            fallback: h.fallback != 0,
+            fallbacks_total: h.fallbacks_total,
+            final_residual: h.final_residual,
+            warm_error_normal_mse: h.warm_error_normal_mse,
+            warm_error_normal_max: h.warm_error_normal_max,
+            warm_error_tangent_mse: h.warm_error_tangent_mse,
+            warm_error_tangent_max: h.warm_error_tangent_max,
+            solve_us: h.solve_us,
+            step_us: h.step_us,
+            warm_start_us: h.warm_start_us,
+            kinetic_energy: h.kinetic_energy,
+            max_speed: h.max_speed,
+        }
+    }
+
+    /// The wire header (model names truncated to 16 bytes).
+    pub fn to_header(&self) -> SolveStatsHeader {
+        SolveStatsHeader {
+            step: self.step_header(),
+            model: name16(&self.model),
+            used_model: name16(&self.used_model),
+            contacts: self.contacts,
+            persisting_contacts: self.persisting_contacts,
+            sweeps: self.sweeps,
+            converged: self.converged as u32,
+            fallback: self.fallback as u32,
+            fallbacks_total: self.fallbacks_total,
+            final_residual: self.final_residual,
+            warm_error_normal_mse: self.warm_error_normal_mse,
+            warm_error_normal_max: self.warm_error_normal_max,
+            warm_error_tangent_mse: self.warm_error_tangent_mse,
+            warm_error_tangent_max: self.warm_error_tangent_max,
+            solve_us: self.solve_us,
+            step_us: self.step_us,
+            warm_start_us: self.warm_start_us,
+            kinetic_energy: self.kinetic_energy,
+            max_speed: self.max_speed,
+        }
+    }
+
+    pub fn step_header(&self) -> StepHeader {
+        StepHeader { run_id: self.run_id, simulation: self.simulation, step: self.step }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn header_round_trip() {
+        let s = StepStats {
+            run_id: u64::MAX - 3,
+            simulation: 4,
+            step: 17,
+            model: "unet".into(),
+            used_model: "builtin".into(),
+            contacts: 300,
+            persisting_contacts: 290,
+            sweeps: 1000,
+            converged: false,
+            fallback: true,
+            fallbacks_total: 2,
+            final_residual: 2e-4,
+            warm_error_normal_mse: 0.5,
+            solve_us: 1234.5,
+            max_speed: 3.0,
+            ..StepStats::default()
+        };
+        assert_eq!(StepStats::from_header(&s.to_header()), s);
+    }
+
+    #[test]
+    fn json_has_a_text_run_id() {
+        let s = StepStats { run_id: 1796139974837132098, ..StepStats::default() };
+        let json = serde_json::to_string(&s).unwrap();
+        assert!(json.contains(r#""run_id":"1796139974837132098""#), "{json}");
+        assert_eq!(serde_json::from_str::<StepStats>(&json).unwrap(), s);
+    }
+}

@@ -1,0 +1,210 @@
+//! The simulator's step loop: every seed of a run with one warm-start model, the run's control
+//! messages, and each step's bodies, contacts and statistics handed to a [`RunSink`]. `dc-sim`
+//! publishes them on the bus; the one-process loop (`dc-loop-bench`) records them and computes
+//! the next warm start itself. Both solve exactly the same steps.
+
+use crate::error::SimError;
+use crate::scene::SceneConfig;
+use crate::warm::WarmStarter;
+use crate::world::{World, WorldParams};
+use msgs::{ControlKind, ControlMsg, RunParams, RunSummary, SceneInfo, StepHeader};
+use std::time::Instant;
+
+/// One run: a model over seeds.
+#[derive(Debug, Clone)]
+pub struct RunSpec {
+    /// The scene; its seed is replaced by each seed of the run.
+    pub scene: SceneConfig,
+    pub params: WorldParams,
+    pub seeds: Vec<u64>,
+    pub steps: u32,
+    pub run_id: u64,
+}
+
+/// One step's outputs, borrowed from the world.
+pub struct StepOutput<'a> {
+    pub header: StepHeader,
+    pub bodies: &'a [msgs::Body],
+    pub contacts: &'a [msgs::Contact],
+    pub stats: &'a msgs::StepStats,
+    /// Residual after each sweep, at most [`msgs::MAX_RESIDUALS`].
+    pub residuals: &'a [f32],
+}
+
+/// Where a run's messages go.
+pub trait RunSink {
+    /// Run and simulation start / end.
+    fn control(&mut self, msg: &ControlMsg) -> Result<(), SimError>;
+    /// Before step `step` of `simulation`: false stops the run (a shutdown).
+    fn before_step(&mut self, _simulation: u32, _step: u32) -> bool {
+        true
+    }
+    /// A solved step.
+    fn step(&mut self, out: &StepOutput<'_>) -> Result<(), SimError>;
+}
+
+/// The run's parameters as its run start announces them.
+pub fn run_params(spec: &RunSpec, warm: &WarmStarter) -> RunParams {
+    RunParams {
+        scene: spec.scene.kind.name().to_string(),
+        n: spec.scene.n as u64,
+        seeds: spec.seeds.clone(),
+        steps: spec.steps,
+        model: warm.model.name().to_string(),
+        fallback: warm.fallback.name().to_string(),
+        tolerance: spec.params.solve.tolerance,
+        max_sweeps: spec.params.solve.max_sweeps,
+        sampler: format!("{:?}", spec.scene.sampler).to_lowercase(),
+        dt: spec.params.dt,
+    }
+}
+
+/// Runs every seed of `spec` with `warm`, handing everything to `sink`; returns the run's totals.
+pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Result<RunSummary, SimError> {
+    let run_id = spec.run_id;
+    let run_header = StepHeader { run_id, simulation: 0, step: 0 };
+    sink.control(&ControlMsg::run_start(run_header, &run_params(spec, warm)))?;
+    tracing::info!(run_id, simulations = spec.seeds.len(), model = warm.model.name(), "run start");
+    let mut summary = RunSummary {
+        run_id,
+        model: warm.model.name().to_string(),
+        steps: 0,
+        loop_secs: 0.0,
+        total_sweeps: 0,
+        fallbacks: 0,
+    };
+    let (mut bodies, mut contacts) = (Vec::new(), Vec::new());
+    'run: for &seed in &spec.seeds {
+        let simulation = u32::try_from(seed).map_err(|_| SimError::InvalidParameter {
+            name: "seeds",
+            value: seed.to_string(),
+            why: "seeds must fit in u32 (they are simulation ids)".into(),
+        })?;
+        let mut world = World::new(&SceneConfig { seed, ..spec.scene.clone() }, spec.params)?;
+        world.set_ids(run_id, simulation);
+        warm.begin_simulation(simulation, seed);
+        let sim_header = StepHeader { run_id, simulation, step: 0 };
+        let scene = SceneInfo {
+            seed,
+            side: world.scene().side,
+            bodies: world.bodies().len() as u64,
+            dynamic: world.scene().dynamic_count() as u64,
+            omega: world.scene().omega,
+        };
+        sink.control(&ControlMsg::simulation_start(sim_header, spec.steps, &scene))?;
+        let (mut sweeps, mut unconverged) = (0u64, 0u32);
+        let started = Instant::now();
+        let mut stopped = false;
+        for step in 0..spec.steps {
+            if !sink.before_step(simulation, step) {
+                stopped = true;
+                break;
+            }
+            world.step(warm);
+            world.body_msgs(&mut bodies);
+            world.contact_msgs(&mut contacts);
+            let stats = world.stats();
+            sweeps += stats.sweeps as u64;
+            unconverged += (!stats.converged) as u32;
+            let residuals = &world.residuals()[..world.residuals().len().min(msgs::MAX_RESIDUALS)];
+            let header = StepHeader { run_id, simulation, step };
+            sink.step(&StepOutput { header, bodies: &bodies, contacts: &contacts, stats, residuals })?;
+        }
+        let steps = world.steps_taken();
+        sink.control(&ControlMsg::simple(StepHeader { step: steps, ..sim_header }, ControlKind::SimulationEnd, steps))?;
+        let secs = started.elapsed().as_secs_f64();
+        tracing::info!(
+            seed,
+            steps,
+            total_sweeps = sweeps,
+            unconverged,
+            fallbacks = warm.fallbacks_total(),
+            secs,
+            "simulation done"
+        );
+        summary.steps += steps as u64;
+        summary.loop_secs += secs;
+        summary.total_sweeps += sweeps;
+        summary.fallbacks += warm.fallbacks_total() as u64;
+        if stopped {
+            break 'run;
+        }
+    }
+    sink.control(&ControlMsg::simple(run_header, ControlKind::RunEnd, spec.seeds.len() as u32))?;
+    tracing::info!(run_id, "run end");
+    Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::warm::ModelKind;
+
+    /// Keeps what a run hands out.
+    #[derive(Default)]
+    struct Collect {
+        controls: Vec<ControlMsg>,
+        steps: Vec<msgs::StepStats>,
+        stop_at: Option<(u32, u32)>,
+    }
+
+    impl RunSink for Collect {
+        fn control(&mut self, msg: &ControlMsg) -> Result<(), SimError> {
+            self.controls.push(msg.clone());
+            Ok(())
+        }
+        fn before_step(&mut self, simulation: u32, step: u32) -> bool {
+            self.stop_at != Some((simulation, step))
+        }
+        fn step(&mut self, out: &StepOutput<'_>) -> Result<(), SimError> {
+            assert_eq!(out.header, out.stats.step_header());
+            assert!(out.residuals.len() <= msgs::MAX_RESIDUALS);
+            self.steps.push(out.stats.clone());
+            Ok(())
+        }
+    }
+
+    fn spec(seeds: Vec<u64>, steps: u32) -> RunSpec {
+        RunSpec {
+            scene: SceneConfig { n: 20, ..SceneConfig::default() },
+            params: WorldParams::default(),
+            seeds,
+            steps,
+            run_id: 42,
+        }
+    }
+
+    #[test]
+    fn a_run_announces_itself_and_sums_its_steps() {
+        let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+        let mut sink = Collect::default();
+        let summary = run(&spec(vec![3, 5], 30), &mut warm, &mut sink).unwrap();
+        let kinds: Vec<_> = sink.controls.iter().map(|c| c.header.kind().unwrap()).collect();
+        use ControlKind::*;
+        assert_eq!(kinds, [RunStart, SimulationStart, SimulationEnd, SimulationStart, SimulationEnd, RunEnd]);
+        match sink.controls[0].details().unwrap() {
+            msgs::ControlDetails::RunStart(p) => {
+                assert_eq!((p.model.as_str(), p.seeds.as_slice(), p.steps), ("builtin", &[3u64, 5][..], 30));
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(sink.controls[1].details().unwrap(), msgs::ControlDetails::SimulationStart(s) if s.seed == 3));
+        assert_eq!(sink.steps.len(), 60);
+        assert_eq!(summary.steps, 60);
+        assert_eq!(summary.total_sweeps, sink.steps.iter().map(|s| s.sweeps as u64).sum::<u64>());
+        assert!(sink.steps.iter().all(|s| s.run_id == 42 && s.model == "builtin" && s.used_model == "builtin"));
+        assert_eq!((sink.steps[30].simulation, sink.steps[30].step), (5, 0));
+    }
+
+    #[test]
+    fn a_sink_can_stop_the_run() {
+        let mut warm = WarmStarter::local(ModelKind::None, 0).unwrap();
+        let mut sink = Collect { stop_at: Some((0, 10)), ..Collect::default() };
+        let summary = run(&spec(vec![0, 1], 30), &mut warm, &mut sink).unwrap();
+        assert_eq!((summary.steps, sink.steps.len()), (10, 10));
+        let ends: Vec<_> =
+            sink.controls.iter().filter(|c| c.header.kind() == Some(ControlKind::SimulationEnd)).collect();
+        assert_eq!((ends.len(), ends[0].header.count), (1, 10), "the stopped simulation ends with the steps it took");
+        assert_eq!(sink.controls.last().unwrap().header.kind(), Some(ControlKind::RunEnd));
+    }
+}
