@@ -280,7 +280,7 @@ fn bench_bus(count: u32, latency_count: u32) -> Result<()> {
         ("10,000 bodies", vec!["--kind=bodies".into(), "--n=10000".into()]),
         ("grid 7x128x128", vec!["--kind=grid".into()]),
     ];
-    let common = vec![format!("--count={count}"), format!("--latency-count={latency_count}")];
+    let common = [format!("--count={count}"), format!("--latency-count={latency_count}")];
     let flag = interrupt_flag();
     println!(
         "{:<16} {:<10} {:>10} {:>10} {:>12} {:>10}",

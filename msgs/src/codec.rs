@@ -68,7 +68,7 @@ pub fn decode<H: FrameHeader, T: FrameItem>(bytes: &[u8]) -> Result<Frame<H, T>,
     let wire: WireIn<H> = ciborium::from_reader(bytes).map_err(|e| CodecError::Cbor(e.to_string()))?;
     check_version(wire.v)?;
     let size = std::mem::size_of::<T>();
-    if size == 0 || wire.i.len() % size != 0 {
+    if size == 0 || !wire.i.len().is_multiple_of(size) {
         return Err(CodecError::Length { bytes: wire.i.len(), item_size: size, item_type: std::any::type_name::<T>() });
     }
     let items: Vec<T> = bytemuck::pod_collect_to_vec(&wire.i);

@@ -89,6 +89,7 @@ pub mod entity_ids {
 
 /// The scene of one step: walls, balls (discs with an orientation mark), boxes, polygons and contact
 /// normals as arrows scaled by their normal impulse. Bodies with an unknown shape code are skipped.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(length > 0)` on purpose: NaN draws nothing
 pub fn scene_update(
     step: &StepHeader,
     bodies: &[Body],

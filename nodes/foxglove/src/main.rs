@@ -141,7 +141,7 @@ impl<H: FrameHeader, T: FrameItem> Typed<H, T> {
         let topic = self.sub.topic().to_string();
         if let Err(e) = (self.handle)(bridge, &topic, r.header(), r.items(), now_ns()) {
             self.errors += 1;
-            if self.errors <= 10 || self.errors % 1000 == 0 {
+            if self.errors <= 10 || self.errors.is_multiple_of(1000) {
                 tracing::warn!(topic = %topic, skipped = self.errors, "{e}");
             }
         }

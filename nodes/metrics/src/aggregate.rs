@@ -43,6 +43,7 @@ pub enum Phase {
 /// speed stays at or below `settle_speed`. Speed, not the contact count: a diagnosis of the
 /// ball-box scene found the count stable from step ~150 while balls still flew at 2-5 m/s into
 /// the pile, so a count-based rule called a still-moving pile settled.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(v <= settle)` on purpose: NaN is not slow
 pub fn settle_step(max_speed_per_step: &[f32], settle_speed: f32) -> usize {
     max_speed_per_step.iter().rposition(|&v| !(v <= settle_speed)).map_or(0, |last_fast| last_fast + 1)
 }

@@ -208,7 +208,8 @@ fn info_and_replay_refuse_bad_input_naming_the_file() {
     let future = dir.join("future.mcap");
     let mut w = recorder::RecordingWriter::create(&future).unwrap();
     let next = (msgs::WIRE_VERSION + 1).to_string();
-    let meta = BTreeMap::from([("type".to_string(), "dc::Bodies".to_string()), ("wire_version".to_string(), next.clone())]);
+    let meta =
+        BTreeMap::from([("type".to_string(), "dc::Bodies".to_string()), ("wire_version".to_string(), next.clone())]);
     let id = w.add_raw_channel("bodies", "cbor", &meta).unwrap();
     w.write_to_channel(id, 1, 1, b"from the future").unwrap();
     w.finish().unwrap();

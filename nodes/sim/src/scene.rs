@@ -304,6 +304,7 @@ impl Placer {
     }
 
     /// Whether a body of bounding radius `rad` fits at `p` (walls and earlier bodies).
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(a < b)` on purpose: NaN counts as overlapping
     fn fits(&self, p: [f32; 2], rad: f64) -> bool {
         let walls = [self.hi[0] - p[0], self.hi[1] - p[1], p[0] - self.lo[0], p[1] - self.lo[1]];
         if walls.iter().any(|&d| (d as f64) < rad) {
@@ -426,6 +427,8 @@ impl Scene {
             SceneKind::BallBox | SceneKind::Drum => {
                 // The original code draws the radii first: `min_r + rand(n) * (max_r - min_r)`.
                 let r = config.radius as f64;
+                // `max_r - min_r` is 0 here, but the draw must happen: it moves the generator.
+                #[allow(clippy::eq_op)]
                 let radii: Vec<f64> = (0..config.n).map(|_| r + rng.uniform() * (r - r)).collect();
                 let mut placer = Placer::new(side, r);
                 for (i, &rad) in radii.iter().enumerate() {

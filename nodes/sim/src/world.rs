@@ -445,7 +445,7 @@ impl World {
             }
         }
         // Stable sort: equal keys (never expected for convex shapes) keep rapier's order.
-        self.staging.sort_by(|a, b| a.0.cmp(&b.0));
+        self.staging.sort_by_key(|a| a.0);
         self.contacts.clear();
         self.position_rows.clear();
         self.contacts.extend(self.staging.iter().map(|s| s.1));

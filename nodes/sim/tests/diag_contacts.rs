@@ -247,7 +247,7 @@ fn diagnose_pair() {
     let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
     for _ in 0..260 {
         let s = world.step(&mut warm).clone();
-        if s.step < 100 || s.step % 3 != 0 {
+        if s.step < 100 || !s.step.is_multiple_of(3) {
             continue;
         }
         let (ba, bb) = (&world.bodies()[a as usize], &world.bodies()[b as usize]);

@@ -44,7 +44,7 @@ fn grid_model_samples_the_previous_steps_grid_at_the_contacts() {
 fn late_grid_falls_back_to_the_named_model_and_is_counted() {
     // Grids arrive only for even steps.
     let source = |run: u64, sim: u32, step: u32| {
-        (step % 2 == 0).then(|| constant_grid(StepHeader { run_id: run, simulation: sim, step }, 1.0, 0.0))
+        step.is_multiple_of(2).then(|| constant_grid(StepHeader { run_id: run, simulation: sim, step }, 1.0, 0.0))
     };
     let model = GridModel::new("grid", Box::new(source));
     let mut warm = WarmStarter::new(Box::new(model), ModelKind::None.build(0).unwrap());

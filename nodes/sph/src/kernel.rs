@@ -122,6 +122,7 @@ impl Kernel {
     /// `W` from the squared distance, which is what the neighbour searches return (Poly6 and the
     /// Gaussian then need no square root).
     #[inline]
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(r2 < h2)` on purpose: NaN is outside the support
     pub fn eval_r2(&self, r2: f32) -> f32 {
         if !(r2 < self.h2) {
             return 0.0;

@@ -83,8 +83,7 @@ impl<A, B> StepPairer<A, B> {
     pub fn pop(&mut self) -> Option<(StepHeader, A, B)> {
         let mut found = None;
         for lane in self.lanes.values_mut() {
-            loop {
-                let (Some(fa), Some(fb)) = (lane.a.front(), lane.b.front()) else { break };
+            while let (Some(fa), Some(fb)) = (lane.a.front(), lane.b.front()) {
                 let (ha, hb) = (fa.0, fb.0);
                 if ha == hb {
                     let (h, a) = lane.a.pop_front().expect("front exists");

@@ -177,13 +177,13 @@ pub(crate) fn add_row<const N: usize, const AVX: bool>(acc: &mut [f32], weights:
     assert_eq!(acc.len(), weights.len() * N, "one block per weight");
     #[cfg(target_arch = "x86_64")]
     {
-        if AVX && N % 8 == 0 {
+        if AVX && N.is_multiple_of(8) {
             // SAFETY: AVX is true only in the variant compiled for, and detected on, AVX2 + FMA
             // CPUs; the lengths were checked above.
             unsafe { add_row_avx::<N>(acc, weights, scale, v) };
             return;
         }
-        if N % 4 == 0 {
+        if N.is_multiple_of(4) {
             // SAFETY: SSE is baseline on x86-64; the lengths were checked above.
             unsafe { add_row_sse::<N>(acc, weights, scale, v) };
             return;

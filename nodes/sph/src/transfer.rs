@@ -142,6 +142,7 @@ pub struct Transfer {
 
 impl Transfer {
     /// A transfer onto `geometry`; fails on a non-positive `h` or an empty grid.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(spacing > 0)` on purpose: NaN is refused too
     pub fn new(config: TransferConfig, geometry: GridGeometry) -> Result<Transfer, SphError> {
         let kernel = config.kernel.with_support(config.h)?;
         if geometry.nodes() == 0 || !(geometry.spacing > 0.0) {

@@ -492,16 +492,13 @@ fn write_loss_plot(out: &Path, meta: &ModelMeta, step_losses: &[(f64, f64)]) -> 
     Ok(())
 }
 
+/// A learning-rate curve (rate, loss) and the suggested rate.
+pub type LrCurve = (Vec<(f64, f64)>, Option<f64>);
+
 /// The learning-rate finder: trains a fresh model for `steps` batches with the rate growing
 /// exponentially from `start` to `end`, stops when the loss blows up, writes the curve as CSV and
 /// PNG beside `opts.out`, and returns the curve and the suggested rate.
-pub fn find_lr(
-    opts: &TrainOptions,
-    start: f64,
-    end: f64,
-    steps: usize,
-    device: &Device,
-) -> Result<(Vec<(f64, f64)>, Option<f64>)> {
+pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: &Device) -> Result<LrCurve> {
     let (meta, _) = prepare(opts)?;
     let train_device = device.clone().autodiff();
     train_device.seed(opts.seed);
