@@ -473,9 +473,7 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
         bail!("--models is empty");
     }
     for m in &args.models {
-        if msgs::models::model(m).is_none() {
-            bail!("--models: unknown warm-start model `{m}` (known: {})", msgs::models::names_list());
-        }
+        msgs::models::parse(m).map_err(|e| anyhow::anyhow!("--models: {e}"))?;
     }
     let jobs = args.jobs.clamp(1, args.models.len());
     let title = format!(
@@ -492,8 +490,9 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
     // warm-start grid); it serves every simulator of the graph. With `unet` it makes the model's
     // input grids (e.g. temporal, padded to 128); padding leaves the `grid` model's samples
     // unchanged (the extra nodes lie outside the box).
-    let reads =
-        |topic: &str| args.models.iter().any(|m| msgs::models::model(m).and_then(|i| i.grid_topic) == Some(topic));
+    let reads = |topic: &str| {
+        args.models.iter().any(|m| msgs::models::parse(m).ok().and_then(|(i, _)| i.grid_topic) == Some(topic))
+    };
     let uses_unet = reads(msgs::topics::GRID_UNET.name);
     let grid_based = uses_unet || reads(msgs::topics::GRID_CONTACTS.name);
     let mut sph_args = vec!["--mode=preserving".to_string()];

@@ -4,12 +4,24 @@
 use crate::topics;
 
 /// One warm-start model.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ModelInfo {
     pub name: &'static str,
     /// The grid topic a grid-based model reads its warm start from (None: computed in the simulator).
     pub grid_topic: Option<&'static str>,
+    /// The model's one numeric parameter, written `name:value` (`blend:0.75`), if it has one.
+    pub param: Option<Param>,
     pub about: &'static str,
+}
+
+/// A model's numeric parameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Param {
+    /// What it is, for help texts.
+    pub what: &'static str,
+    pub default: f32,
+    pub min: f32,
+    pub max: f32,
 }
 
 impl ModelInfo {
@@ -18,33 +30,91 @@ impl ModelInfo {
     }
 }
 
-/// Every model, in the order of the thesis's table.
+const fn plain(name: &'static str, about: &'static str) -> ModelInfo {
+    ModelInfo { name, grid_topic: None, param: None, about }
+}
+
+/// Every model: the thesis's table, then the oracle ablations and baselines of the accuracy ->
+/// sweeps curve, then the grid-based models.
 pub const MODELS: &[ModelInfo] = &[
-    ModelInfo { name: "none", grid_topic: None, about: "cold start: zero impulses" },
-    ModelInfo { name: "builtin", grid_topic: None, about: "the previous step's impulse of each persisting contact" },
-    ModelInfo { name: "copy", grid_topic: None, about: "oracle: the step's own solution" },
-    ModelInfo { name: "copy0", grid_topic: None, about: "oracle rounded to 0 decimals" },
-    ModelInfo { name: "copy2", grid_topic: None, about: "oracle rounded to 2 decimals" },
-    ModelInfo { name: "bad", grid_topic: None, about: "a deliberately wrong warm start" },
-    ModelInfo { name: "random", grid_topic: None, about: "random impulses of the solution's scale" },
-    ModelInfo { name: "extrapolate", grid_topic: None, about: "linear extrapolation of the last two steps" },
+    plain("none", "cold start: zero impulses"),
+    plain("builtin", "the previous step's impulse of each persisting contact, 0 on new ones"),
+    plain("copy", "oracle: the step's problem solved from builtin's warm start to the oracle tolerance"),
+    plain("copy0", "oracle rounded to 0 decimals"),
+    plain("copy2", "oracle rounded to 2 decimals"),
+    plain("bad", "a deliberately wrong warm start (50 everywhere)"),
+    plain("random", "random impulses of the solution's scale"),
     ModelInfo {
-        name: "copy-grid",
+        name: "extrapolate",
         grid_topic: None,
-        about: "oracle through the value-preserving grid transfer and back",
+        param: Some(Param { what: "beta: l1 + beta (l1 - l2)", default: 1.0, min: 0.0, max: 2.0 }),
+        about: "damped extrapolation of the last two steps (beta 1: linear)",
     },
-    ModelInfo { name: "copy-grid-sph", grid_topic: None, about: "oracle through the thesis's grid transfer and back" },
+    plain("builtin-reappear", "builtin, and a contact new this step that existed two steps ago gets that impulse"),
+    plain("copy-persisting", "oracle on persisting contacts, 0 on new ones"),
+    plain("copy-new", "builtin on persisting contacts, the oracle on new ones"),
+    ModelInfo {
+        name: "blend",
+        grid_topic: None,
+        param: Some(Param { what: "F: builtin + F (oracle - builtin)", default: 0.5, min: 0.0, max: 1.0 }),
+        about: "a fraction F of builtin's error removed",
+    },
+    ModelInfo {
+        name: "noise",
+        grid_topic: None,
+        param: Some(Param { what: "S: noise of S x builtin's RMS error", default: 1.0, min: 0.0, max: 100.0 }),
+        about: "the oracle plus Gaussian noise of S times builtin's RMS error (per step)",
+    },
+    plain("smooth-error", "the oracle plus the smooth part of builtin's error (averaged over the contact graph)"),
+    plain("rough-error", "the oracle plus the rest of builtin's error (its local, high-frequency part)"),
+    plain("copy-grid", "oracle through the value-preserving grid transfer and back"),
+    plain("copy-grid-sph", "oracle through the thesis's grid transfer and back"),
     ModelInfo {
         name: "grid",
         grid_topic: Some(topics::GRID_CONTACTS.name),
+        param: None,
         about: "the previous step's impulses through the SPH node's grid",
     },
-    ModelInfo { name: "unet", grid_topic: Some(topics::GRID_UNET.name), about: "the U-Net's predicted impulse grid" },
+    ModelInfo {
+        name: "unet",
+        grid_topic: Some(topics::GRID_UNET.name),
+        param: None,
+        about: "the U-Net's predicted impulse grid",
+    },
 ];
 
-/// The model called `name`.
+/// The model of a name, without a parameter (`blend`, not `blend:0.5`).
 pub fn model(name: &str) -> Option<&'static ModelInfo> {
     MODELS.iter().find(|m| m.name == name)
+}
+
+/// Parses `name` or `name:value` into the model and its parameter (the default when omitted).
+pub fn parse(spec: &str) -> Result<(&'static ModelInfo, Option<f32>), String> {
+    let (name, value) = match spec.split_once(':') {
+        Some((n, v)) => (n, Some(v)),
+        None => (spec, None),
+    };
+    let info = model(name).ok_or_else(|| format!("unknown warm-start model `{name}` (known: {})", names_list()))?;
+    if spec.len() > 16 {
+        return Err(format!("`{spec}` is longer than 16 bytes, the statistics' name field (write fewer digits)"));
+    }
+    match (info.param, value) {
+        (None, None) => Ok((info, None)),
+        (None, Some(_)) => Err(format!("model `{name}` takes no parameter (`{spec}`)")),
+        (Some(p), None) => Ok((info, Some(p.default))),
+        (Some(p), Some(v)) => match v.trim().parse::<f32>() {
+            Ok(x) if x.is_finite() && (p.min..=p.max).contains(&x) => Ok((info, Some(x))),
+            _ => Err(format!("`{spec}`: {} must be a number in [{}, {}]", p.what, p.min, p.max)),
+        },
+    }
+}
+
+/// The canonical name of a model with its parameter (`blend:0.5`; the default included).
+pub fn spec_name(info: &ModelInfo, param: Option<f32>) -> String {
+    match param {
+        Some(v) => format!("{}:{v}", info.name),
+        None => info.name.to_string(),
+    }
 }
 
 /// Every model name, comma-separated (for help texts and errors).
@@ -68,5 +138,21 @@ mod tests {
         }
         assert!(model("unet").unwrap().is_grid_based());
         assert!(model("nope").is_none());
+    }
+
+    #[test]
+    fn parameters_parse_with_defaults_and_bounds() {
+        let (m, p) = parse("blend:0.75").unwrap();
+        assert_eq!((m.name, p), ("blend", Some(0.75)));
+        assert_eq!(parse("blend").unwrap().1, Some(0.5));
+        assert_eq!(parse("builtin").unwrap().1, None);
+        assert!(parse("blend:1.5").unwrap_err().contains("[0, 1]"));
+        assert!(parse("blend:x").is_err());
+        assert!(parse("builtin:3").unwrap_err().contains("no parameter"));
+        assert!(parse("nope:1").unwrap_err().contains("unknown"));
+        assert_eq!(spec_name(m, Some(0.75)), "blend:0.75");
+        // Names must fit the 16-byte name of the statistics.
+        assert!(parse("extrapolate:0.25").is_ok());
+        assert!(parse("extrapolate:0.125").unwrap_err().contains("16 bytes"));
     }
 }

@@ -9,6 +9,9 @@ pub enum SimError {
     /// A warm-start model name that none of the models answers to.
     #[error("unknown warm-start model `{0}` (known: {known})", known = msgs::models::names_list())]
     UnknownModel(String),
+    /// A model name or parameter that does not parse (`blend:2`, `builtin:1`).
+    #[error("{0}")]
+    BadModel(String),
     /// A sampler name that none of the samplers answers to.
     #[error("unknown sampler `{0}` (known: native, numpy)")]
     UnknownSampler(String),

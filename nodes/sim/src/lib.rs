@@ -12,6 +12,8 @@
 //! - [`solver`]: velocity solve (PGS to tolerance) and Box2D's position pass;
 //! - [`contact`]: contact keys and points, the impulse history across steps;
 //! - [`warm`]: the [`warm::WarmStartModel`] trait and its models, fallback handling;
+//! - [`oracle`]: ablations built from the exact solution and builtin's guess (the accuracy ->
+//!   sweeps curve);
 //! - [`world`]: one step = detect, warm start, solve, integrate, correct;
 //! - [`run`]: the step loop of a run, its control messages, a sink for each step's outputs;
 //! - [`source`]: grids from another node as warm starts, with the producer's fault handling;
@@ -21,6 +23,7 @@
 pub mod bench;
 pub mod contact;
 pub mod error;
+pub mod oracle;
 pub mod rng;
 pub mod run;
 pub mod scene;
@@ -34,7 +37,7 @@ pub use error::SimError;
 pub use msgs::StepStats;
 pub use scene::{SamplerKind, Scene, SceneConfig, SceneKind};
 pub use solver::{ContactSolver, Impulse, PositionParams, SolveParams, SolveReport};
-pub use warm::{ModelKind, WarmStartModel, WarmStarter};
+pub use warm::{ModelKind, ModelSpec, WarmStartModel, WarmStarter};
 pub use world::{World, WorldParams};
 
 use std::time::Duration;

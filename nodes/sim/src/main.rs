@@ -7,7 +7,9 @@ use msgs::{ControlMsg, StepHeader};
 use sim::run::{RunSink, RunSpec, StepOutput};
 use sim::source::{BusGridSource, GridInbox, SharedSource, SourceHandle, Waits};
 use sim::warm::GridSource;
-use sim::{bench, ModelKind, SamplerKind, SceneConfig, SceneKind, SimError, SolveParams, WarmStarter, WorldParams};
+use sim::{
+    bench, ModelKind, ModelSpec, SamplerKind, SceneConfig, SceneKind, SimError, SolveParams, WarmStarter, WorldParams,
+};
 use std::time::Duration;
 
 fn positive_f32(s: &str) -> Result<f32, String> {
@@ -45,21 +47,29 @@ struct Args {
     /// Steps per simulation.
     #[arg(long, default_value_t = 250)]
     steps: u32,
-    /// Warm-start model (see `msgs::models::MODELS`): none, builtin, copy, grid, unet, ...
-    #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelKind>())]
-    model: ModelKind,
+    /// Warm-start model, `name` or `name:param` (see `msgs::models::MODELS`): none, builtin,
+    /// copy, extrapolate:0.5, blend:0.75, noise:1, grid, unet, ...
+    #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelSpec>())]
+    model: ModelSpec,
     /// Several models, each run in turn as its own run (`none,builtin,copy`); overrides --model.
-    #[arg(long, value_delimiter = ',', value_parser = |s: &str| s.parse::<ModelKind>())]
-    models: Vec<ModelKind>,
+    #[arg(long, value_delimiter = ',', value_parser = |s: &str| s.parse::<ModelSpec>())]
+    models: Vec<ModelSpec>,
     /// Model standing in when a grid is late (a local model).
-    #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelKind>())]
-    fallback: ModelKind,
+    #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelSpec>())]
+    fallback: ModelSpec,
     /// Convergence tolerance: largest impulse change of a sweep.
     #[arg(long, default_value_t = 1e-4, value_parser = positive_f32)]
     tolerance: f32,
     /// Sweep cap.
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..))]
     max_sweeps: u32,
+    /// The oracle's tolerance (`copy` and the oracle ablations solve each step from builtin's
+    /// warm start to it).
+    #[arg(long, default_value_t = 2e-6, value_parser = positive_f32)]
+    oracle_tolerance: f32,
+    /// The oracle's sweep cap.
+    #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u32).range(1..))]
+    oracle_max_sweeps: u32,
     /// How long to wait for a grid: `none` (lockstep) or a duration (20ms, 0.5s).
     #[arg(long, default_value = "none", value_parser = |s: &str| sim::parse_deadline(s).map(Deadline))]
     deadline: Deadline,
@@ -126,6 +136,7 @@ impl Args {
     fn world_params(&self) -> WorldParams {
         let mut p = WorldParams {
             solve: SolveParams { tolerance: self.tolerance, max_sweeps: self.max_sweeps },
+            oracle: SolveParams { tolerance: self.oracle_tolerance, max_sweeps: self.oracle_max_sweeps },
             ..WorldParams::default()
         };
         p.position.slop = self.slop;
@@ -272,7 +283,7 @@ impl RunSink for BusSink<'_> {
 }
 
 /// One run: every seed with one warm-start model.
-fn run(args: &Args, node: &runtime::Node, pubs: &mut Publishers, model_kind: ModelKind, spec: &RunSpec) -> Result<()> {
+fn run(args: &Args, node: &runtime::Node, pubs: &mut Publishers, model_kind: ModelSpec, spec: &RunSpec) -> Result<()> {
     // The grid subscriber exists only during a grid-based run: a grid producer publishes with
     // back-pressure, and a subscriber nobody reads (another model's run) would fill up and stall
     // the producer, which stalls the simulator in turn (a deadlock seen in `dc eval`). In lockstep

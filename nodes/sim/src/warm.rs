@@ -25,8 +25,11 @@ pub struct WarmStartInput<'a> {
     pub contacts: &'a [ContactPoint],
     /// Final impulses of the two previous steps.
     pub history: &'a ImpulseHistory,
-    /// Solves the step's contact problem from zero on scratch velocities and writes the solution
-    /// (the oracle behind `copy`); the world's velocities are untouched.
+    /// Per body id: whether it has infinite mass (static or kinematic).
+    pub fixed: &'a [bool],
+    /// Solves the step's contact problem from builtin's warm start to the oracle's tolerance on
+    /// scratch velocities and writes the solution (the oracle behind `copy` and the ablations);
+    /// the world's velocities are untouched.
     pub oracle: &'a mut dyn FnMut(&mut [Impulse]),
 }
 
@@ -227,26 +230,54 @@ impl WarmStartModel for Random {
     }
 }
 
-/// `extrapolate`: `2 l(k-1) - l(k-2)` on contacts that persisted two steps, `l(k-1)` on those that
-/// persisted one, clamped to the friction cone.
-#[derive(Debug, Default)]
-pub struct Extrapolate;
+/// `extrapolate[:beta]`: `l(k-1) + beta (l(k-1) - l(k-2))` on contacts that persisted two steps
+/// (beta 1: linear extrapolation), `l(k-1)` on those that persisted one, clamped to the friction
+/// cone.
+#[derive(Debug)]
+pub struct Extrapolate {
+    name: String,
+    beta: f32,
+}
+
+impl Extrapolate {
+    pub fn new(name: String, beta: f32) -> Extrapolate {
+        Extrapolate { name, beta }
+    }
+}
 
 impl WarmStartModel for Extrapolate {
     fn name(&self) -> &str {
-        "extrapolate"
+        &self.name
     }
     fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        let beta = self.beta;
         for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
             *o = match (input.history.previous(&c.key), input.history.before_previous(&c.key)) {
                 (Some(l1), Some(l2)) => {
-                    let n = (2.0 * l1.normal - l2.normal).max(0.0);
+                    let n = (l1.normal + beta * (l1.normal - l2.normal)).max(0.0);
                     let t_max = c.friction * n;
-                    Impulse { normal: n, tangent: (2.0 * l1.tangent - l2.tangent).clamp(-t_max, t_max) }
+                    Impulse { normal: n, tangent: (l1.tangent + beta * (l1.tangent - l2.tangent)).clamp(-t_max, t_max) }
                 }
                 (Some(l1), None) => l1,
                 _ => Impulse::default(),
             };
+        }
+        Ok(())
+    }
+}
+
+/// `builtin-reappear`: builtin, and a contact new this step that existed two steps ago (it
+/// flickered off for one step) starts from its impulse then.
+#[derive(Debug, Default)]
+pub struct BuiltinReappear;
+
+impl WarmStartModel for BuiltinReappear {
+    fn name(&self) -> &str {
+        "builtin-reappear"
+    }
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
+            *o = input.history.previous(&c.key).or_else(|| input.history.before_previous(&c.key)).unwrap_or_default();
         }
         Ok(())
     }
@@ -329,8 +360,22 @@ pub enum ModelKind {
     Bad,
     /// Uniform noise.
     Random,
-    /// Linear extrapolation of the last two steps.
+    /// Damped extrapolation of the last two steps.
     Extrapolate,
+    /// Builtin, reappearing contacts from two steps back.
+    BuiltinReappear,
+    /// Oracle ablation: exact on persisting contacts.
+    CopyPersisting,
+    /// Oracle ablation: exact on new contacts.
+    CopyNew,
+    /// Oracle ablation: a fraction of builtin's error removed.
+    Blend,
+    /// Oracle ablation: the oracle plus noise of builtin's size.
+    Noise,
+    /// Oracle ablation: the oracle plus the smooth part of builtin's error.
+    SmoothError,
+    /// Oracle ablation: the oracle plus the rough part of builtin's error.
+    RoughError,
     /// The exact solution through the value-preserving grid transfer and back.
     CopyGrid,
     /// The exact solution through the thesis's grid transfer and back.
@@ -343,7 +388,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 12] = [
+    pub const ALL: [ModelKind; 19] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -352,6 +397,13 @@ impl ModelKind {
         ModelKind::Bad,
         ModelKind::Random,
         ModelKind::Extrapolate,
+        ModelKind::BuiltinReappear,
+        ModelKind::CopyPersisting,
+        ModelKind::CopyNew,
+        ModelKind::Blend,
+        ModelKind::Noise,
+        ModelKind::SmoothError,
+        ModelKind::RoughError,
         ModelKind::CopyGrid,
         ModelKind::CopyGridSph,
         ModelKind::Grid,
@@ -378,9 +430,55 @@ impl ModelKind {
         self.info().grid_topic.map(msgs::topics::Topic::new)
     }
 
-    /// Builds a local model; grid-based ones need [`ModelKind::build_with_source`].
+    /// Builds a local model with its default parameter; grid-based ones need
+    /// [`ModelKind::build_with_source`].
     pub fn build(self, seed: u64) -> Result<Box<dyn WarmStartModel>, SimError> {
-        Ok(match self {
+        ModelSpec::of(self).build(seed)
+    }
+
+    /// Builds any model with its default parameter; `source` feeds the grid-based ones.
+    pub fn build_with_source(
+        self,
+        seed: u64,
+        source: Option<Box<dyn GridSource>>,
+    ) -> Result<Box<dyn WarmStartModel>, SimError> {
+        ModelSpec::of(self).build_with_source(seed, source)
+    }
+}
+
+/// A model with its parameter: what `--model blend:0.75` names.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ModelSpec {
+    pub kind: ModelKind,
+    /// The parameter of a parametrised model (its default when not given), None otherwise.
+    pub param: Option<f32>,
+}
+
+impl ModelSpec {
+    /// The model with its default parameter.
+    pub fn of(kind: ModelKind) -> ModelSpec {
+        ModelSpec { kind, param: kind.info().param.map(|p| p.default) }
+    }
+
+    /// The name in statistics and control messages (`blend:0.75`; unparametrised models' own).
+    pub fn name(&self) -> String {
+        msgs::models::spec_name(self.kind.info(), self.param)
+    }
+
+    pub fn is_grid_based(&self) -> bool {
+        self.kind.is_grid_based()
+    }
+
+    pub fn grid_topic(&self) -> Option<msgs::topics::Topic<msgs::GridHeader, f32>> {
+        self.kind.grid_topic()
+    }
+
+    /// Builds a local model; grid-based ones need [`ModelSpec::build_with_source`].
+    pub fn build(&self, seed: u64) -> Result<Box<dyn WarmStartModel>, SimError> {
+        use crate::oracle::{Ablation, OracleAblation};
+        let param = self.param.unwrap_or_default();
+        let ablation = |a: Ablation| -> Box<dyn WarmStartModel> { Box::new(OracleAblation::new(self.name(), a, seed)) };
+        Ok(match self.kind {
             ModelKind::None => Box::new(NoWarmStart),
             ModelKind::Builtin => Box::new(Builtin),
             ModelKind::Copy => Box::new(Copy::exact()),
@@ -388,23 +486,39 @@ impl ModelKind {
             ModelKind::Copy2 => Box::new(Copy::rounded(2)),
             ModelKind::Bad => Box::new(Bad),
             ModelKind::Random => Box::new(Random::new(seed)),
-            ModelKind::Extrapolate => Box::new(Extrapolate),
+            ModelKind::Extrapolate => Box::new(Extrapolate::new(self.name(), param)),
+            ModelKind::BuiltinReappear => Box::new(BuiltinReappear),
+            ModelKind::CopyPersisting => ablation(Ablation::CopyPersisting),
+            ModelKind::CopyNew => ablation(Ablation::CopyNew),
+            ModelKind::Blend => ablation(Ablation::Blend(param)),
+            ModelKind::Noise => ablation(Ablation::Noise(param)),
+            ModelKind::SmoothError => ablation(Ablation::SmoothError),
+            ModelKind::RoughError => ablation(Ablation::RoughError),
             ModelKind::CopyGrid => Box::new(CopyGrid::new(sph::Mode::Preserving)),
             ModelKind::CopyGridSph => Box::new(CopyGrid::new(sph::Mode::Sph)),
-            ModelKind::Grid | ModelKind::Unet => return Err(SimError::NoGridSource(self.name().into())),
+            ModelKind::Grid | ModelKind::Unet => return Err(SimError::NoGridSource(self.name())),
         })
     }
 
     /// Builds any model; `source` feeds the grid-based ones and is ignored by the others.
     pub fn build_with_source(
-        self,
+        &self,
         seed: u64,
         source: Option<Box<dyn GridSource>>,
     ) -> Result<Box<dyn WarmStartModel>, SimError> {
         match (self.is_grid_based(), source) {
-            (true, Some(s)) => Ok(Box::new(GridModel::new(self.name(), s))),
+            (true, Some(s)) => Ok(Box::new(GridModel::new(self.kind.name(), s))),
             _ => self.build(seed),
         }
+    }
+}
+
+impl FromStr for ModelSpec {
+    type Err = SimError;
+    fn from_str(s: &str) -> Result<Self, SimError> {
+        let (info, param) = msgs::models::parse(s).map_err(SimError::BadModel)?;
+        let kind = ModelKind::ALL.into_iter().find(|k| k.name() == info.name).expect("the table and the enum agree");
+        Ok(ModelSpec { kind, param })
     }
 }
 
@@ -473,6 +587,51 @@ impl WarmStarter {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::contact::ContactKey;
+
+    fn point(body_b: u32) -> ContactPoint {
+        ContactPoint {
+            key: ContactKey { body_a: 0, body_b, feature: 0 },
+            point: rapier2d::math::Vec2::ZERO,
+            normal: rapier2d::math::Vec2::Y,
+            penetration: 0.0,
+            friction: 0.5,
+        }
+    }
+
+    /// Runs `model` on `contacts` after two steps of history.
+    fn guess(model: &mut dyn WarmStartModel, contacts: &[ContactPoint], history: &ImpulseHistory) -> Vec<Impulse> {
+        let mut oracle = |_: &mut [Impulse]| {};
+        let mut input = WarmStartInput {
+            run_id: 0,
+            simulation: 0,
+            step: 2,
+            contacts,
+            history,
+            fixed: &[true, false, false, false],
+            oracle: &mut oracle,
+        };
+        let mut out = vec![Impulse::default(); contacts.len()];
+        model.warm_start(&mut input, &mut out).unwrap();
+        out
+    }
+
+    #[test]
+    fn reappearing_contacts_and_damped_extrapolation() {
+        let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
+        let mut history = ImpulseHistory::default();
+        // Two steps ago: contacts 1 and 2; last step: contacts 1 and 3 (2 flickered off).
+        history.push([point(1).key, point(2).key].into_iter(), &[imp(1.0, 0.1), imp(2.0, 0.2)]);
+        history.push([point(1).key, point(3).key].into_iter(), &[imp(1.5, 0.2), imp(3.0, 0.3)]);
+        let contacts = [point(1), point(2), point(3)];
+        assert_eq!(guess(&mut Builtin, &contacts, &history), [imp(1.5, 0.2), imp(0.0, 0.0), imp(3.0, 0.3)]);
+        assert_eq!(guess(&mut BuiltinReappear, &contacts, &history), [imp(1.5, 0.2), imp(2.0, 0.2), imp(3.0, 0.3)]);
+        // l1 + beta (l1 - l2) on the contact with two steps of history, l1 on the one with one.
+        let mut half = Extrapolate::new("extrapolate:0.5".into(), 0.5);
+        let g = guess(&mut half, &contacts, &history);
+        assert_eq!((g[0].normal, g[1], g[2]), (1.75, imp(0.0, 0.0), imp(3.0, 0.3)));
+        assert!((g[0].tangent - 0.25).abs() < 1e-6);
+    }
 
     #[test]
     fn model_kinds_mirror_the_contract_table() {
@@ -485,5 +644,10 @@ mod tests {
         assert!(ModelKind::Builtin.grid_topic().is_none());
         let err = "nope".parse::<ModelKind>().unwrap_err().to_string();
         assert!(err.contains("copy-grid-sph"), "{err}");
+        let spec: ModelSpec = "blend:0.75".parse().unwrap();
+        assert_eq!((spec.kind, spec.param, spec.name()), (ModelKind::Blend, Some(0.75), "blend:0.75".to_string()));
+        assert_eq!(spec.build(0).unwrap().name(), "blend:0.75");
+        assert_eq!("extrapolate".parse::<ModelSpec>().unwrap().name(), "extrapolate:1");
+        assert!("blend:2".parse::<ModelSpec>().is_err());
     }
 }

@@ -36,6 +36,10 @@ pub struct WorldParams {
     pub gravity: [f32; 2],
     /// Velocity solve stopping rule.
     pub solve: SolveParams,
+    /// The oracle's stopping rule (`copy` and the ablations): solved from builtin's warm start to
+    /// a tolerance far below the run's, so that `copy` needs ~0 sweeps. 2e-6, not lower: the
+    /// impulses are f32, and a sweep's change stalls near their resolution on deep piles.
+    pub oracle: SolveParams,
     /// Position pass parameters.
     pub position: PositionParams,
     /// rapier's prediction distance: manifolds are kept this far apart, so features are tracked
@@ -56,6 +60,7 @@ impl Default for WorldParams {
             dt: 1.0 / 100.0,
             gravity: [0.0, -9.81],
             solve: SolveParams::default(),
+            oracle: SolveParams { tolerance: 2e-6, max_sweeps: 10_000 },
             position: PositionParams::default(),
             prediction: 0.02,
             contact_margin: 0.0,
@@ -75,6 +80,9 @@ impl WorldParams {
         }
         if self.solve.max_sweeps == 0 {
             return bad("max-sweeps", "0".into(), "must be >= 1");
+        }
+        if !(self.oracle.tolerance.is_finite() && self.oracle.tolerance > 0.0) || self.oracle.max_sweeps == 0 {
+            return bad("oracle", format!("{:?}", self.oracle), "tolerance > 0 and max sweeps >= 1");
         }
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return bad("dt", self.dt.to_string(), "must be > 0");
@@ -135,6 +143,8 @@ pub struct World {
     bodies: Vec<BodyState>,
     rapier: PhysicsWorld,
     handles: Vec<RigidBodyHandle>,
+    /// Per body: infinite mass (static or kinematic).
+    fixed: Vec<bool>,
     step: u32,
     run_id: u64,
     simulation: u32,
@@ -211,12 +221,14 @@ impl World {
                 angle0: spec.angle,
             });
         }
+        let fixed = bodies.iter().map(|b| b.mass == 0.0).collect();
         let mut world = World {
             scene,
             params,
             bodies,
             rapier,
             handles,
+            fixed,
             step: 0,
             run_id: 0,
             simulation: 0,
@@ -297,7 +309,8 @@ impl World {
         &self.solver_bodies
     }
 
-    /// Report of the oracle's solve from zero in the last step, if the model asked for it (`copy`).
+    /// Report of the oracle's solve (from builtin's warm start) in the last step, if the model
+    /// asked for it (`copy`, the ablations).
     pub fn oracle_report(&self) -> Option<SolveReport> {
         self.oracle_report
     }
@@ -489,12 +502,14 @@ impl World {
             let bodies = &self.solver_bodies;
             let scratch = &mut self.scratch_bodies;
             let oracle_solver = &mut self.oracle_solver;
-            let solve = self.params.solve;
+            let solve = self.params.oracle;
+            let (contacts, history) = (&self.contacts, &self.history);
             let mut oracle = |out: &mut [Impulse]| {
                 scratch.clear();
                 scratch.extend_from_slice(bodies);
-                let zeros = vec![Impulse::default(); rows.len()];
-                *oracle_report = Some(oracle_solver.solve(rows, scratch, &zeros, &solve));
+                let start: Vec<Impulse> =
+                    contacts.iter().map(|c| history.previous(&c.key).unwrap_or_default()).collect();
+                *oracle_report = Some(oracle_solver.solve(rows, scratch, &start, &solve));
                 out.copy_from_slice(oracle_solver.impulses());
             };
             let mut input = WarmStartInput {
@@ -503,6 +518,7 @@ impl World {
                 step: self.step,
                 contacts: &self.contacts,
                 history: &self.history,
+                fixed: &self.fixed,
                 oracle: &mut oracle,
             };
             warm.warm_start(&mut input, &mut self.warm)

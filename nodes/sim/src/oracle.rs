@@ -1,0 +1,223 @@
+//! Oracle ablations: warm starts made from the step's exact solution (the oracle, solved from
+//! builtin's warm start to a tight tolerance) and builtin's guess, to map how much of builtin's
+//! error a model must remove, and which part of it, to save sweeps — the accuracy -> sweeps curve
+//! any learned model is judged on. Not usable in a real simulator (the oracle *is* the solve).
+
+use crate::contact::ContactPoint;
+use crate::rng::{Sampler, Xoshiro};
+use crate::solver::Impulse;
+use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
+
+/// Builtin's guess: the previous step's impulse of each persisting contact, 0 on new ones.
+pub fn builtin_guess(input: &WarmStartInput<'_>, out: &mut [Impulse]) {
+    for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
+        *o = input.history.previous(&c.key).unwrap_or_default();
+    }
+}
+
+/// What an ablation does with the oracle's solution and builtin's guess.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Ablation {
+    /// `copy-persisting`: exact on persisting contacts, 0 on new ones.
+    CopyPersisting,
+    /// `copy-new`: builtin on persisting contacts, exact on new ones.
+    CopyNew,
+    /// `blend:F`: builtin + F (exact - builtin).
+    Blend(f32),
+    /// `noise:S`: exact + Gaussian noise of S x builtin's RMS error of the step.
+    Noise(f32),
+    /// `smooth-error`: exact + the smooth part of builtin's error.
+    SmoothError,
+    /// `rough-error`: exact + builtin's error minus its smooth part.
+    RoughError,
+}
+
+/// Jacobi passes of the contact-graph average that define the "smooth part" of an error field.
+pub const SMOOTHING_PASSES: usize = 4;
+
+/// An ablation model.
+pub struct OracleAblation {
+    name: String,
+    ablation: Ablation,
+    seed: u64,
+    rng: Xoshiro,
+    exact: Vec<Impulse>,
+    error: Vec<Impulse>,
+    smooth: Vec<Impulse>,
+}
+
+impl OracleAblation {
+    pub fn new(name: String, ablation: Ablation, seed: u64) -> OracleAblation {
+        OracleAblation {
+            name,
+            ablation,
+            seed,
+            rng: Xoshiro::new(seed),
+            exact: Vec::new(),
+            error: Vec::new(),
+            smooth: Vec::new(),
+        }
+    }
+}
+
+impl WarmStartModel for OracleAblation {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn begin_simulation(&mut self, _simulation: u32, seed: u64) {
+        // Its own stream per simulation, apart from the scene sampler's and `random`'s.
+        self.rng = Xoshiro::new(self.seed ^ seed.wrapping_mul(0xd1b5_4a32_d192_ed03) ^ 0xab1a);
+    }
+
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        let n = input.contacts.len();
+        self.exact.clear();
+        self.exact.resize(n, Impulse::default());
+        (input.oracle)(&mut self.exact);
+        builtin_guess(input, out);
+        // builtin's error, exact - builtin... stored as builtin - exact (what the guess adds).
+        self.error.clear();
+        self.error.extend(
+            out.iter()
+                .zip(&self.exact)
+                .map(|(b, e)| Impulse { normal: b.normal - e.normal, tangent: b.tangent - e.tangent }),
+        );
+        match self.ablation {
+            Ablation::CopyPersisting => {
+                for ((c, o), e) in input.contacts.iter().zip(out.iter_mut()).zip(&self.exact) {
+                    *o = if input.history.previous(&c.key).is_some() { *e } else { Impulse::default() };
+                }
+            }
+            Ablation::CopyNew => {
+                for ((c, o), e) in input.contacts.iter().zip(out.iter_mut()).zip(&self.exact) {
+                    if input.history.previous(&c.key).is_none() {
+                        *o = *e;
+                    }
+                }
+            }
+            Ablation::Blend(f) => {
+                for (o, e) in out.iter_mut().zip(&self.exact) {
+                    o.normal += f * (e.normal - o.normal);
+                    o.tangent += f * (e.tangent - o.tangent);
+                }
+            }
+            Ablation::Noise(s) => {
+                let rms = |f: fn(&Impulse) -> f32| {
+                    let sum: f64 = self.error.iter().map(|e| (f(e) as f64).powi(2)).sum();
+                    (sum / n.max(1) as f64).sqrt()
+                };
+                let (sn, st) = (s as f64 * rms(|e| e.normal), s as f64 * rms(|e| e.tangent));
+                for (o, e) in out.iter_mut().zip(&self.exact) {
+                    o.normal = e.normal + (sn * self.rng.gauss()) as f32;
+                    o.tangent = e.tangent + (st * self.rng.gauss()) as f32;
+                }
+            }
+            Ablation::SmoothError | Ablation::RoughError => {
+                smooth_over_contacts(input.contacts, input.fixed, &self.error, SMOOTHING_PASSES, &mut self.smooth);
+                let rough = self.ablation == Ablation::RoughError;
+                for (((o, e), err), sm) in out.iter_mut().zip(&self.exact).zip(&self.error).zip(&self.smooth) {
+                    let (dn, dt) = if rough {
+                        (err.normal - sm.normal, err.tangent - sm.tangent)
+                    } else {
+                        (sm.normal, sm.tangent)
+                    };
+                    *o = Impulse { normal: e.normal + dn, tangent: e.tangent + dt };
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `passes` Jacobi passes of averaging `field` over the contact graph: a contact's value becomes the
+/// mean of itself and the contacts it shares a moving body with (bodies of infinite mass, `fixed`,
+/// do not link their contacts: the floor would smooth across the whole pile). What survives a few
+/// passes is the pile-wide, low-frequency part of the field.
+pub fn smooth_over_contacts(
+    contacts: &[ContactPoint],
+    fixed: &[bool],
+    field: &[Impulse],
+    passes: usize,
+    out: &mut Vec<Impulse>,
+) {
+    let n = contacts.len();
+    out.clear();
+    out.extend_from_slice(field);
+    if n == 0 {
+        return;
+    }
+    // Contacts per moving body.
+    let bodies = contacts.iter().map(|c| c.key.body_b.max(c.key.body_a) as usize + 1).max().unwrap_or(0);
+    let mut per_body: Vec<Vec<u32>> = vec![Vec::new(); bodies];
+    for (i, c) in contacts.iter().enumerate() {
+        for b in [c.key.body_a, c.key.body_b] {
+            if !fixed.get(b as usize).copied().unwrap_or(false) {
+                per_body[b as usize].push(i as u32);
+            }
+        }
+    }
+    let mut next = vec![Impulse::default(); n];
+    for _ in 0..passes {
+        for (i, c) in contacts.iter().enumerate() {
+            let (mut sn, mut st, mut k) = (out[i].normal as f64, out[i].tangent as f64, 1u32);
+            for b in [c.key.body_a, c.key.body_b] {
+                for &j in per_body.get(b as usize).map(Vec::as_slice).unwrap_or(&[]) {
+                    if j as usize != i {
+                        sn += out[j as usize].normal as f64;
+                        st += out[j as usize].tangent as f64;
+                        k += 1;
+                    }
+                }
+            }
+            next[i] = Impulse { normal: (sn / k as f64) as f32, tangent: (st / k as f64) as f32 };
+        }
+        out.copy_from_slice(&next);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::contact::ContactKey;
+    use rapier2d::math::Vec2;
+
+    fn contact(a: u32, b: u32) -> ContactPoint {
+        ContactPoint {
+            key: ContactKey { body_a: a, body_b: b, feature: 0 },
+            point: Vec2::ZERO,
+            normal: Vec2::Y,
+            penetration: 0.0,
+            friction: 0.5,
+        }
+    }
+
+    #[test]
+    fn smoothing_keeps_constants_and_damps_alternation() {
+        // A chain of bodies 1-2-3-4-5 on a fixed floor 0: contacts (1,2), (2,3), (3,4), (4,5) and
+        // each body on the floor.
+        let mut contacts: Vec<ContactPoint> = (1..5).map(|i| contact(i, i + 1)).collect();
+        contacts.extend((1..6).map(|i| contact(0, i)));
+        let fixed = [true, false, false, false, false, false];
+        let constant = vec![Impulse { normal: 2.0, tangent: -1.0 }; contacts.len()];
+        let mut out = Vec::new();
+        smooth_over_contacts(&contacts, &fixed, &constant, 4, &mut out);
+        assert!(out.iter().all(|o| (o.normal - 2.0).abs() < 1e-6 && (o.tangent + 1.0).abs() < 1e-6));
+        let alternating: Vec<Impulse> = (0..contacts.len())
+            .map(|i| Impulse { normal: if i % 2 == 0 { 1.0 } else { -1.0 }, tangent: 0.0 })
+            .collect();
+        smooth_over_contacts(&contacts, &fixed, &alternating, 4, &mut out);
+        let energy = |v: &[Impulse]| v.iter().map(|o| o.normal * o.normal).sum::<f32>();
+        assert!(energy(&out) < 0.2 * energy(&alternating), "{out:?}");
+    }
+
+    #[test]
+    fn the_fixed_floor_links_nothing() {
+        // Two separate bodies on the floor: their contacts never mix.
+        let contacts = [contact(0, 1), contact(0, 2)];
+        let field = [Impulse { normal: 1.0, tangent: 0.0 }, Impulse { normal: 5.0, tangent: 0.0 }];
+        let mut out = Vec::new();
+        smooth_over_contacts(&contacts, &[true, false, false], &field, 3, &mut out);
+        assert_eq!(out, field);
+    }
+}
