@@ -15,12 +15,14 @@ mod codec;
 pub mod control;
 pub mod models;
 mod names;
+pub mod problem;
 mod stats;
 pub mod topics;
 
 pub use codec::{decode, decode_header, encode, encode_into, CodecError, OLDEST_WIRE_VERSION, WIRE_VERSION};
 pub use control::{ControlDetails, DetailsError, NodeNotice, RunParams, RunSummary, SceneInfo};
 pub use names::id_text;
+pub use problem::{ProblemBodies, ProblemBody, ProblemContact, ProblemContacts, ProblemHeader};
 pub use stats::StepStats;
 pub use topics::{FrameKind, HasStep};
 

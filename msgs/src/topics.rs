@@ -18,11 +18,22 @@ pub enum FrameKind {
     SolveStats,
     /// `Frame<Control, u8>`.
     Control,
+    /// `Frame<StepHeader, ProblemBody>`.
+    ProblemBodies,
+    /// `Frame<ProblemHeader, ProblemContact>`.
+    ProblemContacts,
 }
 
 impl FrameKind {
-    pub const ALL: [FrameKind; 5] =
-        [FrameKind::Bodies, FrameKind::Contacts, FrameKind::Grid, FrameKind::SolveStats, FrameKind::Control];
+    pub const ALL: [FrameKind; 7] = [
+        FrameKind::Bodies,
+        FrameKind::Contacts,
+        FrameKind::Grid,
+        FrameKind::SolveStats,
+        FrameKind::Control,
+        FrameKind::ProblemBodies,
+        FrameKind::ProblemContacts,
+    ];
 
     /// The frame type of a known topic.
     pub fn of_topic(topic: &str) -> Option<FrameKind> {
@@ -37,6 +48,8 @@ impl FrameKind {
             FrameKind::Grid => "dc::Grid",
             FrameKind::SolveStats => "dc::SolveStats",
             FrameKind::Control => "dc::ControlMsg",
+            FrameKind::ProblemBodies => "dc::ProblemBodies",
+            FrameKind::ProblemContacts => "dc::ProblemContacts",
         }
     }
 
@@ -52,13 +65,16 @@ impl FrameKind {
             FrameKind::Grid => ("dc::GridHeader", "f32"),
             FrameKind::SolveStats => ("dc::SolveStatsHeader", "f32"),
             FrameKind::Control => ("dc::Control", "u8"),
+            FrameKind::ProblemBodies => ("dc::StepHeader", "dc::ProblemBody"),
+            FrameKind::ProblemContacts => ("dc::ProblemHeader", "dc::ProblemContact"),
         }
     }
 
     /// The (run, simulation, step) a payload belongs to, decoding its header only.
     pub fn step_of(self, payload: &[u8]) -> Result<StepHeader, CodecError> {
         Ok(match self {
-            FrameKind::Bodies | FrameKind::Contacts => decode_header::<StepHeader>(payload)?,
+            FrameKind::Bodies | FrameKind::Contacts | FrameKind::ProblemBodies => decode_header::<StepHeader>(payload)?,
+            FrameKind::ProblemContacts => decode_header::<ProblemHeader>(payload)?.step,
             FrameKind::Grid => decode_header::<GridHeader>(payload)?.step,
             FrameKind::SolveStats => decode_header::<SolveStatsHeader>(payload)?.step,
             FrameKind::Control => decode_header::<Control>(payload)?.step,
@@ -73,6 +89,8 @@ impl FrameKind {
             FrameKind::Grid => decode::<GridHeader, f32>(payload).map(drop),
             FrameKind::SolveStats => decode::<SolveStatsHeader, f32>(payload).map(drop),
             FrameKind::Control => decode::<Control, u8>(payload).map(drop),
+            FrameKind::ProblemBodies => decode::<StepHeader, ProblemBody>(payload).map(drop),
+            FrameKind::ProblemContacts => decode::<ProblemHeader, ProblemContact>(payload).map(drop),
         }
     }
 }
@@ -96,6 +114,12 @@ impl KindOf for SolveStats {
 impl KindOf for ControlMsg {
     const KIND: FrameKind = FrameKind::Control;
 }
+impl KindOf for ProblemBodies {
+    const KIND: FrameKind = FrameKind::ProblemBodies;
+}
+impl KindOf for ProblemContacts {
+    const KIND: FrameKind = FrameKind::ProblemContacts;
+}
 
 /// A header that carries the (run, simulation, step) of its frame.
 pub trait HasStep {
@@ -112,6 +136,11 @@ impl HasStep for GridHeader {
     }
 }
 impl HasStep for SolveStatsHeader {
+    fn step_header(&self) -> StepHeader {
+        self.step
+    }
+}
+impl HasStep for ProblemHeader {
     fn step_header(&self) -> StepHeader {
         self.step
     }
@@ -175,6 +204,10 @@ pub const GRID_CONTACTS: Topic<GridHeader, f32> = Topic::new("grid/contacts");
 pub const GRID_UNET: Topic<GridHeader, f32> = Topic::new("grid/unet");
 /// Run and simulation start/end, shutdown requests, node down/up notices.
 pub const CONTROL: Topic<Control, u8> = Topic::new("control");
+/// The step's velocity problem: bodies (sim, with `--publish-problem`).
+pub const PROBLEM_BODIES: Topic<StepHeader, ProblemBody> = Topic::new("problem/bodies");
+/// The step's velocity problem: contact rows with builtin's warm start and the reference solution.
+pub const PROBLEM_CONTACTS: Topic<ProblemHeader, ProblemContact> = Topic::new("problem/contacts");
 /// Per-step summary for live plots (metrics).
 pub const METRICS_STEP: Topic<SolveStatsHeader, f32> = Topic::new("metrics/step");
 /// Plumbing benchmark and test topics (dc-bench-bus).
@@ -192,6 +225,8 @@ pub const TABLE: &[TopicInfo] = &[
     GRID_CONTACTS.row("sph: contact impulses splatted to a grid (the `grid` warm start)"),
     GRID_UNET.row("unet: predicted impulse grid of the next step"),
     CONTROL.row("sim, launcher: run/simulation start and end, shutdown, node down/up"),
+    PROBLEM_BODIES.row("sim (--publish-problem): bodies of the step's velocity problem"),
+    PROBLEM_CONTACTS.row("sim (--publish-problem): contact rows, builtin's warm start, the reference solution"),
     METRICS_STEP.row("metrics: per-step summary [cumulative sweeps, sweeps] for live plots"),
     BENCH_BODIES.row("dc-bench-bus: body frames"),
     BENCH_GRID.row("dc-bench-bus: grid frames"),

@@ -182,6 +182,9 @@ fn source(node: &runtime::Node, topic: &str) -> anyhow::Result<Box<dyn Source>> 
     let kind = FrameKind::of_topic(topic)
         .with_context(|| format!("unknown topic `{topic}` (known: {})", topics::names_list()))?;
     Ok(match kind {
+        FrameKind::ProblemBodies | FrameKind::ProblemContacts => {
+            anyhow::bail!("topic `{topic}`: the contact problem has no Foxglove view (the scene shows the contacts)")
+        }
         FrameKind::Bodies => Box::new(Typed {
             sub: node.subscriber_named::<msgs::StepHeader, msgs::Body>(topic)?,
             handle: Box::new(|b, _, h, items, t| {
@@ -340,6 +343,8 @@ fn give_recorded(bridge: &mut Bridge, kind: FrameKind, topic: &str, data: &[u8],
             bridge.on_control(&f.header, &f.items, t);
             Ok(())
         }
+        // No Foxglove view of the contact problem: the scene already shows the contacts.
+        FrameKind::ProblemBodies | FrameKind::ProblemContacts => Ok(()),
     };
     r.map_err(|e| e.to_string())
 }

@@ -125,6 +125,8 @@ fn main() -> Result<()> {
         seeds,
         steps: args.steps,
         run_id: 1,
+        problems: false,
+        label: None,
     };
     let summary = sim::run::run(&spec, &mut warm, &mut sink)?;
     sink.writer.finish()?;

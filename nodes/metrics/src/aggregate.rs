@@ -111,17 +111,51 @@ pub struct Band {
 }
 
 /// Everything received, grouped by model then simulation, steps in order.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct Aggregate {
     /// model -> simulation -> step -> record.
     pub models: BTreeMap<String, BTreeMap<u32, BTreeMap<u32, StepRecord>>>,
     /// Speed (m/s) below which every body must stay for a step to count as settled.
     pub settle_speed: f32,
+    /// First steps of the step-range phases after the first (`[100, 150]`: steps 0-99, 100-149,
+    /// 150-end); see [`crate::phases`].
+    pub phase_boundaries: Vec<u32>,
+}
+
+impl Default for Aggregate {
+    fn default() -> Aggregate {
+        Aggregate::new()
+    }
 }
 
 impl Aggregate {
     pub fn new() -> Aggregate {
-        Aggregate { models: BTreeMap::new(), settle_speed: 0.1 }
+        Aggregate {
+            models: BTreeMap::new(),
+            settle_speed: 0.1,
+            phase_boundaries: crate::phases::DEFAULT_PHASE_BOUNDARIES.to_vec(),
+        }
+    }
+
+    /// The models in a stable, meaningful order: the contract's table order (the thesis's), then
+    /// the others by name; a model with a parameter (`blend:0.75`) sits where its base name does,
+    /// by the parameter's value (`blend:0.5` before `blend:0.75` before `blend:10`).
+    pub fn model_order(&self) -> Vec<String> {
+        let order = msgs::models::MODELS;
+        let key = |m: &str| {
+            let (base, param) = m.split_once(':').map_or((m, None), |(b, p)| (b, p.trim().parse::<f64>().ok()));
+            (order.iter().position(|o| o.name == base).unwrap_or(order.len()), base.to_string(), param)
+        };
+        let mut models: Vec<String> = self.models.keys().cloned().collect();
+        models.sort_by(|a, b| {
+            let ((pa, ba, xa), (pb, bb, xb)) = (key(a), key(b));
+            let by_param = match (xa, xb) {
+                (Some(x), Some(y)) => x.total_cmp(&y),
+                (xa, xb) => xa.is_some().cmp(&xb.is_some()),
+            };
+            pa.cmp(&pb).then(ba.cmp(&bb)).then(by_param).then(a.cmp(b))
+        });
+        models
     }
 
     /// Adds a record; a repeated (model, simulation, step) replaces the earlier one.
@@ -321,6 +355,26 @@ mod tests {
         assert_eq!(conv[0], (1, 1.0));
         // After 20 sweeps: solves of 10 keep 1/10; the others are at 1/20.
         assert_eq!(conv[19].1, (1.0f32 / 20.0) as f64);
+    }
+
+    #[test]
+    fn model_order_follows_the_contract_then_names_and_parameters() {
+        let mut a = Aggregate::new();
+        for m in ["zeta", "blend:10", "blend:0.75", "builtin", "blend:0.5", "none", "blend", "alpha:x"] {
+            a.add(record(m, 0, 0, 1, 1));
+        }
+        let order = a.model_order();
+        let pos = |m: &str| order.iter().position(|o| o == m).unwrap();
+        assert!(pos("none") < pos("builtin"));
+        assert_eq!(&order[order.len() - 2..], ["alpha:x", "zeta"], "unknown names last, by name");
+        if msgs::models::model("blend").is_some() {
+            assert!(pos("builtin") < pos("blend"));
+        }
+        assert!(
+            pos("blend") < pos("blend:0.5")
+                && pos("blend:0.5") < pos("blend:0.75")
+                && pos("blend:0.75") < pos("blend:10")
+        );
     }
 
     #[test]

@@ -4,10 +4,12 @@
 //! The numbers follow the thesis's measurements (chapter 7.4-7.5) with its timing flaw fixed:
 //! solve time and whole-step time are reported separately.
 //!
-//! [`stats`] holds the workspace's one quantile / median (other nodes' reports use it too).
+//! [`phases`] splits runs into step ranges (where the sweeps are spent), with the sweeps histogram
+//! and the accuracy -> sweeps table. [`stats`] holds the workspace's one quantile / median (other nodes' reports use it too).
 
 pub mod aggregate;
 pub mod completeness;
+pub mod phases;
 pub mod plot;
 pub mod report;
 pub mod stats;

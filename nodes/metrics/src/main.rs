@@ -25,6 +25,18 @@ struct Args {
     /// A step is settled once every body stays slower than this (m/s) for the rest of its simulation.
     #[arg(long, default_value_t = 0.1)]
     settle_speed: f32,
+    /// First steps of the step-range phases after the first, comma-separated and increasing
+    /// (`100,150`: steps 0-99, 100-149, 150-end; the last is the late phase of the accuracy table;
+    /// empty: one phase).
+    #[arg(long, value_parser = parse_phases, default_value = "100,150")]
+    phases: Phases,
+}
+
+#[derive(Debug, Clone)]
+struct Phases(Vec<u32>);
+
+fn parse_phases(s: &str) -> Result<Phases, String> {
+    metrics::phases::parse_boundaries(s).map(Phases)
 }
 
 fn main() -> Result<()> {
@@ -44,6 +56,7 @@ fn main() -> Result<()> {
 
     let mut aggregate = Aggregate::new();
     aggregate.settle_speed = args.settle_speed;
+    aggregate.phase_boundaries = args.phases.0.clone();
     let mut completeness = Completeness::default();
     // Per model: cumulative sweeps, for the live summary.
     let mut cumulative: BTreeMap<String, u64> = BTreeMap::new();
@@ -91,6 +104,10 @@ fn main() -> Result<()> {
     }
     let written = report::write(&aggregate, &out, &args.title, &missing)?;
     println!("{}", report::summary_markdown(&written.summaries));
+    if !aggregate.is_empty() {
+        println!("{}", report::phases_markdown(&written.phases));
+        println!("{}", report::accuracy_markdown(&written.accuracy));
+    }
     println!("report: {}", written.dir.join("report.html").display());
     if stats.decode_errors() > 0 {
         tracing::warn!(errors = stats.decode_errors(), "undecodable statistics payloads were skipped");

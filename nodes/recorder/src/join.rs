@@ -10,18 +10,20 @@
 
 use crate::read::{Item, RecordingReader};
 use crate::{recording_files, Error, Result};
-use msgs::{topics, Bodies, Contacts, SolveStats, StepHeader};
+use msgs::{topics, Bodies, Contacts, ProblemBodies, ProblemContacts, SolveStats, StepHeader};
 use std::collections::{BTreeMap, VecDeque};
 use std::path::{Path, PathBuf};
 
-/// One simulation step: the bodies at its end, its contacts with their impulses, and the solver
-/// statistics when the recording has them.
+/// One simulation step: the bodies at its end, its contacts with their impulses, the solver
+/// statistics when the recording has them, and the step's velocity problem when it has those
+/// (a simulator run with `--publish-problem`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Step {
     pub key: StepHeader,
     pub bodies: Bodies,
     pub contacts: Contacts,
     pub stats: Option<SolveStats>,
+    pub problem: Option<(ProblemBodies, ProblemContacts)>,
 }
 
 /// Steps still waiting for one of their parts.
@@ -32,6 +34,8 @@ struct Partial {
     bodies: Option<Bodies>,
     contacts: Option<Contacts>,
     stats: Option<SolveStats>,
+    problem_bodies: Option<ProblemBodies>,
+    problem_contacts: Option<ProblemContacts>,
 }
 
 type Key = (u64, u32, u32);
@@ -48,6 +52,7 @@ pub struct Steps {
     ready: VecDeque<Step>,
     window: usize,
     has_stats: bool,
+    has_problem: bool,
     incomplete: u64,
     undecodable: u64,
 }
@@ -62,6 +67,7 @@ impl Steps {
             ready: VecDeque::new(),
             window: DEFAULT_WINDOW,
             has_stats: false,
+            has_problem: false,
             incomplete: 0,
             undecodable: 0,
         })
@@ -84,7 +90,10 @@ impl Steps {
     }
 
     fn complete(&self, p: &Partial) -> bool {
-        p.bodies.is_some() && p.contacts.is_some() && (p.stats.is_some() || !self.has_stats)
+        p.bodies.is_some()
+            && p.contacts.is_some()
+            && (p.stats.is_some() || !self.has_stats)
+            && ((p.problem_bodies.is_some() && p.problem_contacts.is_some()) || !self.has_problem)
     }
 
     /// Moves complete steps at the front to `ready`; gives up the oldest beyond the window, or all
@@ -103,6 +112,7 @@ impl Steps {
                     bodies: p.bodies.expect("complete"),
                     contacts: p.contacts.expect("complete"),
                     stats: p.stats,
+                    problem: p.problem_bodies.zip(p.problem_contacts),
                 });
             } else {
                 self.incomplete += 1;
@@ -136,6 +146,22 @@ impl Steps {
                 }
                 Err(_) => self.undecodable += 1,
             }
+        } else if topic == topics::PROBLEM_BODIES.name {
+            match msgs::decode::<StepHeader, msgs::ProblemBody>(data) {
+                Ok(f) => {
+                    let k = key(f.header);
+                    self.pending.entry(k).or_default().problem_bodies = Some(f)
+                }
+                Err(_) => self.undecodable += 1,
+            }
+        } else if topic == topics::PROBLEM_CONTACTS.name {
+            match msgs::decode::<msgs::ProblemHeader, msgs::ProblemContact>(data) {
+                Ok(f) => {
+                    let k = key(f.header.step);
+                    self.pending.entry(k).or_default().problem_contacts = Some(f)
+                }
+                Err(_) => self.undecodable += 1,
+            }
         }
     }
 }
@@ -153,6 +179,7 @@ impl Iterator for Steps {
                 None => {
                     let file = self.files.pop_front()?;
                     self.has_stats = false;
+                    self.has_problem = false;
                     match RecordingReader::open(&file) {
                         Ok(r) => self.reader.insert(r),
                         Err(e) => return Some(Err(e)),
@@ -172,6 +199,9 @@ impl Iterator for Steps {
                 Some(Ok(Item::Channel(c))) => {
                     if c.topic == topics::SOLVE_STATS.name {
                         self.has_stats = true;
+                    }
+                    if c.topic == topics::PROBLEM_CONTACTS.name {
+                        self.has_problem = true;
                     }
                 }
                 Some(Ok(Item::Message(m))) => {

@@ -18,30 +18,38 @@ pub struct ContactKey {
     pub feature: u32,
 }
 
-/// The final impulses of the last two steps, sorted by key, for temporal models.
+/// The final impulses of the last two steps, sorted by key, for temporal models; with each
+/// contact's age (consecutive steps it has existed).
 #[derive(Debug, Clone, Default)]
 pub struct ImpulseHistory {
-    previous: Vec<(ContactKey, Impulse)>,
-    before_previous: Vec<(ContactKey, Impulse)>,
+    /// (key, final impulse, age in that step: 0 when it was new then).
+    previous: Vec<(ContactKey, Impulse, u32)>,
+    before_previous: Vec<(ContactKey, Impulse, u32)>,
 }
 
 impl ImpulseHistory {
     /// The impulse of contact `key` in the previous step, if it existed then.
     pub fn previous(&self, key: &ContactKey) -> Option<Impulse> {
-        lookup(&self.previous, key)
+        lookup(&self.previous, key).map(|(i, _)| i)
     }
 
     /// The impulse of contact `key` two steps ago, if it existed then.
     pub fn before_previous(&self, key: &ContactKey) -> Option<Impulse> {
-        lookup(&self.before_previous, key)
+        lookup(&self.before_previous, key).map(|(i, _)| i)
+    }
+
+    /// How many consecutive steps contact `key` has existed before the current one (0: new).
+    pub fn age(&self, key: &ContactKey) -> u32 {
+        lookup(&self.previous, key).map_or(0, |(_, age)| age + 1)
     }
 
     /// Records the step's final impulses (`keys` sorted) and shifts the older step back.
     pub fn push(&mut self, keys: impl Iterator<Item = ContactKey>, impulses: &[Impulse]) {
-        std::mem::swap(&mut self.previous, &mut self.before_previous);
-        self.previous.clear();
-        self.previous.extend(keys.zip(impulses.iter().copied()));
-        debug_assert!(self.previous.windows(2).all(|w| w[0].0 <= w[1].0), "keys must be sorted");
+        let mut next = std::mem::take(&mut self.before_previous);
+        next.clear();
+        next.extend(keys.zip(impulses.iter().copied()).map(|(k, i)| (k, i, self.age(&k))));
+        debug_assert!(next.windows(2).all(|w| w[0].0 <= w[1].0), "keys must be sorted");
+        self.before_previous = std::mem::replace(&mut self.previous, next);
     }
 
     /// Forgets everything (a new simulation).
@@ -51,8 +59,8 @@ impl ImpulseHistory {
     }
 }
 
-fn lookup(list: &[(ContactKey, Impulse)], key: &ContactKey) -> Option<Impulse> {
-    list.binary_search_by(|(k, _)| k.cmp(key)).ok().map(|i| list[i].1)
+fn lookup(list: &[(ContactKey, Impulse, u32)], key: &ContactKey) -> Option<(Impulse, u32)> {
+    list.binary_search_by(|(k, _, _)| k.cmp(key)).ok().map(|i| (list[i].1, list[i].2))
 }
 
 /// One contact point of the current step.
@@ -78,4 +86,23 @@ fn pack_feature(f: PackedFeatureId) -> u32 {
 /// The feature part of a [`ContactKey`]: body a's feature in the high half, body b's in the low.
 pub fn feature_key(fa: PackedFeatureId, fb: PackedFeatureId) -> u32 {
     (pack_feature(fa) << 16) | pack_feature(fb)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ages_count_consecutive_steps() {
+        let k = |b| ContactKey { body_a: 0, body_b: b, feature: 0 };
+        let one = [Impulse { normal: 1.0, tangent: 0.0 }; 2];
+        let mut h = ImpulseHistory::default();
+        h.push([k(1), k(2)].into_iter(), &one);
+        assert_eq!((h.age(&k(1)), h.age(&k(3))), (1, 0));
+        h.push([k(1), k(3)].into_iter(), &one);
+        assert_eq!((h.age(&k(1)), h.age(&k(2)), h.age(&k(3))), (2, 0, 1));
+        assert!(h.before_previous(&k(2)).is_some() && h.previous(&k(2)).is_none());
+        h.push([k(2)].into_iter(), &one[..1]);
+        assert_eq!(h.age(&k(2)), 1, "a contact that reappears starts again");
+    }
 }

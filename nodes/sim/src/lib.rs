@@ -12,6 +12,7 @@
 //! - [`solver`]: velocity solve (PGS to tolerance) and Box2D's position pass;
 //! - [`contact`]: contact keys and points, the impulse history across steps;
 //! - [`warm`]: the [`warm::WarmStartModel`] trait and its models, fallback handling;
+//! - [`problem`]: the step's velocity problem as data (`problem/*` topics), re-solved exactly;
 //! - [`oracle`]: ablations built from the exact solution and builtin's guess (the accuracy ->
 //!   sweeps curve);
 //! - [`world`]: one step = detect, warm start, solve, integrate, correct;
@@ -24,6 +25,7 @@ pub mod bench;
 pub mod contact;
 pub mod error;
 pub mod oracle;
+pub mod problem;
 pub mod rng;
 pub mod run;
 pub mod scene;

@@ -70,6 +70,15 @@ struct Args {
     /// The oracle's sweep cap.
     #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u32).range(1..))]
     oracle_max_sweeps: u32,
+    /// Publish each step's velocity problem on `problem/bodies` and `problem/contacts` (what a
+    /// learned warm start trains on).
+    #[arg(long)]
+    publish_problem: bool,
+    /// With --publish-problem: label each problem with a reference solution solved from
+    /// builtin's warm start to this tolerance (cap: --oracle-max-sweeps), e.g. 1e-6 for training
+    /// recordings.
+    #[arg(long, value_parser = positive_f32, requires = "publish_problem")]
+    label_tolerance: Option<f32>,
     /// How long to wait for a grid: `none` (lockstep) or a duration (20ms, 0.5s).
     #[arg(long, default_value = "none", value_parser = |s: &str| sim::parse_deadline(s).map(Deadline))]
     deadline: Deadline,
@@ -212,6 +221,11 @@ fn main() -> Result<()> {
         contacts: node.publisher(msgs::topics::CONTACTS)?,
         stats: node.publisher(msgs::topics::SOLVE_STATS)?,
         control: node.publisher(msgs::topics::CONTROL)?,
+        problem: if args.publish_problem {
+            Some((node.publisher(msgs::topics::PROBLEM_BODIES)?, node.publisher(msgs::topics::PROBLEM_CONTACTS)?))
+        } else {
+            None
+        },
     };
     // Grid-based runs open their grid and control subscribers for the run only (see `run`).
     for model in &models {
@@ -239,6 +253,8 @@ fn main() -> Result<()> {
             seeds: seeds.clone(),
             steps: args.steps,
             run_id: first_run_id + i as u64,
+            problems: args.publish_problem,
+            label: args.label_tolerance.map(|tolerance| SolveParams { tolerance, max_sweeps: args.oracle_max_sweeps }),
         };
         run(&args, &node, &mut pubs, model, &spec)?;
     }
@@ -251,6 +267,11 @@ struct Publishers {
     contacts: runtime::Publisher<StepHeader, msgs::Contact>,
     stats: runtime::Publisher<msgs::SolveStatsHeader, f32>,
     control: runtime::Publisher<msgs::Control, u8>,
+    /// With --publish-problem.
+    problem: Option<(
+        runtime::Publisher<StepHeader, msgs::ProblemBody>,
+        runtime::Publisher<msgs::ProblemHeader, msgs::ProblemContact>,
+    )>,
 }
 
 /// A run's outputs go to the bus; between steps the grid source (if any) drains its inbox.
@@ -278,6 +299,10 @@ impl RunSink for BusSink<'_> {
         let err = |topic: &str, e: runtime::Error| SimError::Output(format!("{topic}: {e}"));
         self.pubs.bodies.publish(&out.header, out.bodies).map_err(|e| err("bodies", e))?;
         self.pubs.contacts.publish(&out.header, out.contacts).map_err(|e| err("contacts", e))?;
+        if let (Some((bodies, contacts)), Some(p)) = (&mut self.pubs.problem, out.problem) {
+            bodies.publish(&p.header.step, &p.bodies).map_err(|e| err("problem/bodies", e))?;
+            contacts.publish(&p.header, &p.contacts).map_err(|e| err("problem/contacts", e))?;
+        }
         self.pubs.stats.publish(&out.stats.to_header(), out.residuals).map_err(|e| err("stats/solve", e))
     }
 }

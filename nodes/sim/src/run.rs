@@ -19,6 +19,10 @@ pub struct RunSpec {
     pub seeds: Vec<u64>,
     pub steps: u32,
     pub run_id: u64,
+    /// Hand each step's velocity problem to the sink (`--publish-problem`), labelled with a
+    /// reference solution solved with `label` when given (`--label-tolerance`).
+    pub problems: bool,
+    pub label: Option<crate::solver::SolveParams>,
 }
 
 /// One step's outputs, borrowed from the world.
@@ -29,6 +33,8 @@ pub struct StepOutput<'a> {
     pub stats: &'a msgs::StepStats,
     /// Residual after each sweep, at most [`msgs::MAX_RESIDUALS`].
     pub residuals: &'a [f32],
+    /// The step's velocity problem, when the run captures them.
+    pub problem: Option<&'a crate::problem::Problem>,
 }
 
 /// Where a run's messages go.
@@ -82,6 +88,9 @@ pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Re
         })?;
         let mut world = World::new(&SceneConfig { seed, ..spec.scene.clone() }, spec.params)?;
         world.set_ids(run_id, simulation);
+        if spec.problems {
+            world.capture_problems(spec.label);
+        }
         warm.begin_simulation(simulation, seed);
         let sim_header = StepHeader { run_id, simulation, step: 0 };
         let scene = SceneInfo {
@@ -108,7 +117,8 @@ pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Re
             unconverged += (!stats.converged) as u32;
             let residuals = &world.residuals()[..world.residuals().len().min(msgs::MAX_RESIDUALS)];
             let header = StepHeader { run_id, simulation, step };
-            sink.step(&StepOutput { header, bodies: &bodies, contacts: &contacts, stats, residuals })?;
+            let problem = world.problem();
+            sink.step(&StepOutput { header, bodies: &bodies, contacts: &contacts, stats, residuals, problem })?;
         }
         let steps = world.steps_taken();
         sink.control(&ControlMsg::simple(StepHeader { step: steps, ..sim_header }, ControlKind::SimulationEnd, steps))?;
@@ -171,6 +181,8 @@ mod tests {
             seeds,
             steps,
             run_id: 42,
+            problems: false,
+            label: None,
         }
     }
 

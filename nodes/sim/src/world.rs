@@ -16,13 +16,14 @@
 
 use crate::contact::{feature_key, ContactKey, ContactPoint, ImpulseHistory};
 use crate::error::SimError;
+use crate::problem::Problem;
 use crate::scene::{BodyKind, Scene, SceneConfig, ShapeSpec};
 use crate::solver::{
     correct_positions, rotate, ContactRow, ContactSolver, Impulse, PoseBody, PositionGeometry, PositionParams,
     PositionRow, SolveParams, SolveReport, SolverBody,
 };
 use crate::warm::{WarmStartInput, WarmStarter};
-use msgs::StepStats;
+use msgs::{ProblemBody, ProblemContact, ProblemHeader, StepStats};
 use rapier2d::math::{Pose, Vec2};
 use rapier2d::prelude::{ColliderBuilder, PhysicsWorld, RigidBodyBuilder, RigidBodyHandle};
 use std::time::Instant;
@@ -164,6 +165,16 @@ pub struct World {
     last_solve: SolveReport,
     min_separation: f32,
     oracle_report: Option<SolveReport>,
+    /// Capture each step's velocity problem (and solve a reference with these parameters).
+    capture: Option<Capture>,
+    problem: Problem,
+}
+
+/// What [`World::capture_problems`] asks for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Capture {
+    /// The reference solve's stopping rule (from builtin's warm start), if labelled.
+    reference: Option<SolveParams>,
 }
 
 impl World {
@@ -247,10 +258,24 @@ impl World {
             last_solve: SolveReport::default(),
             min_separation: 0.0,
             oracle_report: None,
+            capture: None,
+            problem: Problem::default(),
         };
         world.set_kinematic_state(0.0);
         world.sync_rapier();
         world
+    }
+
+    /// From the next step on, capture each step's velocity problem before solving it
+    /// ([`World::problem`]); with `reference`, also solve it from builtin's warm start with those
+    /// parameters (the label a learned model trains on; outside the step's timings).
+    pub fn capture_problems(&mut self, reference: Option<SolveParams>) {
+        self.capture = Some(Capture { reference });
+    }
+
+    /// The velocity problem of the last step, when capturing.
+    pub fn problem(&self) -> Option<&Problem> {
+        self.capture.is_some().then_some(&self.problem)
     }
 
     /// Labels the messages and grid requests of this world (run id and simulation index).
@@ -465,6 +490,55 @@ impl World {
         self.position_rows.extend(self.staging.iter().map(|s| s.2));
     }
 
+    /// Fills [`World::problem`] from the current rows, bodies and history.
+    fn capture_problem(&mut self, capture: Capture) {
+        let p = &mut self.problem;
+        p.bodies.clear();
+        p.bodies.extend(self.solver_bodies.iter().map(|b| ProblemBody {
+            v: b.v.into(),
+            w: b.w,
+            inv_mass: b.inv_mass,
+            inv_inertia: b.inv_inertia,
+        }));
+        p.contacts.clear();
+        for (c, r) in self.contacts.iter().zip(&self.rows) {
+            let pair = |i: Option<Impulse>| i.map_or([0.0; 2], |i| [i.normal, i.tangent]);
+            p.contacts.push(ProblemContact {
+                body_a: r.body_a,
+                body_b: r.body_b,
+                feature: c.key.feature,
+                age: self.history.age(&c.key),
+                ra: r.ra.into(),
+                rb: r.rb.into(),
+                normal: r.normal.into(),
+                friction: r.friction,
+                penetration: c.penetration,
+                previous: pair(self.history.previous(&c.key)),
+                before_previous: pair(self.history.before_previous(&c.key)),
+                reference: [f32::NAN; 2],
+            });
+        }
+        p.header = ProblemHeader {
+            step: msgs::StepHeader { run_id: self.run_id, simulation: self.simulation, step: self.step },
+            bodies: p.bodies.len() as u32,
+            tolerance: self.params.solve.tolerance,
+            max_sweeps: self.params.solve.max_sweeps,
+            ..ProblemHeader::default()
+        };
+        if let Some(params) = capture.reference {
+            self.scratch_bodies.clear();
+            self.scratch_bodies.extend_from_slice(&self.solver_bodies);
+            let start = crate::problem::builtin_warm_start(&p.contacts);
+            let report = self.oracle_solver.solve(&self.rows, &mut self.scratch_bodies, &start, &params);
+            for (c, l) in p.contacts.iter_mut().zip(self.oracle_solver.impulses()) {
+                c.reference = [l.normal, l.tangent];
+            }
+            p.header.reference_tolerance = params.tolerance;
+            p.header.reference_sweeps = report.sweeps;
+            p.header.reference_converged = report.converged as u32;
+        }
+    }
+
     /// Advances the world by one step, taking the warm start from `warm`.
     pub fn step(&mut self, warm: &mut WarmStarter) -> &StepStats {
         let t_step = Instant::now();
@@ -490,6 +564,13 @@ impl World {
                 friction: c.friction,
             });
         }
+
+        // The problem as data, before anything changes the velocities (not part of the step's time).
+        let t_capture = Instant::now();
+        if let Some(capture) = self.capture {
+            self.capture_problem(capture);
+        }
+        let capture_time = t_capture.elapsed();
 
         // Warm start.
         let t_warm = Instant::now();
@@ -606,7 +687,7 @@ impl World {
             warm_error_tangent_max: t_max,
             solve_us,
             warm_start_us,
-            step_us: t_step.elapsed().as_secs_f32() * 1e6,
+            step_us: t_step.elapsed().saturating_sub(capture_time).as_secs_f32() * 1e6,
             kinetic_energy: 0.0,
             max_speed: 0.0,
         };

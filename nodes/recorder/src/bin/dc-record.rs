@@ -130,6 +130,12 @@ fn subscribe(node: &runtime::Node, topic: &str) -> anyhow::Result<Box<dyn Record
             Box::new(Typed { kind, sub: node.subscriber_named::<msgs::SolveStatsHeader, f32>(topic)? })
         }
         FrameKind::Control => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::Control, u8>(topic)? }),
+        FrameKind::ProblemBodies => {
+            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::ProblemBody>(topic)? })
+        }
+        FrameKind::ProblemContacts => {
+            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::ProblemHeader, msgs::ProblemContact>(topic)? })
+        }
     })
 }
 

@@ -74,6 +74,12 @@ fn publisher(node: &runtime::Node, kind: FrameKind, topic: &str) -> anyhow::Resu
         FrameKind::Grid => Box::new(Typed(node.publisher_named::<msgs::GridHeader, f32>(topic)?)),
         FrameKind::SolveStats => Box::new(Typed(node.publisher_named::<msgs::SolveStatsHeader, f32>(topic)?)),
         FrameKind::Control => Box::new(Typed(node.publisher_named::<msgs::Control, u8>(topic)?)),
+        FrameKind::ProblemBodies => {
+            Box::new(Typed(node.publisher_named::<msgs::StepHeader, msgs::ProblemBody>(topic)?))
+        }
+        FrameKind::ProblemContacts => {
+            Box::new(Typed(node.publisher_named::<msgs::ProblemHeader, msgs::ProblemContact>(topic)?))
+        }
     })
 }
 

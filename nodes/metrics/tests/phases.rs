@@ -1,0 +1,349 @@
+//! Where the sweeps go, from synthetic statistics with known numbers: per-phase totals, shares and
+//! builtin-relative sweeps, custom phase boundaries, the sweeps histogram, the accuracy -> sweeps
+//! table, and the report's phase / accuracy files and plots.
+
+use metrics::phases::StepRange;
+use metrics::report::{self, AccuracyTable, PhaseTable, ACCURACY_COLUMNS, PHASE_COLUMNS};
+use metrics::{Aggregate, StepRecord};
+use msgs::{name16, SolveStatsHeader, StepHeader};
+
+fn scratch(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("dc-metrics-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// A step's statistics; `converged` false means the step hit the cap.
+fn step(
+    model: &str,
+    simulation: u32,
+    step: u32,
+    sweeps: u32,
+    converged: bool,
+    error: f32,
+    persisting: u32,
+) -> StepRecord {
+    let h = SolveStatsHeader {
+        step: StepHeader { run_id: 7, simulation, step },
+        model: name16(model),
+        used_model: name16(model),
+        contacts: 20,
+        persisting_contacts: persisting,
+        sweeps,
+        converged: converged as u32,
+        warm_error_normal_mse: error,
+        warm_error_tangent_mse: error / 2.0,
+        solve_us: 2.0 * sweeps as f32,
+        step_us: 40.0,
+        ..Default::default()
+    };
+    StepRecord::from_msg(&h, &[])
+}
+
+/// builtin: per simulation (200 steps) sweeps 2 (steps 0-99), 4 (100-149), 10 (150-199): 900 per
+/// simulation, 1800 over two. `half`: exactly half of builtin's sweeps at every step. `capped`:
+/// builtin's sweeps, but late steps 190-199 hit the cap (1000 sweeps, not converged).
+/// Warm-start errors: builtin 0.2, half 0.05 on steps with persisting contacts; late steps
+/// 195-199 have no persisting contacts and a huge error (left out of the accuracy table).
+fn synthetic() -> Aggregate {
+    let mut a = Aggregate::new();
+    let sweeps_at = |s: u32| match s {
+        0..=99 => 2,
+        100..=149 => 4,
+        _ => 10,
+    };
+    for sim in 0..2 {
+        for s in 0..200 {
+            let persisting = if s >= 195 { 0 } else { 10 };
+            let err = |e: f32| if persisting == 0 { 1e6 } else { e };
+            a.add(step("builtin", sim, s, sweeps_at(s), true, err(0.2), persisting));
+            a.add(step("half", sim, s, sweeps_at(s) / 2, true, err(0.05), persisting));
+            let cap = s >= 190;
+            a.add(step("capped", sim, s, if cap { 1000 } else { sweeps_at(s) }, !cap, err(0.4), persisting));
+        }
+    }
+    a
+}
+
+#[test]
+fn phase_totals_add_up_and_compare_with_builtins_whole_run() {
+    let a = synthetic();
+    let rows = a.phase_rows();
+    assert_eq!(rows.len(), 3 * 3);
+    // Models in the report's order: the contract's (builtin) first, then by name.
+    let order: Vec<&str> = rows.iter().step_by(3).map(|r| r.model.as_str()).collect();
+    assert_eq!(order, ["builtin", "capped", "half"]);
+    let labels: Vec<String> = rows[..3].iter().map(|r| r.phase.label()).collect();
+    assert_eq!(labels, ["0-99", "100-149", "150-end"]);
+
+    let builtin: Vec<_> = rows.iter().filter(|r| r.model == "builtin").collect();
+    assert_eq!(builtin.iter().map(|r| r.steps).collect::<Vec<_>>(), [200, 100, 100]);
+    assert_eq!(builtin.iter().map(|r| r.total_sweeps).collect::<Vec<_>>(), [400, 400, 1000]);
+    assert_eq!(builtin.iter().map(|r| r.median_sweeps).collect::<Vec<_>>(), [2.0, 4.0, 10.0]);
+    for r in &rows {
+        let model_total: u64 = a.records(&r.model).map(|s| s.sweeps as u64).sum();
+        assert_eq!(r.model_total_sweeps, model_total);
+        // Exactly the phase's sweeps over builtin's total over all phases.
+        assert_eq!(r.ratio_to_builtin_total, Some(r.total_sweeps as f64 / 1800.0), "{r:?}");
+    }
+    for model in ["builtin", "half", "capped"] {
+        let mine: Vec<_> = rows.iter().filter(|r| r.model == model).collect();
+        let total: u64 = a.records(model).map(|s| s.sweeps as u64).sum();
+        assert_eq!(mine.iter().map(|r| r.total_sweeps).sum::<u64>(), total, "{model}: phases add up");
+        assert_eq!(mine.iter().map(|r| r.steps).sum::<usize>(), 400);
+        let shares: f64 = mine.iter().map(|r| r.share_of_model).sum();
+        assert!((shares - 1.0).abs() < 1e-12, "{model}: shares sum to {shares}");
+    }
+    let half_late = rows.iter().find(|r| r.model == "half" && r.phase.first == 150).unwrap();
+    assert_eq!(half_late.total_sweeps, 500);
+    assert_eq!(half_late.ratio_to_builtin_total, Some(500.0 / 1800.0));
+    assert_eq!(half_late.share_of_model, 500.0 / 900.0);
+
+    // Capped: 2 x 10 late steps at 1000 sweeps.
+    let capped: Vec<_> = rows.iter().filter(|r| r.model == "capped").collect();
+    let capped_total = 2 * (200 + 200 + 40 * 10 + 10 * 1000);
+    assert_eq!(capped[0].model_total_sweeps, capped_total);
+    assert_eq!(capped.iter().map(|r| r.cap_hits).collect::<Vec<_>>(), [0, 0, 20]);
+    assert_eq!(capped[2].cap_sweeps, 20_000);
+    assert_eq!(capped[2].cap_sweeps_share, 20_000.0 / capped_total as f64);
+    assert_eq!(capped[0].cap_sweeps_share, 0.0);
+    assert_eq!(builtin[2].median_warm_error_normal_mse, 0.2f32 as f64);
+
+    // The table shows those numbers.
+    let table = PhaseTable::new(&rows);
+    assert_eq!(
+        table.rows[2].to_vec(),
+        ["builtin", "150-end", "100", "1000", "55.6%", "0.556x", "0", "0.0%", "10.0", "0.2000"]
+    );
+    assert_eq!(table.rows[5][6..8], ["20".to_string(), format!("{:.1}%", 2e6 / capped_total as f64)]);
+}
+
+#[test]
+fn without_builtin_there_is_no_builtin_column() {
+    let mut a = Aggregate::new();
+    for s in 0..10 {
+        a.add(step("none", 0, s, 3, true, 0.1, 5));
+    }
+    let rows = a.phase_rows();
+    assert!(rows.iter().all(|r| r.ratio_to_builtin_total.is_none()));
+    assert_eq!(PhaseTable::new(&rows).rows[0][5], "-");
+    assert!(a.accuracy().iter().all(|r| r.sweeps_vs_builtin.is_none() && r.error_vs_builtin.is_none()));
+    // Steps 0-9 only: the later phases are empty, with zero sweeps and no medians.
+    assert_eq!(rows[1].steps, 0);
+    assert_eq!(rows[1].total_sweeps, 0);
+    assert!(rows[1].median_sweeps.is_nan());
+    assert_eq!(PhaseTable::new(&rows).rows[1][8], "-");
+}
+
+#[test]
+fn custom_phase_boundaries() {
+    let mut a = synthetic();
+    a.phase_boundaries = vec![50];
+    let rows = a.phase_rows();
+    let builtin: Vec<_> = rows.iter().filter(|r| r.model == "builtin").collect();
+    assert_eq!(builtin.iter().map(|r| r.phase.label()).collect::<Vec<_>>(), ["0-49", "50-end"]);
+    assert_eq!(builtin.iter().map(|r| r.total_sweeps).collect::<Vec<_>>(), [200, 1600]);
+
+    a.phase_boundaries = vec![10, 20, 190];
+    let rows = a.phase_rows();
+    let builtin: Vec<_> = rows.iter().filter(|r| r.model == "builtin").collect();
+    assert_eq!(builtin.iter().map(|r| r.phase.label()).collect::<Vec<_>>(), ["0-9", "10-19", "20-189", "190-end"]);
+    assert_eq!(builtin.iter().map(|r| r.steps).collect::<Vec<_>>(), [20, 20, 340, 20]);
+    assert_eq!(builtin.iter().map(|r| r.total_sweeps).sum::<u64>(), 1800);
+    // The late phase of the accuracy table is the last range.
+    assert_eq!(a.accuracy()[0].late_phase, StepRange { first: 190, end: None });
+    let capped = a.accuracy().into_iter().find(|r| r.model == "capped").unwrap();
+    assert_eq!(capped.late_sweeps, 20_000);
+
+    a.phase_boundaries = Vec::new();
+    assert_eq!(a.phase_rows().iter().filter(|r| r.model == "half").count(), 1);
+    assert_eq!(a.phase_rows()[0].phase.label(), "0-end");
+}
+
+#[test]
+fn histogram_fractions_sum_to_one_per_model_and_phase() {
+    let a = synthetic();
+    let h = a.sweeps_histograms();
+    let labels: Vec<String> = h.bins.iter().map(|b| b.label()).collect();
+    assert_eq!(labels.first().unwrap(), "1");
+    assert_eq!(labels.last().unwrap(), "512-1023");
+    assert_eq!(h.histograms.len(), 3 * 3);
+    for hist in &h.histograms {
+        let sum: f64 = hist.fractions.iter().sum();
+        assert!((sum - 1.0).abs() < 1e-12, "{} {}: {sum}", hist.model, hist.phase.label());
+        assert_eq!(hist.counts.iter().sum::<usize>(), hist.steps);
+    }
+    let bin = |label: &str| labels.iter().position(|l| l == label).unwrap();
+    let builtin_late = &h.histograms[2];
+    assert_eq!((builtin_late.model.as_str(), builtin_late.phase.first), ("builtin", 150));
+    assert_eq!(builtin_late.counts[bin("8-15")], 100);
+    let capped_late = h.histograms.iter().find(|x| x.model == "capped" && x.phase.first == 150).unwrap();
+    assert_eq!(capped_late.fractions[bin("512-1023")], 0.2);
+    assert_eq!(capped_late.fractions[bin("8-15")], 0.8);
+}
+
+#[test]
+fn accuracy_table_puts_builtin_at_one_and_half_the_sweeps_at_half() {
+    let a = synthetic();
+    let acc = a.accuracy();
+    let row = |m: &str| acc.iter().find(|r| r.model == m).unwrap().clone();
+    let builtin = row("builtin");
+    assert_eq!((builtin.error_vs_builtin, builtin.sweeps_vs_builtin), (Some(1.0), Some(1.0)));
+    assert_eq!(builtin.late_phase.label(), "150-end");
+    // Late steps with persisting contacts: 150-194 in two simulations.
+    assert_eq!(builtin.late_steps, 90);
+    assert_eq!(builtin.median_warm_error_normal_mse, 0.2f32 as f64, "steps without persisting contacts left out");
+    assert_eq!(builtin.total_sweeps, 1800);
+    let half = row("half");
+    assert_eq!(half.sweeps_vs_builtin, Some(0.5));
+    assert_eq!(half.late_sweeps_vs_builtin, Some(0.5));
+    assert_eq!(half.error_vs_builtin, Some(0.05f32 as f64 / 0.2f32 as f64));
+    let table = AccuracyTable::new(&acc);
+    let cells = |m: &str| table.rows.iter().find(|r| r[0] == m).unwrap().to_vec();
+    assert_eq!(cells("builtin"), ["builtin", "90", "0.2000", "1.000x", "0.2000", "1800", "1.000x", "1.000x"]);
+    assert_eq!(cells("half")[3], "0.250x");
+    assert_eq!(cells("half")[6], "0.500x");
+    let md = table.to_markdown();
+    assert_eq!(md.lines().next().unwrap(), format!("| {} |", ACCURACY_COLUMNS.join(" | ")));
+    assert_eq!(md.lines().nth(1).unwrap(), "|---|---:|---:|---:|---:|---:|---:|---:|");
+    let html = table.to_html();
+    assert!(html.contains("<tr><td>half</td><td>90</td><td>0.0500</td><td>0.250x</td>"), "{html}");
+    assert_eq!(html.matches("<tr>").count(), 1 + 3);
+}
+
+#[test]
+fn scatter_points_are_positive_and_subsampled_deterministically() {
+    let mut a = Aggregate::new();
+    for sim in 0..10 {
+        for s in 0..1000 {
+            // Every 10th step has no error (skipped on a log axis), every 7th no sweeps.
+            let err = if s % 10 == 0 { 0.0 } else { s as f32 };
+            a.add(step("m", sim, s, if s % 7 == 0 { 0 } else { 5 }, true, err, 3));
+        }
+    }
+    let p = a.sweeps_vs_warm_error("m", 3000);
+    assert!(p.len() <= 3000 && p.len() > 2000, "{}", p.len());
+    assert!(p.iter().all(|&(e, s)| e > 0.0 && s > 0.0));
+    assert_eq!(p, a.sweeps_vs_warm_error("m", 3000));
+    assert_eq!(a.sweeps_vs_warm_error("m", 1_000_000).len(), 10 * (1000 - 100 - 143 + 15));
+    assert!(a.sweeps_vs_warm_error("nobody", 10).is_empty());
+}
+
+#[test]
+fn phase_table_markdown_and_html_show_the_same_cells() {
+    let table = PhaseTable::new(&synthetic().phase_rows());
+    let md = table.to_markdown();
+    let lines: Vec<&str> = md.lines().collect();
+    assert_eq!(lines[0], format!("| {} |", PHASE_COLUMNS.join(" | ")));
+    assert_eq!(lines[1], "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    assert_eq!(lines.len(), 2 + 9);
+    let html = table.to_html();
+    for row in &table.rows {
+        assert!(md.contains(&format!("| {} |", row.join(" | "))));
+        let cells: String = row.iter().map(|c| format!("<td>{c}</td>")).collect();
+        assert!(html.contains(&format!("<tr>{cells}</tr>")), "{cells}");
+    }
+}
+
+fn is_png(path: &std::path::Path) -> bool {
+    let bytes = std::fs::read(path).unwrap();
+    bytes.len() > 1000 && bytes.starts_with(b"\x89PNG\r\n\x1a\n")
+}
+
+/// A tiny deterministic generator (xorshift) for realistic-looking synthetic runs.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Oracle ablations and the contract's models over 4 simulations of 250 steps: sweeps grow with
+/// the warm-start error and in the late (jammed) phase; some late steps hit the cap.
+fn ablations() -> Aggregate {
+    let models: [(&str, f64); 12] = [
+        ("none", 1.0),
+        ("builtin", 0.17),
+        ("copy", 0.0),
+        ("blend:0.5", 0.17 * 0.25),
+        ("blend:0.75", 0.17 * 0.0625),
+        ("blend:0.9", 0.17 * 0.01),
+        ("noise:0.5", 0.05),
+        ("copy-persisting", 0.02),
+        ("copy-new", 0.15),
+        ("smooth-error", 0.12),
+        ("unet", 0.11),
+        ("grid", 0.18),
+    ];
+    let mut a = Aggregate::new();
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    for (model, err) in models {
+        for sim in 0..4 {
+            for s in 0..250u32 {
+                let late = s >= 150;
+                let base = if s < 100 {
+                    20.0
+                } else if late {
+                    300.0
+                } else {
+                    120.0
+                };
+                let e = err * (0.3 + 1.4 * rng.next());
+                let sweeps = (base * (0.15 + 3.0 * e.sqrt()) * (0.5 + rng.next())).round().clamp(1.0, 1000.0) as u32;
+                let sweeps = if late && rng.next() < 0.1 * err.sqrt() { 1000 } else { sweeps };
+                let mut r = step(model, sim, s, sweeps, sweeps < 1000, e as f32, 10);
+                // Residuals decaying geometrically from the warm start's error to the tolerance.
+                let start = e.sqrt().max(1e-3);
+                let rate = (1e-4 / start).powf(1.0 / sweeps as f64);
+                r.residuals = (1..=sweeps).map(|i| (start * rate.powi(i as i32)) as f32).collect();
+                a.add(r);
+            }
+        }
+    }
+    a
+}
+
+#[test]
+fn report_has_phase_and_accuracy_tables_and_plots() {
+    let a = ablations();
+    let dir = scratch("phases");
+    let w = report::write(&a, &dir, "ablations", &[]).unwrap();
+    for f in [
+        "phases.csv",
+        "accuracy.csv",
+        "sweeps_histogram.csv",
+        "sweeps_histogram.png",
+        "sweeps_vs_warm_error.png",
+        "accuracy_vs_sweeps.png",
+    ] {
+        assert!(dir.join(f).is_file(), "{f} missing");
+        assert!(w.files.contains(&dir.join(f)), "{f} not listed");
+    }
+    for f in w.files.iter().filter(|f| f.extension().is_some_and(|e| e == "png")) {
+        assert!(is_png(f), "{} is not a PNG", f.display());
+    }
+    assert_eq!(w.phases.len(), 12 * 3);
+    assert_eq!(w.accuracy.len(), 12);
+    let phases_csv = std::fs::read_to_string(dir.join("phases.csv")).unwrap();
+    assert_eq!(phases_csv.lines().count(), 1 + 12 * 3);
+    assert!(phases_csv.starts_with("model,phase,first_step,last_step,steps,total_sweeps,"));
+    assert!(phases_csv.contains("\nbuiltin,150-end,150,,400,"), "{phases_csv}");
+    let md = std::fs::read_to_string(dir.join("summary.md")).unwrap();
+    let phase_md = PhaseTable::new(&w.phases).to_markdown();
+    let accuracy_md = AccuracyTable::new(&w.accuracy).to_markdown();
+    assert!(md.contains("## Sweeps per phase") && md.contains(&phase_md), "{md}");
+    assert!(md.contains("## Accuracy -> sweeps (late phase: steps 150-end)") && md.contains(&accuracy_md));
+    assert!(md.contains("| builtin | 400 | "), "{md}");
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    assert!(html.contains(&PhaseTable::new(&w.phases).to_html()));
+    assert!(html.contains(&AccuracyTable::new(&w.accuracy).to_html()));
+    for img in ["sweeps_histogram.png", "accuracy_vs_sweeps.png", "sweeps_vs_warm_error.png"] {
+        assert!(html.contains(&format!("<img src=\"{img}\"")), "{img}");
+    }
+    // The markdown main.rs prints.
+    assert!(report::phases_markdown(&w.phases).contains(&phase_md));
+    assert!(report::accuracy_markdown(&w.accuracy).contains(&accuracy_md));
+}

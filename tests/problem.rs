@@ -1,0 +1,83 @@
+//! The contact problem on the bus: a simulator run with `--publish-problem` publishes each step's
+//! velocity problem, a recorder keeps it, and re-solving every recorded problem from the warm
+//! start the run used (builtin's: the previous step's impulses) takes exactly the sweeps the run
+//! reported, with the same residual after every sweep. With `--label-tolerance` the problems
+//! carry a reference solution from which the solve is over at once.
+
+use deep_contact::{launch, scratch_dir, text};
+
+#[test]
+fn recorded_problems_resolve_to_the_recorded_sweeps() {
+    let dir = scratch_dir("problem");
+    let file = dir.join("problem.mcap");
+    let graph = format!(
+        r#"
+[graph]
+name = "problem"
+
+[[nodes]]
+name = "recorder"
+binary = "dc-record"
+daemon = true
+params = {{ out = "{}" }}
+
+[[nodes]]
+name = "sim"
+binary = "dc-sim"
+params = {{ model = "builtin", seeds = "3", steps = 150, n = 40, publish-problem = true, label-tolerance = 1e-6 }}
+"#,
+        file.display()
+    );
+    let (_, out) = launch("problem", &graph, &[]);
+    assert!(out.status.success(), "{}", text(&out));
+
+    let (mut steps, mut with_contacts, mut total_sweeps, mut old_contacts) = (0, 0, 0u64, 0u64);
+    for step in recorder::Steps::open(&file).expect("the recording") {
+        let step = step.expect("a complete step");
+        let stats = step.stats.as_ref().expect("statistics");
+        let (bodies, contacts) = step.problem.as_ref().expect("the step's problem");
+        assert_eq!(contacts.header.step, step.key);
+        assert_eq!(contacts.header.bodies as usize, bodies.items.len());
+        assert_eq!(contacts.items.len(), stats.header.contacts as usize);
+        let problem = sim::problem::Problem {
+            header: contacts.header,
+            bodies: bodies.items.clone(),
+            contacts: contacts.items.clone(),
+        };
+        let warm = sim::problem::builtin_warm_start(&problem.contacts);
+        let mut solver_bodies = sim::problem::bodies_of(&problem.bodies);
+        let mut solver = sim::ContactSolver::new();
+        let report =
+            solver.solve(&sim::problem::rows_of(&problem.contacts), &mut solver_bodies, &warm, &problem.params());
+        assert_eq!(report.sweeps, stats.header.sweeps, "step {:?}", step.key);
+        assert_eq!(solver.residuals(), &stats.items[..], "step {:?}: residuals differ", step.key);
+        // The final impulses are the recorded contacts' (same order: sorted by key).
+        for (l, c) in solver.impulses().iter().zip(&step.contacts.items) {
+            assert_eq!((l.normal, l.tangent), (c.normal_impulse, c.tangent_impulse), "step {:?}", step.key);
+        }
+        if !problem.contacts.is_empty() {
+            with_contacts += 1;
+            let reference = problem.reference().expect("labelled");
+            assert!(contacts.header.reference_sweeps > 0 && contacts.header.reference_tolerance == 1e-6);
+            let (from_reference, _) = problem.solve(&reference);
+            assert!(
+                from_reference.sweeps <= 5,
+                "step {:?}: {} sweeps from the reference",
+                step.key,
+                from_reference.sweeps
+            );
+            // A new contact has no previous impulse; one that persisted two steps has both.
+            for c in &problem.contacts {
+                if c.age == 0 {
+                    assert_eq!(c.previous, [0.0; 2], "step {:?}", step.key);
+                }
+                old_contacts += (c.age >= 2) as u64;
+            }
+        }
+        total_sweeps += report.sweeps as u64;
+        steps += 1;
+    }
+    assert_eq!(steps, 150);
+    assert!(with_contacts > 50 && total_sweeps > 1000, "{with_contacts} steps with contacts, {total_sweeps} sweeps");
+    assert!(old_contacts > 1000, "{old_contacts} contacts at least two steps old");
+}
