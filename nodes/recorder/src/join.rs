@@ -52,7 +52,10 @@ pub struct Steps {
     ready: VecDeque<Step>,
     window: usize,
     has_stats: bool,
+    /// The file has problem channels (the recorder makes every channel up front, used or not) ...
     has_problem: bool,
+    /// ... and problem frames were seen in it: from then on a step needs its problem.
+    problem_seen: bool,
     incomplete: u64,
     undecodable: u64,
 }
@@ -68,6 +71,7 @@ impl Steps {
             window: DEFAULT_WINDOW,
             has_stats: false,
             has_problem: false,
+            problem_seen: false,
             incomplete: 0,
             undecodable: 0,
         })
@@ -93,7 +97,11 @@ impl Steps {
         p.bodies.is_some()
             && p.contacts.is_some()
             && (p.stats.is_some() || !self.has_stats)
-            && ((p.problem_bodies.is_some() && p.problem_contacts.is_some()) || !self.has_problem)
+            && (Self::has_its_problem(p) || !self.problem_seen)
+    }
+
+    fn has_its_problem(p: &Partial) -> bool {
+        p.problem_bodies.is_some() && p.problem_contacts.is_some()
     }
 
     /// Moves complete steps at the front to `ready`; gives up the oldest beyond the window, or all
@@ -101,7 +109,11 @@ impl Steps {
     fn release(&mut self, end_of_file: bool) {
         while let Some((&key, front)) = self.pending.first_key_value() {
             let complete = self.complete(front);
-            if !complete && !end_of_file && self.pending.len() <= self.window {
+            // Without a problem yet in a file with problem channels, its problem may still come:
+            // wait for it as for a missing part (a file whose channels stay empty releases its
+            // steps once the window is full).
+            let may_get_problem = self.has_problem && !Self::has_its_problem(front);
+            if (!complete || may_get_problem) && !end_of_file && self.pending.len() <= self.window {
                 break;
             }
             let p = self.pending.remove(&key).expect("the first key");
@@ -150,6 +162,7 @@ impl Steps {
             match msgs::decode::<StepHeader, msgs::ProblemBody>(data) {
                 Ok(f) => {
                     let k = key(f.header);
+                    self.problem_seen = true;
                     self.pending.entry(k).or_default().problem_bodies = Some(f)
                 }
                 Err(_) => self.undecodable += 1,
@@ -158,6 +171,7 @@ impl Steps {
             match msgs::decode::<msgs::ProblemHeader, msgs::ProblemContact>(data) {
                 Ok(f) => {
                     let k = key(f.header.step);
+                    self.problem_seen = true;
                     self.pending.entry(k).or_default().problem_contacts = Some(f)
                 }
                 Err(_) => self.undecodable += 1,
@@ -180,6 +194,7 @@ impl Iterator for Steps {
                     let file = self.files.pop_front()?;
                     self.has_stats = false;
                     self.has_problem = false;
+                    self.problem_seen = false;
                     match RecordingReader::open(&file) {
                         Ok(r) => self.reader.insert(r),
                         Err(e) => return Some(Err(e)),

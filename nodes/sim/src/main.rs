@@ -297,12 +297,13 @@ impl RunSink for BusSink<'_> {
     }
     fn step(&mut self, out: &StepOutput<'_>) -> Result<(), SimError> {
         let err = |topic: &str, e: runtime::Error| SimError::Output(format!("{topic}: {e}"));
-        self.pubs.bodies.publish(&out.header, out.bodies).map_err(|e| err("bodies", e))?;
-        self.pubs.contacts.publish(&out.header, out.contacts).map_err(|e| err("contacts", e))?;
+        // The problem first: it is what the step started from.
         if let (Some((bodies, contacts)), Some(p)) = (&mut self.pubs.problem, out.problem) {
             bodies.publish(&p.header.step, &p.bodies).map_err(|e| err("problem/bodies", e))?;
             contacts.publish(&p.header, &p.contacts).map_err(|e| err("problem/contacts", e))?;
         }
+        self.pubs.bodies.publish(&out.header, out.bodies).map_err(|e| err("bodies", e))?;
+        self.pubs.contacts.publish(&out.header, out.contacts).map_err(|e| err("contacts", e))?;
         self.pubs.stats.publish(&out.stats.to_header(), out.residuals).map_err(|e| err("stats/solve", e))
     }
 }
