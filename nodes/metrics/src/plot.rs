@@ -596,7 +596,8 @@ fn draw_panel(root: &Root, area: &Root, p: &Panel, style_of: &dyn Fn(&str) -> St
                 let (w, h) = root.estimate_text_size(label, &text).map_err(e)?;
                 let (spot, moved) = place_label(*at, (w as i32, h as i32), &placed, &bounds);
                 if moved {
-                    let near = (spot.x0.clamp(at.0 - 1, spot.x1), (spot.y0 + spot.y1) / 2);
+                    // The point of the label's box nearest the marker, horizontally.
+                    let near = (at.0.clamp(spot.x0, spot.x1.max(spot.x0)), (spot.y0 + spot.y1) / 2);
                     root.draw(&PathElement::new(vec![*at, near], BLACK.mix(0.4).stroke_width(1))).map_err(e)?;
                 }
                 root.draw(&Text::new(label.clone(), (spot.x0, spot.y0), text.clone())).map_err(e)?;
