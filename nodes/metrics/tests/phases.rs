@@ -347,3 +347,38 @@ fn report_has_phase_and_accuracy_tables_and_plots() {
     assert!(report::phases_markdown(&w.phases).contains(&phase_md));
     assert!(report::accuracy_markdown(&w.accuracy).contains(&accuracy_md));
 }
+
+/// The 16 models of the README's ablation run, at their measured (late error, total sweeps)
+/// relative to builtin: many labels crowd around (1, 1), some must move left of their marker
+/// (a layout that once made the label placement panic and lost a 7-minute report).
+#[test]
+fn a_crowded_accuracy_chart_renders() {
+    let measured = [
+        ("none", 13.6, 1.302),
+        ("builtin", 1.0, 1.0),
+        ("copy", 0.0, 0.011),
+        ("copy-persisting", 0.039, 0.270),
+        ("copy-new", 1.17, 1.021),
+        ("blend:0.5", 0.284, 0.790),
+        ("blend:0.75", 0.069, 0.561),
+        ("blend:0.9", 0.0088, 0.360),
+        ("noise:0.35", 0.173, 0.449),
+        ("noise:1", 1.37, 0.710),
+        ("smooth-error", 0.224, 0.631),
+        ("rough-error", 0.736, 0.943),
+        ("extrapolate:0.25", 1.46, 1.044),
+        ("extrapolate:0.5", 1.98, 1.080),
+        ("extrapolate:1", 2.80, 1.148),
+        ("builtin-reappear", 1.16, 1.020),
+    ];
+    let mut a = Aggregate::new();
+    for (model, error, sweeps) in measured {
+        for k in 0..200 {
+            a.add(step(model, 0, k, (400.0 * sweeps) as u32, true, 0.01 * error as f32, 10));
+        }
+    }
+    let dir = scratch("crowded");
+    report::write(&a, &dir, "crowded", &[]).unwrap();
+    let png = std::fs::read(dir.join("accuracy_vs_sweeps.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG"));
+}
