@@ -71,6 +71,9 @@ struct EvalArgs {
     /// Model file of the `unet` model (`dc train` writes one; the repository ships a demo model).
     #[arg(long, default_value = "models/unet-demo.dcu")]
     unet_model: PathBuf,
+    /// Model file of the `gnn` model (`dc-gnn`), run inside the simulators.
+    #[arg(long)]
+    gnn_model: Option<PathBuf>,
     /// Evaluation seeds (simulation ids), the same for every model.
     #[arg(long, default_value = "0..30")]
     seeds: String,
@@ -523,6 +526,9 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
             format!("--tolerance={}", args.tolerance),
             format!("--n={}", args.n),
         ];
+        if let Some(gnn) = &args.gnn_model {
+            sim_args.push(format!("--gnn-model={}", gnn.display()));
+        }
         sim_args.extend(args.sim_args.iter().cloned());
         nodes.push(NodeSpec::new(format!("sim-{j}"), "dc-sim", false, sim_args));
     }

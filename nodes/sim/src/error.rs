@@ -31,6 +31,12 @@ pub enum SimError {
     /// A grid-based model was asked for without a grid source to feed it.
     #[error("model `{0}` needs a grid source (run it inside a graph with the sph or unet node)")]
     NoGridSource(String),
+    /// A learned model was asked for without its file.
+    #[error("model `{0}` needs its model file (dc-sim --gnn-model FILE)")]
+    NoModelFile(String),
+    /// A learned model's file could not be used.
+    #[error("{0}")]
+    ModelFile(String),
     /// Where a run's messages go (the bus, a recording) failed.
     #[error("run output: {0}")]
     Output(String),

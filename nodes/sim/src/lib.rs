@@ -24,6 +24,7 @@
 pub mod bench;
 pub mod contact;
 pub mod error;
+pub mod learned;
 pub mod oracle;
 pub mod problem;
 pub mod rng;
@@ -39,7 +40,7 @@ pub use error::SimError;
 pub use msgs::StepStats;
 pub use scene::{SamplerKind, Scene, SceneConfig, SceneKind};
 pub use solver::{ContactSolver, Impulse, PositionParams, SolveParams, SolveReport};
-pub use warm::{ModelKind, ModelSpec, WarmStartModel, WarmStarter};
+pub use warm::{ModelFiles, ModelKind, ModelSpec, WarmStartModel, WarmStarter};
 pub use world::{World, WorldParams};
 
 use std::time::Duration;

@@ -70,6 +70,9 @@ struct Args {
     /// The oracle's sweep cap.
     #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u32).range(1..))]
     oracle_max_sweeps: u32,
+    /// The contact-graph network's model file (`dc-gnn`), for the `gnn` model.
+    #[arg(long)]
+    gnn_model: Option<std::path::PathBuf>,
     /// Publish each step's velocity problem on `problem/bodies` and `problem/contacts` (what a
     /// learned warm start trains on).
     #[arg(long)]
@@ -211,7 +214,14 @@ fn main() -> Result<()> {
     if args.fallback.is_grid_based() {
         bail!("--fallback must be a local model, not `{}`", args.fallback.name());
     }
-    // Fail before touching the bus when the scene cannot be built.
+    // Fail before touching the bus when a model cannot be built (a learned model's file) ...
+    let files = sim::ModelFiles { gnn: args.gnn_model.clone() };
+    for m in if args.models.is_empty() { std::slice::from_ref(&args.model) } else { args.models.as_slice() } {
+        if !m.is_grid_based() {
+            m.build_with(args.seed, None, &files)?;
+        }
+    }
+    // ... or the scene cannot be built.
     sim::Scene::build(&args.scene_config(seeds[0])).context("building the scene")?;
 
     let node = runtime::Node::from_env("dc-sim")?;
@@ -333,7 +343,8 @@ fn run(args: &Args, node: &runtime::Node, pubs: &mut Publishers, model_kind: Mod
         None => None,
     };
     let handle = source.clone().map(|s| Box::new(SourceHandle(s)) as Box<dyn GridSource>);
-    let model = model_kind.build_with_source(args.seed, handle)?;
+    let files = sim::ModelFiles { gnn: args.gnn_model.clone() };
+    let model = model_kind.build_with(args.seed, handle, &files)?;
     let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
     let mut sink = BusSink { pubs, node, source, run_id: spec.run_id };
     let summary = sim::run::run(spec, &mut warm, &mut sink)?;

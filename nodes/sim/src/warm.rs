@@ -27,6 +27,8 @@ pub struct WarmStartInput<'a> {
     pub history: &'a ImpulseHistory,
     /// Per body id: whether it has infinite mass (static or kinematic).
     pub fixed: &'a [bool],
+    /// The step's velocity problem, for models that want it ([`WarmStartModel::wants_problem`]).
+    pub problem: Option<&'a crate::problem::Problem>,
     /// Solves the step's contact problem from builtin's warm start to the oracle's tolerance on
     /// scratch velocities and writes the solution (the oracle behind `copy` and the ablations);
     /// the world's velocities are untouched.
@@ -44,6 +46,12 @@ pub trait WarmStartModel {
 
     /// Called before the first step of every simulation.
     fn begin_simulation(&mut self, _simulation: u32, _seed: u64) {}
+
+    /// Whether the model reads the step's velocity problem ([`WarmStartInput::problem`]); the
+    /// world captures it only for models that do.
+    fn wants_problem(&self) -> bool {
+        false
+    }
 
     /// Writes one impulse per contact of `input` into `out` (zeroed beforehand), or says why it
     /// cannot this step.
@@ -376,6 +384,8 @@ pub enum ModelKind {
     SmoothError,
     /// Oracle ablation: the oracle plus the rough part of builtin's error.
     RoughError,
+    /// The contact-graph network.
+    Gnn,
     /// The exact solution through the value-preserving grid transfer and back.
     CopyGrid,
     /// The exact solution through the thesis's grid transfer and back.
@@ -388,7 +398,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 19] = [
+    pub const ALL: [ModelKind; 20] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -404,6 +414,7 @@ impl ModelKind {
         ModelKind::Noise,
         ModelKind::SmoothError,
         ModelKind::RoughError,
+        ModelKind::Gnn,
         ModelKind::CopyGrid,
         ModelKind::CopyGridSph,
         ModelKind::Grid,
@@ -444,6 +455,13 @@ impl ModelKind {
     ) -> Result<Box<dyn WarmStartModel>, SimError> {
         ModelSpec::of(self).build_with_source(seed, source)
     }
+}
+
+/// The files of the learned models that run in the simulator.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ModelFiles {
+    /// The contact-graph network (`gnn`), a `dc-gnn` model file.
+    pub gnn: Option<std::path::PathBuf>,
 }
 
 /// A model with its parameter: what `--model blend:0.75` names.
@@ -494,6 +512,7 @@ impl ModelSpec {
             ModelKind::Noise => ablation(Ablation::Noise(param)),
             ModelKind::SmoothError => ablation(Ablation::SmoothError),
             ModelKind::RoughError => ablation(Ablation::RoughError),
+            ModelKind::Gnn => return Err(SimError::NoModelFile(self.name())),
             ModelKind::CopyGrid => Box::new(CopyGrid::new(sph::Mode::Preserving)),
             ModelKind::CopyGridSph => Box::new(CopyGrid::new(sph::Mode::Sph)),
             ModelKind::Grid | ModelKind::Unet => return Err(SimError::NoGridSource(self.name())),
@@ -509,6 +528,22 @@ impl ModelSpec {
         match (self.is_grid_based(), source) {
             (true, Some(s)) => Ok(Box::new(GridModel::new(self.kind.name(), s))),
             _ => self.build(seed),
+        }
+    }
+
+    /// Builds any model, the learned ones from their files in `files`.
+    pub fn build_with(
+        &self,
+        seed: u64,
+        source: Option<Box<dyn GridSource>>,
+        files: &ModelFiles,
+    ) -> Result<Box<dyn WarmStartModel>, SimError> {
+        match (self.kind, &files.gnn) {
+            (ModelKind::Gnn, Some(path)) => {
+                let file = gnn::ModelFile::load(path).map_err(|e| SimError::ModelFile(e.to_string()))?;
+                Ok(Box::new(crate::learned::GnnModel::new(file.net)))
+            }
+            _ => self.build_with_source(seed, source),
         }
     }
 }
@@ -557,6 +592,11 @@ impl WarmStarter {
         self.fallbacks_total = 0;
         self.model.begin_simulation(simulation, seed);
         self.fallback.begin_simulation(simulation, seed);
+    }
+
+    /// Whether the model or its fallback reads the step's problem ([`WarmStartInput::problem`]).
+    pub fn wants_problem(&self) -> bool {
+        self.model.wants_problem() || self.fallback.wants_problem()
     }
 
     /// Fallbacks in this simulation so far.
@@ -609,6 +649,7 @@ mod tests {
             contacts,
             history,
             fixed: &[true, false, false, false],
+            problem: None,
             oracle: &mut oracle,
         };
         let mut out = vec![Impulse::default(); contacts.len()];

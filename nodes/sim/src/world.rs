@@ -570,10 +570,16 @@ impl World {
         if let Some(capture) = self.capture {
             self.capture_problem(capture);
         }
+        let model_reads_problem = warm.wants_problem();
         let capture_time = t_capture.elapsed();
 
         // Warm start.
         let t_warm = Instant::now();
+        // A model that reads the problem gets it as part of its own time (when the run does not
+        // capture problems anyway).
+        if model_reads_problem && self.capture.is_none() {
+            self.capture_problem(Capture { reference: None });
+        }
         self.warm.clear();
         self.warm.resize(self.contacts.len(), Impulse::default());
         self.oracle_report = None;
@@ -600,6 +606,7 @@ impl World {
                 contacts: &self.contacts,
                 history: &self.history,
                 fixed: &self.fixed,
+                problem: model_reads_problem.then_some(&self.problem),
                 oracle: &mut oracle,
             };
             warm.warm_start(&mut input, &mut self.warm)

@@ -162,3 +162,28 @@ fn baselines_fill_reappearing_contacts_and_damp_extrapolation() {
     let spec: ModelSpec = "extrapolate:0.5".parse().unwrap();
     assert_eq!(spec.build(0).unwrap().name(), "extrapolate:0.5");
 }
+
+#[test]
+fn an_untrained_contact_graph_network_is_builtin_exactly() {
+    let dir = std::env::temp_dir().join(format!("dc-sim-gnn-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("untrained.dcg");
+    gnn::ModelFile::new(gnn::net::Net::new(gnn::net::NetConfig::default(), 4), "test").save(&path).unwrap();
+    let spec: ModelSpec = "gnn".parse().unwrap();
+    let err = spec.build(0).err().unwrap().to_string();
+    assert!(err.contains("--gnn-model"), "{err}");
+    let files = sim::ModelFiles { gnn: Some(path) };
+    let mut warm = WarmStarter::new(spec.build_with(0, None, &files).unwrap(), ModelKind::None.build(0).unwrap());
+    warm.begin_simulation(0, 0);
+    let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
+    let sweeps: Vec<u32> = (0..150)
+        .map(|_| {
+            let s = world.step(&mut warm);
+            assert!(!s.fallback, "step {}: the network fell back", s.step);
+            s.sweeps
+        })
+        .collect();
+    // The decoder starts at zero: the correction is 0 and the warm start is builtin's, bit for bit.
+    assert_eq!(sweeps, sweeps_per_step("builtin"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

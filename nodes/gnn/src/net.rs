@@ -1,0 +1,291 @@
+//! The contact-graph network, in plain f32 (the inference path: no framework, one core, small
+//! enough for every step). Per step:
+//!
+//! 1. encode: `h_c = relu(E_c x_c)` per contact, `h_b = relu(E_b x_b)` per body;
+//! 2. `rounds` rounds of message passing with weights shared across rounds:
+//!    `m_b = mean of h_c over the body's contacts`, `h_b = relu(B [h_b, m_b])`,
+//!    `g = mean of h_c over all contacts` (the pile-wide context),
+//!    `h_c = h_c + relu(C [h_c, h_a, h_b, g])` (a and b the contact's bodies);
+//! 3. decode: `y_c = D h_c`, two numbers in velocity units; the warm start is builtin's impulse
+//!    plus `y_c` times the contact's effective masses (a correction on persisting contacts, the
+//!    value itself on new ones, where builtin is 0).
+//!
+//! `D` starts at zero, so an untrained network is builtin exactly.
+
+use crate::features::{BODY_FEATURES, CONTACT_FEATURES};
+use serde::{Deserialize, Serialize};
+
+/// A dense layer `y = W x + b`, `W` row-major `[out][in]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Linear {
+    pub inputs: usize,
+    pub outputs: usize,
+    pub weight: Vec<f32>,
+    pub bias: Vec<f32>,
+}
+
+impl Linear {
+    /// Zero weights and bias.
+    pub fn zeros(inputs: usize, outputs: usize) -> Linear {
+        Linear { inputs, outputs, weight: vec![0.0; inputs * outputs], bias: vec![0.0; outputs] }
+    }
+
+    /// Weights uniform in `±sqrt(6 / (inputs + outputs))` (Glorot) from a seeded generator.
+    pub fn glorot(inputs: usize, outputs: usize, rng: &mut u64) -> Linear {
+        let bound = (6.0 / (inputs + outputs) as f64).sqrt();
+        let weight = (0..inputs * outputs).map(|_| ((next_unit(rng) * 2.0 - 1.0) * bound) as f32).collect();
+        Linear { inputs, outputs, weight, bias: vec![0.0; outputs] }
+    }
+
+    /// `out = W x + b` (out cleared first), then `relu` if asked.
+    #[inline]
+    fn apply(&self, x: &[f32], relu: bool, out: &mut [f32]) {
+        debug_assert_eq!(x.len(), self.inputs);
+        for (o, (row, b)) in out.iter_mut().zip(self.weight.chunks_exact(self.inputs).zip(&self.bias)) {
+            let s = dot(row, x) + b;
+            *o = if relu { s.max(0.0) } else { s };
+        }
+    }
+
+    fn check(&self, name: &str, inputs: usize, outputs: usize) -> Result<(), String> {
+        if (self.inputs, self.outputs) != (inputs, outputs)
+            || self.weight.len() != inputs * outputs
+            || self.bias.len() != outputs
+        {
+            return Err(format!(
+                "layer {name}: {}x{} with {} weights and {} biases, expected {inputs}x{outputs}",
+                self.inputs,
+                self.outputs,
+                self.weight.len(),
+                self.bias.len()
+            ));
+        }
+        if self.weight.iter().chain(&self.bias).any(|w| !w.is_finite()) {
+            return Err(format!("layer {name}: weights that are not finite"));
+        }
+        Ok(())
+    }
+}
+
+/// A dot product in four independent lanes (so it vectorises).
+#[inline]
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for k in 0..4 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for (x, y) in ra.iter().zip(rb) {
+        s += x * y;
+    }
+    s
+}
+
+/// SplitMix64 to a uniform double in [0, 1).
+fn next_unit(state: &mut u64) -> f64 {
+    *state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// The network's shape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct NetConfig {
+    pub hidden: usize,
+    pub rounds: usize,
+}
+
+impl Default for NetConfig {
+    fn default() -> Self {
+        NetConfig { hidden: 16, rounds: 4 }
+    }
+}
+
+/// The network's weights.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Net {
+    pub config: NetConfig,
+    pub encode_contact: Linear,
+    pub encode_body: Linear,
+    pub body: Linear,
+    pub contact: Linear,
+    pub decode: Linear,
+}
+
+/// Reusable buffers of one prediction.
+#[derive(Debug, Default)]
+pub struct Scratch {
+    hc: Vec<f32>,
+    hb: Vec<f32>,
+    mb: Vec<f32>,
+    counts: Vec<f32>,
+    input: Vec<f32>,
+    update: Vec<f32>,
+    global: Vec<f32>,
+}
+
+impl Net {
+    /// A fresh network: Glorot weights from `seed`, the decoder at zero (output = builtin).
+    pub fn new(config: NetConfig, seed: u64) -> Net {
+        let h = config.hidden;
+        let mut rng = seed;
+        Net {
+            config,
+            encode_contact: Linear::glorot(CONTACT_FEATURES, h, &mut rng),
+            encode_body: Linear::glorot(BODY_FEATURES, h, &mut rng),
+            body: Linear::glorot(2 * h, h, &mut rng),
+            contact: Linear::glorot(4 * h, h, &mut rng),
+            decode: Linear::zeros(h, 2),
+        }
+    }
+
+    /// Checks every layer's shape against the configuration, and that weights are finite.
+    pub fn validate(&self) -> Result<(), String> {
+        let h = self.config.hidden;
+        if h == 0 || self.config.rounds > 64 {
+            return Err(format!("configuration {:?} is out of range", self.config));
+        }
+        self.encode_contact.check("encode_contact", CONTACT_FEATURES, h)?;
+        self.encode_body.check("encode_body", BODY_FEATURES, h)?;
+        self.body.check("body", 2 * h, h)?;
+        self.contact.check("contact", 4 * h, h)?;
+        self.decode.check("decode", h, 2)
+    }
+
+    /// The output per contact (velocity units): `contact_features` holds [`CONTACT_FEATURES`]
+    /// per contact, `body_features` [`BODY_FEATURES`] per body, `pairs` each contact's bodies.
+    pub fn predict(
+        &self,
+        contact_features: &[f32],
+        body_features: &[f32],
+        pairs: &[(u32, u32)],
+        s: &mut Scratch,
+        out: &mut Vec<[f32; 2]>,
+    ) {
+        let h = self.config.hidden;
+        let (nc, nb) = (pairs.len(), body_features.len() / BODY_FEATURES);
+        out.clear();
+        out.resize(nc, [0.0; 2]);
+        if nc == 0 {
+            return;
+        }
+        s.hc.resize(nc * h, 0.0);
+        s.hb.resize(nb * h, 0.0);
+        s.mb.resize(nb * h, 0.0);
+        s.update.resize(h, 0.0);
+        s.global.resize(h, 0.0);
+        s.input.resize(4 * h, 0.0);
+        for (x, hc) in contact_features.chunks_exact(CONTACT_FEATURES).zip(s.hc.chunks_exact_mut(h)) {
+            self.encode_contact.apply(x, true, hc);
+        }
+        for (x, hb) in body_features.chunks_exact(BODY_FEATURES).zip(s.hb.chunks_exact_mut(h)) {
+            self.encode_body.apply(x, true, hb);
+        }
+        s.counts.clear();
+        s.counts.resize(nb, 0.0);
+        for &(a, b) in pairs {
+            s.counts[a as usize] += 1.0;
+            s.counts[b as usize] += 1.0;
+        }
+        for _ in 0..self.config.rounds {
+            // Bodies gather the mean of their contacts.
+            s.mb.fill(0.0);
+            for (&(a, b), hc) in pairs.iter().zip(s.hc.chunks_exact(h)) {
+                for body in [a as usize, b as usize] {
+                    for (m, v) in s.mb[body * h..(body + 1) * h].iter_mut().zip(hc) {
+                        *m += v;
+                    }
+                }
+            }
+            for (i, (hb, mb)) in s.hb.chunks_exact_mut(h).zip(s.mb.chunks_exact_mut(h)).enumerate() {
+                let inv = if s.counts[i] > 0.0 { 1.0 / s.counts[i] } else { 0.0 };
+                s.input[..h].copy_from_slice(hb);
+                for (dst, m) in s.input[h..2 * h].iter_mut().zip(mb.iter()) {
+                    *dst = m * inv;
+                }
+                self.body.apply(&s.input[..2 * h], true, hb);
+            }
+            // The pile-wide mean, then each contact from itself, its bodies and the mean.
+            s.global.fill(0.0);
+            for hc in s.hc.chunks_exact(h) {
+                for (g, v) in s.global.iter_mut().zip(hc) {
+                    *g += v;
+                }
+            }
+            let inv = 1.0 / nc as f32;
+            s.global.iter_mut().for_each(|g| *g *= inv);
+            for (&(a, b), hc) in pairs.iter().zip(s.hc.chunks_exact_mut(h)) {
+                s.input[..h].copy_from_slice(hc);
+                s.input[h..2 * h].copy_from_slice(&s.hb[a as usize * h..(a as usize + 1) * h]);
+                s.input[2 * h..3 * h].copy_from_slice(&s.hb[b as usize * h..(b as usize + 1) * h]);
+                s.input[3 * h..].copy_from_slice(&s.global);
+                self.contact.apply(&s.input, true, &mut s.update);
+                for (v, u) in hc.iter_mut().zip(&s.update) {
+                    *v += u;
+                }
+            }
+        }
+        for (o, hc) in out.iter_mut().zip(s.hc.chunks_exact(h)) {
+            self.decode.apply(hc, false, o);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn inputs(nc: usize, nb: usize) -> (Vec<f32>, Vec<f32>, Vec<(u32, u32)>) {
+        let mut rng = 7u64;
+        let xc = (0..nc * CONTACT_FEATURES).map(|_| next_unit(&mut rng) as f32).collect();
+        let xb = (0..nb * BODY_FEATURES).map(|_| next_unit(&mut rng) as f32).collect();
+        let pairs = (0..nc).map(|i| ((i % nb) as u32, ((i * 7 + 1) % nb) as u32)).collect();
+        (xc, xb, pairs)
+    }
+
+    #[test]
+    fn an_untrained_network_predicts_exactly_zero() {
+        let net = Net::new(NetConfig::default(), 3);
+        net.validate().unwrap();
+        let (xc, xb, pairs) = inputs(200, 101);
+        let mut out = Vec::new();
+        net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut out);
+        assert_eq!(out.len(), 200);
+        assert!(out.iter().all(|o| *o == [0.0, 0.0]));
+    }
+
+    #[test]
+    fn messages_carry_information_between_contacts() {
+        let mut net = Net::new(NetConfig { hidden: 8, rounds: 2 }, 5);
+        net.decode = Linear::glorot(8, 2, &mut 11);
+        // Two contacts share body 1; a third is apart. Changing contact 0's features changes
+        // contact 1's output (one body away) but not contact 2's.
+        let (mut xc, xb, _) = inputs(3, 5);
+        let pairs = [(0, 1), (1, 2), (3, 4)];
+        let (mut before, mut after) = (Vec::new(), Vec::new());
+        let mut s = Scratch::default();
+        net.predict(&xc, &xb, &pairs, &mut s, &mut before);
+        // Every contact hears the others through the pile-wide mean; a neighbour hears more.
+        xc[0] += 5.0;
+        net.predict(&xc, &xb, &pairs, &mut s, &mut after);
+        let d = |i: usize| (before[i][0] - after[i][0]).abs() + (before[i][1] - after[i][1]).abs();
+        assert!(d(1) > 0.0, "the neighbour sees the change");
+        assert!(d(1) > d(2), "the neighbour sees it more than a contact apart: {} vs {}", d(1), d(2));
+    }
+
+    #[test]
+    fn bad_shapes_and_weights_are_refused() {
+        let mut net = Net::new(NetConfig::default(), 1);
+        net.contact.weight.pop();
+        assert!(net.validate().unwrap_err().contains("layer contact"));
+        let mut net = Net::new(NetConfig::default(), 1);
+        net.body.bias[0] = f32::NAN;
+        assert!(net.validate().unwrap_err().contains("not finite"));
+    }
+}
