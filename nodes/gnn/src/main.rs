@@ -90,7 +90,7 @@ fn main() -> Result<()> {
             let (b, c) = synthetic_pile(bodies, contacts);
             let mut net = Net::new(NetConfig { hidden, rounds }, 1);
             // A trained network's decoder is not zero; its cost is the same either way.
-            net.decode = gnn::net::Linear::glorot(hidden, 2, &mut 2);
+            net.decode = gnn::net::Linear::glorot(net.readout_width(), 2, &mut 2);
             let mut p = Predictor::new(net);
             let mut out = vec![[0.0f32; 2]; c.len()];
             for _ in 0..reps.min(100) {

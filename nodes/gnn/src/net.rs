@@ -6,7 +6,8 @@
 //!    `m_b = mean of h_c over the body's contacts`, `h_b = relu(B [h_b, m_b])`,
 //!    `g = mean of h_c over all contacts` (the pile-wide context),
 //!    `h_c = h_c + relu(C [h_c, h_a, h_b, g])` (a and b the contact's bodies);
-//! 3. decode: `y_c = D h_c`, two numbers in velocity units; the warm start is builtin's impulse
+//! 3. decode: `y_c = D [h_c, x_c]` (the last state and the contact's own features), two numbers
+//!    in velocity units; the warm start is builtin's impulse
 //!    plus `y_c` times the contact's effective masses (a correction on persisting contacts, the
 //!    value itself on new ones, where builtin is 0).
 //!
@@ -141,8 +142,13 @@ impl Net {
             encode_body: Linear::glorot(BODY_FEATURES, h, &mut rng),
             body: Linear::glorot(2 * h, h, &mut rng),
             contact: Linear::glorot(4 * h, h, &mut rng),
-            decode: Linear::zeros(h, 2),
+            decode: Linear::zeros(h + CONTACT_FEATURES, 2),
         }
+    }
+
+    /// Inputs of the decoder per contact: the final state and the contact's features.
+    pub fn readout_width(&self) -> usize {
+        self.config.hidden + CONTACT_FEATURES
     }
 
     /// Checks every layer's shape against the configuration, and that weights are finite.
@@ -155,7 +161,7 @@ impl Net {
         self.encode_body.check("encode_body", BODY_FEATURES, h)?;
         self.body.check("body", 2 * h, h)?;
         self.contact.check("contact", 4 * h, h)?;
-        self.decode.check("decode", h, 2)
+        self.decode.check("decode", h + CONTACT_FEATURES, 2)
     }
 
     /// The output per contact (velocity units): `contact_features` holds [`CONTACT_FEATURES`]
@@ -168,19 +174,53 @@ impl Net {
         s: &mut Scratch,
         out: &mut Vec<[f32; 2]>,
     ) {
-        let h = self.config.hidden;
-        let (nc, nb) = (pairs.len(), body_features.len() / BODY_FEATURES);
         out.clear();
-        out.resize(nc, [0.0; 2]);
-        if nc == 0 {
+        out.resize(pairs.len(), [0.0; 2]);
+        if pairs.is_empty() {
             return;
         }
+        self.embed(contact_features, body_features, pairs, s);
+        let h = self.config.hidden;
+        for ((o, hc), x) in
+            out.iter_mut().zip(s.hc.chunks_exact(h)).zip(contact_features.chunks_exact(CONTACT_FEATURES))
+        {
+            s.input[..h].copy_from_slice(hc);
+            s.input[h..h + CONTACT_FEATURES].copy_from_slice(x);
+            self.decode.apply(&s.input[..h + CONTACT_FEATURES], false, o);
+        }
+    }
+
+    /// The decoder's input per contact (`readout_width` each): what a readout is fitted on.
+    pub fn readout_inputs(
+        &self,
+        contact_features: &[f32],
+        body_features: &[f32],
+        pairs: &[(u32, u32)],
+        s: &mut Scratch,
+        out: &mut Vec<f32>,
+    ) {
+        out.clear();
+        if pairs.is_empty() {
+            return;
+        }
+        self.embed(contact_features, body_features, pairs, s);
+        let h = self.config.hidden;
+        for (hc, x) in s.hc.chunks_exact(h).zip(contact_features.chunks_exact(CONTACT_FEATURES)) {
+            out.extend_from_slice(hc);
+            out.extend_from_slice(x);
+        }
+    }
+
+    /// Encodes and runs the message-passing rounds: the final contact states are in `s.hc`.
+    fn embed(&self, contact_features: &[f32], body_features: &[f32], pairs: &[(u32, u32)], s: &mut Scratch) {
+        let h = self.config.hidden;
+        let (nc, nb) = (pairs.len(), body_features.len() / BODY_FEATURES);
+        s.input.resize((4 * h).max(h + CONTACT_FEATURES), 0.0);
         s.hc.resize(nc * h, 0.0);
         s.hb.resize(nb * h, 0.0);
         s.mb.resize(nb * h, 0.0);
         s.update.resize(h, 0.0);
         s.global.resize(h, 0.0);
-        s.input.resize(4 * h, 0.0);
         for (x, hc) in contact_features.chunks_exact(CONTACT_FEATURES).zip(s.hc.chunks_exact_mut(h)) {
             self.encode_contact.apply(x, true, hc);
         }
@@ -224,15 +264,12 @@ impl Net {
                 s.input[..h].copy_from_slice(hc);
                 s.input[h..2 * h].copy_from_slice(&s.hb[a as usize * h..(a as usize + 1) * h]);
                 s.input[2 * h..3 * h].copy_from_slice(&s.hb[b as usize * h..(b as usize + 1) * h]);
-                s.input[3 * h..].copy_from_slice(&s.global);
-                self.contact.apply(&s.input, true, &mut s.update);
+                s.input[3 * h..4 * h].copy_from_slice(&s.global);
+                self.contact.apply(&s.input[..4 * h], true, &mut s.update);
                 for (v, u) in hc.iter_mut().zip(&s.update) {
                     *v += u;
                 }
             }
-        }
-        for (o, hc) in out.iter_mut().zip(s.hc.chunks_exact(h)) {
-            self.decode.apply(hc, false, o);
         }
     }
 }
@@ -263,7 +300,7 @@ mod tests {
     #[test]
     fn messages_carry_information_between_contacts() {
         let mut net = Net::new(NetConfig { hidden: 8, rounds: 2 }, 5);
-        net.decode = Linear::glorot(8, 2, &mut 11);
+        net.decode = Linear::glorot(8 + CONTACT_FEATURES, 2, &mut 11);
         // Two contacts share body 1; a third is apart. Changing contact 0's features changes
         // contact 1's output (one body away) but not contact 2's.
         let (mut xc, xb, _) = inputs(3, 5);

@@ -1,0 +1,405 @@
+//! `dc-gnn-train`: the first training of the contact-graph network. The message-passing layers
+//! keep their seeded random weights (a fixed random feature map of each contact's neighbourhood);
+//! the readout is fitted in closed form (ridge regression), each step weighted by its sweeps (the
+//! sweeps are in the jammed late steps), with one of two losses:
+//!
+//! - `mse`: the correction of builtin that the recorded reference solution makes, in velocity
+//!   units (pre-training in the terms: a jammed pile's impulses are not unique, so this
+//!   fits one solution among many);
+//! - `residual` (default): the step's own velocity-level residual at the prediction, linearised:
+//!   after builtin's impulses plus the correction, the normal velocity of every contact the
+//!   reference holds closed and the tangent velocity of every contact it holds sticking should be
+//!   zero. Any correction in the problem's null space costs nothing, so the model is not asked
+//!   to guess where the solver happened to stop. The reference decides only the active set.
+//!
+//! The ridge strength (and the untrained readout, which is builtin exactly) is chosen by what
+//! counts: the total sweeps of re-solving the validation problems from the model's warm start.
+//!
+//! Training and validation recordings come from `dc-sim --publish-problem --label-tolerance`
+//! on seeds that the evaluation (0..29) never uses.
+
+use anyhow::{bail, Context, Result};
+use gnn::net::{Linear, Net, NetConfig, Scratch};
+use gnn::{features, ModelFile, Predictor};
+use std::path::{Path, PathBuf};
+
+#[derive(clap::Parser, Debug)]
+#[command(name = "dc-gnn-train", about = "Fit the contact-graph network's readout on labelled recorded problems")]
+struct Args {
+    /// Training recordings (file or folder) with labelled problems.
+    #[arg(long)]
+    data: PathBuf,
+    /// Validation recordings: the ridge strength is chosen by their re-solved sweeps.
+    #[arg(long)]
+    validation: PathBuf,
+    /// Where the model goes (`.dcg`).
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 16)]
+    hidden: usize,
+    #[arg(long, default_value_t = 4)]
+    rounds: usize,
+    /// Seed of the message-passing weights.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Ridge strengths tried (relative to each input's own scale).
+    #[arg(long, value_delimiter = ',', default_value = "1e-4,1e-3,1e-2,1e-1,1")]
+    ridge: Vec<f64>,
+    /// What the readout is fitted to: `residual` (the step's velocity residual) or `mse` (the
+    /// reference solution's correction).
+    #[arg(long, default_value = "residual", value_parser = ["residual", "mse"])]
+    loss: String,
+}
+
+/// Relative velocity (normal, tangent) at every contact caused by impulses `p` (normal, tangent
+/// per contact) on bodies at rest: the problem's Delassus operator `J M^-1 J^T` applied to `p`.
+fn response(problem: &sim::problem::Problem, p: &[[f64; 2]], v: &mut Vec<[f64; 3]>, out: &mut Vec<[f64; 2]>) {
+    v.clear();
+    v.resize(problem.bodies.len(), [0.0; 3]);
+    let cross = |a: [f32; 2], b: [f64; 2]| a[0] as f64 * b[1] - a[1] as f64 * b[0];
+    for (c, l) in problem.contacts.iter().zip(p) {
+        let (n, t) = ([c.normal[0] as f64, c.normal[1] as f64], [c.normal[1] as f64, -c.normal[0] as f64]);
+        let imp = [n[0] * l[0] + t[0] * l[1], n[1] * l[0] + t[1] * l[1]];
+        let (a, b) = (&problem.bodies[c.body_a as usize], &problem.bodies[c.body_b as usize]);
+        let va = &mut v[c.body_a as usize];
+        va[0] -= imp[0] * a.inv_mass as f64;
+        va[1] -= imp[1] * a.inv_mass as f64;
+        va[2] -= a.inv_inertia as f64 * cross(c.ra, imp);
+        let vb = &mut v[c.body_b as usize];
+        vb[0] += imp[0] * b.inv_mass as f64;
+        vb[1] += imp[1] * b.inv_mass as f64;
+        vb[2] += b.inv_inertia as f64 * cross(c.rb, imp);
+    }
+    out.clear();
+    out.extend(problem.contacts.iter().map(|c| {
+        let (va, vb) = (v[c.body_a as usize], v[c.body_b as usize]);
+        let dv = [
+            vb[0] - vb[2] * c.rb[1] as f64 - va[0] + va[2] * c.ra[1] as f64,
+            vb[1] + vb[2] * c.rb[0] as f64 - va[1] - va[2] * c.ra[0] as f64,
+        ];
+        let (n, t) = ([c.normal[0] as f64, c.normal[1] as f64], [c.normal[1] as f64, -c.normal[0] as f64]);
+        [dv[0] * n[0] + dv[1] * n[1], dv[0] * t[0] + dv[1] * t[1]]
+    }));
+}
+
+/// The labelled steps of a recording: (problem, builtin's sweeps).
+fn labelled_steps(path: &Path) -> Result<Vec<(sim::problem::Problem, u32)>> {
+    let mut out = Vec::new();
+    for step in recorder::Steps::open(path).with_context(|| format!("opening {}", path.display()))? {
+        let step = step.with_context(|| format!("reading {}", path.display()))?;
+        let (Some(stats), Some((bodies, contacts))) = (step.stats, step.problem) else { continue };
+        if contacts.header.reference_tolerance <= 0.0 {
+            bail!("{}: problems without a reference solution (record with --label-tolerance)", path.display());
+        }
+        let problem = sim::problem::Problem { header: contacts.header, bodies: bodies.items, contacts: contacts.items };
+        out.push((problem, stats.header.sweeps));
+    }
+    if out.is_empty() {
+        bail!("{}: no labelled problems (record with dc-sim --publish-problem --label-tolerance)", path.display());
+    }
+    Ok(out)
+}
+
+/// Normal equations of the weighted least squares `readout input -> correction`.
+struct Normal {
+    width: usize,
+    a: Vec<f64>,
+    b: Vec<f64>,
+    rows: u64,
+}
+
+impl Normal {
+    fn new(width: usize) -> Normal {
+        Normal { width, a: vec![0.0; width * width], b: vec![0.0; width * 2], rows: 0 }
+    }
+
+    /// One scalar row `z . theta = y` (all parameters in one vector, `[2][width/2]` layout).
+    fn add_row(&mut self, z: &[f64], y: f64, w: f64) {
+        self.add(z, [y, 0.0], w);
+    }
+
+    /// One row `z . W = y` of both outputs, weight `w`.
+    fn add(&mut self, z: &[f64], y: [f64; 2], w: f64) {
+        let d = self.width;
+        for (i, (a_row, &zi)) in self.a.chunks_exact_mut(d).zip(z).enumerate() {
+            let wz = w * zi;
+            if wz == 0.0 {
+                continue;
+            }
+            for (a, &zj) in a_row.iter_mut().zip(z) {
+                *a += wz * zj;
+            }
+            self.b[i * 2] += wz * y[0];
+            self.b[i * 2 + 1] += wz * y[1];
+        }
+        self.rows += 1;
+    }
+
+    /// The weights `[2][width]` of `(A + ridge diag(A)) W = B` (Cholesky); the last input is the
+    /// constant 1, not penalised.
+    fn solve(&self, ridge: f64) -> Result<Vec<f64>> {
+        let d = self.width;
+        let mut m = self.a.clone();
+        for i in 0..d - 1 {
+            m[i * d + i] += ridge * self.a[i * d + i].max(1e-12);
+        }
+        m[(d - 1) * d + d - 1] += 1e-9;
+        // Cholesky: m = L L^T.
+        let mut l = vec![0.0; d * d];
+        for i in 0..d {
+            for j in 0..=i {
+                let s: f64 = (0..j).map(|k| l[i * d + k] * l[j * d + k]).sum();
+                if i == j {
+                    let v = m[i * d + i] - s;
+                    if v <= 0.0 {
+                        bail!("the normal equations are not positive definite (ridge {ridge})");
+                    }
+                    l[i * d + i] = v.sqrt();
+                } else {
+                    l[i * d + j] = (m[i * d + j] - s) / l[j * d + j];
+                }
+            }
+        }
+        let mut w = vec![0.0; 2 * d];
+        for out in 0..2 {
+            let mut y: Vec<f64> = (0..d).map(|i| self.b[i * 2 + out]).collect();
+            for i in 0..d {
+                let s: f64 = (0..i).map(|k| l[i * d + k] * y[k]).sum();
+                y[i] = (y[i] - s) / l[i * d + i];
+            }
+            for i in (0..d).rev() {
+                let s: f64 = (i + 1..d).map(|k| l[k * d + i] * y[k]).sum();
+                y[i] = (y[i] - s) / l[i * d + i];
+            }
+            w[out * d..(out + 1) * d].copy_from_slice(&y);
+        }
+        Ok(w)
+    }
+}
+
+/// The linearised velocity residual's normal equations: per step, the readout's effect on every
+/// residual row through the problem's Delassus operator.
+struct Residual {
+    normal: Normal,
+    v: Vec<[f64; 3]>,
+    p: Vec<[f64; 2]>,
+    r: Vec<[f64; 2]>,
+    columns: Vec<Vec<[f64; 2]>>,
+}
+
+impl Residual {
+    fn new(width: usize) -> Residual {
+        Residual { normal: Normal::new(2 * width), v: Vec::new(), p: Vec::new(), r: Vec::new(), columns: Vec::new() }
+    }
+
+    /// Rows of one step: `x` its contact features (velocities after builtin at 9 and 10), `z` the
+    /// readout inputs (`readout` each, the constant 1 appended here), `w` its weight.
+    fn add_step(
+        &mut self,
+        problem: &sim::problem::Problem,
+        x: &[f32],
+        masses: &[[f32; 2]],
+        z: &[f32],
+        readout: usize,
+        w: f64,
+    ) {
+        let d = readout + 1;
+        let n = problem.contacts.len();
+        // Column (out, i): the velocities caused by the impulses that parameter puts on every contact.
+        self.columns.resize(2 * d, Vec::new());
+        for out in 0..2 {
+            for i in 0..d {
+                self.p.clear();
+                self.p.extend((0..n).map(|c| {
+                    let zi = if i == readout { 1.0 } else { z[c * readout + i] as f64 };
+                    let mut imp = [0.0; 2];
+                    imp[out] = masses[c][out] as f64 * zi;
+                    imp
+                }));
+                response(problem, &self.p, &mut self.v, &mut self.r);
+                self.columns[out * d + i].clone_from(&self.r);
+            }
+        }
+        let mut row = vec![0.0; 2 * d];
+        for (c, contact) in problem.contacts.iter().enumerate() {
+            let [rn, rt] = contact.reference;
+            if rn.is_nan() || rn <= 1e-6 || masses[c][0] <= 0.0 {
+                continue; // open at the solution (or fixed): no velocity to cancel
+            }
+            let sticking = rt.abs() < 0.999 * contact.friction * rn;
+            let base = &x[c * gnn::features::CONTACT_FEATURES..];
+            for (component, v0) in [(0usize, base[9]), (1, base[10])] {
+                if component == 1 && !sticking {
+                    continue;
+                }
+                for (k, col) in self.columns.iter().enumerate() {
+                    row[k] = col[c][component];
+                }
+                self.normal.add_row(&row, -(v0 as f64), w);
+            }
+        }
+    }
+}
+
+/// The decoder of the fitted weights (`[2][width]`, the last column the bias).
+fn decoder(w: &[f64], readout: usize) -> Linear {
+    let d = readout + 1;
+    let mut lin = Linear::zeros(readout, 2);
+    for out in 0..2 {
+        for i in 0..readout {
+            lin.weight[out * readout + i] = w[out * d + i] as f32;
+        }
+        lin.bias[out] = w[out * d + readout] as f32;
+    }
+    lin
+}
+
+/// Total sweeps of re-solving `steps` from `net`'s warm start.
+fn validation_sweeps(net: &Net, steps: &[(sim::problem::Problem, u32)]) -> u64 {
+    let mut p = Predictor::new(net.clone());
+    let mut warm = Vec::new();
+    steps
+        .iter()
+        .map(|(problem, _)| {
+            warm.clear();
+            warm.resize(problem.contacts.len(), [0.0; 2]);
+            p.warm_start(&problem.bodies, &problem.contacts, &mut warm);
+            let start: Vec<sim::Impulse> = warm.iter().map(|w| sim::Impulse { normal: w[0], tangent: w[1] }).collect();
+            problem.solve(&start).0.sweeps as u64
+        })
+        .sum()
+}
+
+fn main() -> Result<()> {
+    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
+    runtime::init_logging();
+    let train = labelled_steps(&args.data)?;
+    let validation = labelled_steps(&args.validation)?;
+    let net = Net::new(NetConfig { hidden: args.hidden, rounds: args.rounds }, args.seed);
+    let readout = net.readout_width();
+    println!(
+        "dc-gnn-train: {} training steps, {} validation steps, readout width {readout}",
+        train.len(),
+        validation.len()
+    );
+
+    let mut normal = Normal::new(readout + 1);
+    let mut residual = Residual::new(readout + 1);
+    let (mut xc, mut xb, mut masses, mut pairs, mut z) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut scratch = Scratch::default();
+    let mean_sweeps = train.iter().map(|(_, s)| *s as f64).sum::<f64>() / train.len() as f64;
+    for (problem, sweeps) in &train {
+        features::features(&problem.bodies, &problem.contacts, &mut xc, &mut xb, &mut masses);
+        pairs.clear();
+        pairs.extend(problem.contacts.iter().map(|c| (c.body_a, c.body_b)));
+        net.readout_inputs(&xc, &xb, &pairs, &mut scratch, &mut z);
+        // Each step weighs what it costs builtin; its contacts share that weight.
+        let w = *sweeps as f64 / mean_sweeps / problem.contacts.len().max(1) as f64;
+        if args.loss == "residual" {
+            residual.add_step(problem, &xc, &masses, &z, readout, w);
+            continue;
+        }
+        let mut row = vec![0.0f64; readout + 1];
+        for ((c, k), zc) in problem.contacts.iter().zip(&masses).zip(z.chunks_exact(readout)) {
+            if k[0] <= 0.0 || k[1] <= 0.0 || !c.reference.iter().all(|r| r.is_finite()) {
+                continue;
+            }
+            let y =
+                [((c.reference[0] - c.previous[0]) / k[0]) as f64, ((c.reference[1] - c.previous[1]) / k[1]) as f64];
+            for (r, v) in row.iter_mut().zip(zc) {
+                *r = *v as f64;
+            }
+            row[readout] = 1.0;
+            normal.add(&row, y, w);
+        }
+    }
+    let fitted = if args.loss == "residual" { &residual.normal } else { &normal };
+    println!("loss {}: fitted on {} rows", args.loss, fitted.rows);
+
+    let builtin: u64 = validation.iter().map(|(_, s)| *s as u64).sum();
+    let untrained = validation_sweeps(&net, &validation);
+    println!("validation sweeps: builtin (recorded) {builtin}, untrained network (re-solved) {untrained}");
+    // The untrained readout (builtin itself) is a candidate too: a fit that does not beat it on
+    // validation is not shipped.
+    let mut best: Option<(u64, f64, Net)> = Some((untrained, f64::INFINITY, net.clone()));
+    for &ridge in &args.ridge {
+        let mut candidate = net.clone();
+        // The residual fit solves for both outputs' weights in one vector: its first block.
+        let w = fitted.solve(ridge)?;
+        candidate.decode = decoder(&w[..2 * (readout + 1)], readout);
+        let sweeps = validation_sweeps(&candidate, &validation);
+        println!("  ridge {ridge:e}: {sweeps} sweeps ({:.3}x builtin)", sweeps as f64 / builtin as f64);
+        if best.as_ref().is_none_or(|(s, _, _)| sweeps < *s) {
+            best = Some((sweeps, ridge, candidate));
+        }
+    }
+    let (sweeps, ridge, model) = best.context("no ridge strength given")?;
+    let provenance = format!(
+        "dc-gnn-train: readout ridge-fitted to the {} loss (strength {ridge:e}; inf = untrained, builtin) on {} steps of {}, message passing seeded {} (hidden {}, {} rounds); validation {} steps of {}: {sweeps} sweeps re-solved = {:.3}x builtin",
+        args.loss,
+        train.len(),
+        args.data.display(),
+        args.seed,
+        args.hidden,
+        args.rounds,
+        validation.len(),
+        args.validation.display(),
+        sweeps as f64 / builtin as f64
+    );
+    ModelFile::new(model, &provenance).save(&args.out)?;
+    println!("wrote {} ({provenance})", args.out.display());
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use msgs::{ProblemBody, ProblemContact, ProblemHeader};
+
+    #[test]
+    fn least_squares_recovers_known_weights() {
+        // y = 2 z0 - z1 + 0.5 (bias), second output = z1; exact rows, tiny ridge.
+        let mut n = Normal::new(3);
+        let mut rng = 3u64;
+        let mut unit = || {
+            rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..200 {
+            let (z0, z1) = (unit(), unit());
+            n.add(&[z0, z1, 1.0], [2.0 * z0 - z1 + 0.5, z1], 1.0);
+        }
+        let w = n.solve(1e-9).unwrap();
+        for (got, want) in w.iter().zip([2.0, -1.0, 0.5, 0.0, 1.0, 0.0]) {
+            assert!((got - want).abs() < 1e-5, "{w:?}");
+        }
+    }
+
+    #[test]
+    fn the_delassus_response_is_symmetric() {
+        // p . G q == q . G p for any impulses: what makes the residual fit a least-squares problem.
+        let body = |m: f32| ProblemBody { v: [0.0; 2], w: 0.0, inv_mass: m, inv_inertia: 3.0 * m };
+        let contact = |a: u32, b: u32, angle: f32| ProblemContact {
+            body_a: a,
+            body_b: b,
+            normal: [angle.cos(), angle.sin()],
+            ra: [0.2, -0.1],
+            rb: [-0.3, 0.25],
+            friction: 0.5,
+            ..Default::default()
+        };
+        let problem = sim::problem::Problem {
+            header: ProblemHeader::default(),
+            bodies: vec![body(0.0), body(1.0), body(0.5), body(2.0)],
+            contacts: vec![contact(0, 1, 1.2), contact(1, 2, 0.3), contact(2, 3, -0.7), contact(1, 3, 2.0)],
+        };
+        let p = [[0.3, -0.1], [1.0, 0.2], [0.0, 0.5], [-0.4, 0.1]];
+        let q = [[0.1, 0.1], [-0.2, 0.3], [0.7, 0.0], [0.2, -0.6]];
+        let (mut v, mut gp, mut gq) = (Vec::new(), Vec::new(), Vec::new());
+        response(&problem, &p, &mut v, &mut gp);
+        response(&problem, &q, &mut v, &mut gq);
+        let dot = |a: &[[f64; 2]], b: &[[f64; 2]]| a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1]).sum::<f64>();
+        assert!((dot(&p, &gq) - dot(&q, &gp)).abs() < 1e-12);
+        assert!(dot(&p, &gp) > 0.0, "positive definite on moving bodies");
+    }
+}
