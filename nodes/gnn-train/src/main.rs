@@ -18,6 +18,9 @@
 //! Training and validation recordings come from `dc-sim --publish-problem --label-tolerance`
 //! on seeds that the evaluation (0..29) never uses.
 
+mod backprop;
+mod twin;
+
 use anyhow::{bail, Context, Result};
 use gnn::net::{Linear, Net, NetConfig, Scratch};
 use gnn::{features, ModelFile, Predictor};
@@ -49,6 +52,15 @@ struct Args {
     /// reference solution's correction).
     #[arg(long, default_value = "residual", value_parser = ["residual", "mse"])]
     loss: String,
+    /// `readout`: the closed-form readout fit above; `backprop`: the whole network end to end
+    /// (burn, Adam) on the step's complementarity residual.
+    #[arg(long, default_value = "readout", value_parser = ["readout", "backprop"])]
+    method: String,
+    /// With `backprop`: passes over the training steps, and Adam's learning rate.
+    #[arg(long, default_value_t = 2)]
+    epochs: usize,
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
 }
 
 /// Relative velocity (normal, tangent) at every contact caused by impulses `p` (normal, tangent
@@ -241,6 +253,56 @@ impl Residual {
     }
 }
 
+/// `--method backprop`: the whole network, end to end; the best epoch on validation sweeps (or
+/// the untrained network, builtin) is saved.
+fn train_end_to_end(
+    args: &Args,
+    net: &Net,
+    train: &[(sim::problem::Problem, u32)],
+    validation: &[(sim::problem::Problem, u32)],
+) -> Result<()> {
+    let mean_sweeps = train.iter().map(|(_, s)| *s as f64).sum::<f64>() / train.len() as f64;
+    let data: Vec<backprop::StepData> =
+        train.iter().filter_map(|(p, s)| backprop::StepData::new(p, (*s as f64 / mean_sweeps) as f32)).collect();
+    let builtin: u64 = validation.iter().map(|(_, s)| *s as u64).sum();
+    let untrained = validation_sweeps(net, validation);
+    println!(
+        "backprop on the residual: {} steps with contacts; validation sweeps: builtin {builtin}, untrained {untrained}",
+        data.len()
+    );
+    let mut best = (untrained, 0usize, net.clone());
+    let started = std::time::Instant::now();
+    backprop::train(net, &data, args.epochs, args.lr, args.seed, |epoch, candidate, loss| {
+        let sweeps = validation_sweeps(candidate, validation);
+        println!(
+            "  epoch {}: mean loss {loss:.4e}, validation {sweeps} sweeps ({:.3}x builtin), {:.0} s",
+            epoch + 1,
+            sweeps as f64 / builtin as f64,
+            started.elapsed().as_secs_f64()
+        );
+        if sweeps < best.0 {
+            best = (sweeps, epoch + 1, candidate.clone());
+        }
+    });
+    let (sweeps, epoch, model) = best;
+    let provenance = format!(
+        "dc-gnn-train: end to end on the complementarity residual (Adam, lr {}, {} epochs, best epoch {epoch}; 0 = untrained, builtin) on {} steps of {}, hidden {}, {} rounds, seed {}; validation {} steps of {}: {sweeps} sweeps re-solved = {:.3}x builtin",
+        args.lr,
+        args.epochs,
+        data.len(),
+        args.data.display(),
+        args.hidden,
+        args.rounds,
+        args.seed,
+        validation.len(),
+        args.validation.display(),
+        sweeps as f64 / builtin as f64
+    );
+    ModelFile::new(model, &provenance).save(&args.out)?;
+    println!("wrote {} ({provenance})", args.out.display());
+    Ok(())
+}
+
 /// The decoder of the fitted weights (`[2][width]`, the last column the bias).
 fn decoder(w: &[f64], readout: usize) -> Linear {
     let d = readout + 1;
@@ -283,6 +345,9 @@ fn main() -> Result<()> {
         validation.len()
     );
 
+    if args.method == "backprop" {
+        return train_end_to_end(&args, &net, &train, &validation);
+    }
     let mut normal = Normal::new(readout + 1);
     let mut residual = Residual::new(readout + 1);
     let (mut xc, mut xb, mut masses, mut pairs, mut z) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());

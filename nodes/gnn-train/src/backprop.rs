@@ -1,0 +1,211 @@
+//! End-to-end training of the contact-graph network (burn, autodiff) on the step's own
+//! velocity-level complementarity residual at the prediction, the null-space-invariant loss of
+//! issue #13 (after Servin et al.'s GNN solver): with `lambda = builtin + correction` and `v` the
+//! velocities after applying it,
+//!
+//! - every contact's normal pair must be complementary: `x = lambda_n / m_n >= 0`, `v_n >= 0`,
+//!   `x v_n = 0`, measured by the Fischer-Burmeister function `x + v_n - sqrt(x^2 + v_n^2)`;
+//! - a contact the reference solution holds sticking must not slide: `v_t = 0`.
+//!
+//! No particular solution is asked for: any warm start in the problem's null space scores the
+//! same. Each step weighs by builtin's sweeps on it.
+
+use crate::twin::{GnnNet, GraphInput};
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::{Device, IndexingUpdateOp, Tensor, TensorData};
+use gnn::features;
+use gnn::net::Net;
+
+/// What the loss needs of one step besides the graph.
+pub struct StepData {
+    contact_features: Vec<f32>,
+    body_features: Vec<f32>,
+    pairs: Vec<(u32, u32)>,
+    /// Per contact: normal (2), ra (2), rb (2), masses (2), previous in velocity units (2),
+    /// velocity after builtin (2), sticking (1).
+    per_contact: Vec<f32>,
+    /// Per body: inverse mass, inverse mass, inverse inertia.
+    per_body: Vec<f32>,
+    weight: f32,
+}
+
+const PER_CONTACT: usize = 13;
+
+impl StepData {
+    pub fn new(problem: &sim::problem::Problem, weight: f32) -> Option<StepData> {
+        let (mut xc, mut xb, mut masses) = (Vec::new(), Vec::new(), Vec::new());
+        features::features(&problem.bodies, &problem.contacts, &mut xc, &mut xb, &mut masses);
+        if problem.contacts.is_empty() {
+            return None;
+        }
+        let mut per_contact = Vec::with_capacity(problem.contacts.len() * PER_CONTACT);
+        for ((c, k), x) in problem.contacts.iter().zip(&masses).zip(xc.chunks_exact(features::CONTACT_FEATURES)) {
+            let [rn, rt] = c.reference;
+            let sticking = rn > 1e-6 && rt.abs() < 0.999 * c.friction * rn;
+            per_contact.extend_from_slice(&[
+                c.normal[0],
+                c.normal[1],
+                c.ra[0],
+                c.ra[1],
+                c.rb[0],
+                c.rb[1],
+                k[0],
+                k[1],
+                x[0],
+                x[1],
+                x[9],
+                x[10],
+                sticking as u32 as f32,
+            ]);
+        }
+        let per_body = problem.bodies.iter().flat_map(|b| [b.inv_mass, b.inv_mass, b.inv_inertia]).collect();
+        let pairs = problem.contacts.iter().map(|c| (c.body_a, c.body_b)).collect();
+        Some(StepData { contact_features: xc, body_features: xb, pairs, per_contact, per_body, weight })
+    }
+}
+
+fn column(t: &Tensor<2>, i: usize) -> Tensor<2> {
+    let [n, _] = t.dims();
+    t.clone().slice([0..n, i..i + 1])
+}
+
+/// The weighted residual loss of one step.
+pub fn loss(model: &GnnNet, step: &StepData, device: &Device) -> Tensor<1> {
+    let graph = GraphInput::new(&step.contact_features, &step.body_features, &step.pairs, device);
+    let out = model.forward(&graph);
+    let nc = step.pairs.len();
+    let nb = step.per_body.len() / 3;
+    let c = Tensor::<2>::from_data(TensorData::new(step.per_contact.clone(), [nc, PER_CONTACT]), device);
+    let inv = Tensor::<2>::from_data(TensorData::new(step.per_body.clone(), [nb, 3]), device);
+    let (nx, ny, rax, ray, rbx, rby) =
+        (column(&c, 0), column(&c, 1), column(&c, 2), column(&c, 3), column(&c, 4), column(&c, 5));
+    let (kn, kt) = (column(&c, 6), column(&c, 7));
+    let (pn, v0n, v0t, stick) = (column(&c, 8), column(&c, 10), column(&c, 11), column(&c, 12));
+    let (on, ot) = (column(&out, 0), column(&out, 1));
+    // The correction's impulse in world coordinates (tangent = (ny, -nx)).
+    let (dn, dt) = (on.clone() * kn, ot * kt);
+    let px = dn.clone() * nx.clone() + dt.clone() * ny.clone();
+    let py = dn * ny.clone() - dt * nx.clone();
+    let on_b = Tensor::cat(vec![px.clone(), py.clone(), rbx.clone() * py.clone() - rby.clone() * px.clone()], 1);
+    let on_a = Tensor::cat(vec![px.clone(), py.clone(), rax.clone() * py - ray.clone() * px], 1);
+    let delta = Tensor::<2>::zeros([nb, 3], device)
+        .select_assign(0, graph.body_b.clone(), on_b, IndexingUpdateOp::Add)
+        .select_assign(0, graph.body_a.clone(), on_a.neg(), IndexingUpdateOp::Add)
+        * inv;
+    let (da, db) = (delta.clone().select(0, graph.body_a.clone()), delta.select(0, graph.body_b.clone()));
+    let rel_x = column(&db, 0) - column(&db, 2) * rby - column(&da, 0) + column(&da, 2) * ray;
+    let rel_y = column(&db, 1) + column(&db, 2) * rbx - column(&da, 1) - column(&da, 2) * rax;
+    let vn = v0n + rel_x.clone() * nx.clone() + rel_y.clone() * ny.clone();
+    let vt = v0t + rel_x * ny - rel_y * nx;
+    // Fischer-Burmeister on (lambda_n / m_n, v_n); the square root kept away from 0.
+    let x = pn + on;
+    let fb = x.clone() + vn.clone() - (x.clone() * x + vn.clone() * vn + 1e-10).sqrt();
+    let per_contact = fb.clone() * fb + stick * vt.clone() * vt;
+    per_contact.mean().mul_scalar(step.weight)
+}
+
+/// Trains `net` for `epochs` passes over `train` (shuffled by `seed`), calling `validate` after
+/// each epoch with the f32 network; returns every epoch's network and mean loss.
+pub fn train(
+    net: &Net,
+    train: &[StepData],
+    epochs: usize,
+    lr: f64,
+    seed: u64,
+    mut validate: impl FnMut(usize, &Net, f64),
+) {
+    let device = Device::flex().autodiff();
+    let mut model = GnnNet::from_net(net, &device);
+    let mut optim = AdamConfig::new().init();
+    let mut order: Vec<usize> = (0..train.len()).collect();
+    let mut state = seed;
+    for epoch in 0..epochs {
+        // Fisher-Yates with SplitMix64.
+        for i in (1..order.len()).rev() {
+            state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            order.swap(i, ((z ^ (z >> 31)) % (i as u64 + 1)) as usize);
+        }
+        let mut sum = 0.0f64;
+        for &i in &order {
+            let l = loss(&model, &train[i], &device);
+            let value: f32 = l.clone().into_scalar();
+            if !value.is_finite() {
+                tracing::warn!(epoch, step = i, "non-finite loss: step skipped");
+                continue;
+            }
+            sum += value as f64;
+            let grads = GradientsParams::from_grads(l.backward(), &model);
+            model = optim.step(lr, model, grads);
+        }
+        validate(epoch, &model.valid().to_net(), sum / order.len().max(1) as f64);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gnn::net::NetConfig;
+    use msgs::{ProblemBody, ProblemContact, ProblemHeader};
+
+    /// A ball (mass 2, inertia 0.5) on the floor, moving down at 0.1 m/s, resting on one contact.
+    fn ball_on_floor(previous: f32) -> sim::problem::Problem {
+        sim::problem::Problem {
+            header: ProblemHeader::default(),
+            bodies: vec![
+                ProblemBody::default(),
+                ProblemBody { v: [0.0, -0.1], w: 0.0, inv_mass: 0.5, inv_inertia: 2.0 },
+            ],
+            contacts: vec![ProblemContact {
+                body_a: 0,
+                body_b: 1,
+                normal: [0.0, 1.0],
+                ra: [0.0, 0.0],
+                rb: [0.0, -0.5],
+                friction: 0.5,
+                previous: [previous, 0.0],
+                reference: [0.2, 0.0],
+                age: 3,
+                ..Default::default()
+            }],
+        }
+    }
+
+    #[test]
+    fn the_loss_is_the_complementarity_residual_of_the_warm_start() {
+        let device = Device::flex();
+        let model = GnnNet::from_net(&Net::new(NetConfig::default(), 1), &device);
+        // Untrained: the warm start is builtin's. Effective normal mass 2 (the torque arm is along
+        // the normal), so x = previous / 2; v_n = -0.1 + previous / 2.
+        for previous in [0.0f32, 0.2, 0.5] {
+            let step = StepData::new(&ball_on_floor(previous), 1.0).unwrap();
+            let got: f32 = loss(&model, &step, &device).into_scalar();
+            let (x, v) = (previous as f64 / 2.0, -0.1 + previous as f64 / 2.0);
+            let fb = x + v - (x * x + v * v + 1e-10).sqrt();
+            // The reference holds it sticking; tangential velocity is 0 here.
+            assert!((got as f64 - fb * fb).abs() < 1e-6, "previous {previous}: {got} vs {}", fb * fb);
+        }
+        // At the solution (previous = 0.2: v_n = 0, x = 0.1) the residual vanishes.
+        let step = StepData::new(&ball_on_floor(0.2), 1.0).unwrap();
+        assert!(loss(&model, &step, &device).into_scalar::<f32>() < 1e-8);
+    }
+
+    #[test]
+    fn training_lowers_the_residual() {
+        let steps: Vec<StepData> =
+            [0.0f32, 0.05, 0.1, 0.3].iter().map(|&p| StepData::new(&ball_on_floor(p), 1.0).unwrap()).collect();
+        let device = Device::flex();
+        let net = Net::new(NetConfig { hidden: 8, rounds: 1 }, 2);
+        let before: f32 =
+            steps.iter().map(|s| loss(&GnnNet::from_net(&net, &device), s, &device).into_scalar::<f32>()).sum();
+        let mut after = f32::INFINITY;
+        train(&net, &steps, 30, 1e-2, 3, |_, trained, _| {
+            let m = GnnNet::from_net(trained, &device);
+            after = steps.iter().map(|s| loss(&m, s, &device).into_scalar::<f32>()).sum();
+        });
+        assert!(after < 0.5 * before, "residual {before} -> {after}");
+    }
+}
