@@ -285,22 +285,8 @@ fn train_end_to_end(
         }
     });
     let (sweeps, epoch, model) = best;
-    let provenance = format!(
-        "dc-gnn-train: end to end on the complementarity residual (Adam, lr {}, {} epochs, best epoch {epoch}; 0 = untrained, builtin) on {} steps of {}, hidden {}, {} rounds, seed {}; validation {} steps of {}: {sweeps} sweeps re-solved = {:.3}x builtin",
-        args.lr,
-        args.epochs,
-        data.len(),
-        args.data.display(),
-        args.hidden,
-        args.rounds,
-        args.seed,
-        validation.len(),
-        args.validation.display(),
-        sweeps as f64 / builtin as f64
-    );
-    ModelFile::new(model, &provenance).save(&args.out)?;
-    println!("wrote {} ({provenance})", args.out.display());
-    Ok(())
+    let how = format!("end to end on the complementarity residual (Adam, lr {}, {} epochs, best epoch {epoch}; 0 = untrained, builtin) on {} steps", args.lr, args.epochs, data.len());
+    save(args, model, &how, sweeps, builtin, validation.len())
 }
 
 /// The decoder of the fitted weights (`[2][width]`, the last column the bias).
@@ -399,15 +385,22 @@ fn main() -> Result<()> {
         }
     }
     let (sweeps, ridge, model) = best.context("no ridge strength given")?;
-    let provenance = format!(
-        "dc-gnn-train: readout ridge-fitted to the {} loss (strength {ridge:e}; inf = untrained, builtin) on {} steps of {}, message passing seeded {} (hidden {}, {} rounds); validation {} steps of {}: {sweeps} sweeps re-solved = {:.3}x builtin",
+    let how = format!(
+        "readout ridge-fitted to the {} loss (strength {ridge:e}; inf = untrained, builtin) on {} steps",
         args.loss,
-        train.len(),
+        train.len()
+    );
+    save(&args, model, &how, sweeps, builtin, validation.len())
+}
+
+/// Writes the model with its provenance: how it was made, and what it did on validation.
+fn save(args: &Args, model: Net, how: &str, sweeps: u64, builtin: u64, validation_steps: usize) -> Result<()> {
+    let provenance = format!(
+        "dc-gnn-train: {how} of {}, hidden {}, {} rounds, seed {}; validation {validation_steps} steps of {}: {sweeps} sweeps re-solved = {:.3}x builtin",
         args.data.display(),
-        args.seed,
         args.hidden,
         args.rounds,
-        validation.len(),
+        args.seed,
         args.validation.display(),
         sweeps as f64 / builtin as f64
     );
