@@ -28,12 +28,14 @@ pub struct StepData {
     /// Per body: inverse mass, inverse mass, inverse inertia.
     per_body: Vec<f32>,
     weight: f32,
+    /// The step's problem for the solver in the loop (an index into the training problems).
+    pub problem: usize,
 }
 
 const PER_CONTACT: usize = 13;
 
 impl StepData {
-    pub fn new(problem: &sim::problem::Problem, weight: f32) -> Option<StepData> {
+    pub fn new(problem: &sim::problem::Problem, index: usize, weight: f32) -> Option<StepData> {
         let (mut xc, mut xb, mut masses) = (Vec::new(), Vec::new(), Vec::new());
         features::features(&problem.bodies, &problem.contacts, &mut xc, &mut xb, &mut masses);
         if problem.contacts.is_empty() {
@@ -61,7 +63,7 @@ impl StepData {
         }
         let per_body = problem.bodies.iter().flat_map(|b| [b.inv_mass, b.inv_mass, b.inv_inertia]).collect();
         let pairs = problem.contacts.iter().map(|c| (c.body_a, c.body_b)).collect();
-        Some(StepData { contact_features: xc, body_features: xb, pairs, per_contact, per_body, weight })
+        Some(StepData { contact_features: xc, body_features: xb, pairs, per_contact, per_body, weight, problem: index })
     }
 }
 
@@ -105,11 +107,55 @@ pub fn loss(model: &GnnNet, step: &StepData, device: &Device) -> Tensor<1> {
     per_contact.mean().mul_scalar(step.weight)
 }
 
+/// The solver-in-the-loop loss of one step (see [`crate::unroll`]): the network's output is read,
+/// the residual after `sweeps` PGS sweeps from its warm start and that residual's gradient are
+/// computed by hand, and the returned surrogate `sum(output * gradient)` carries that gradient
+/// into the network on `backward`. Returns the surrogate and the true residual.
+pub fn unrolled_loss(
+    model: &GnnNet,
+    step: &StepData,
+    problem: &sim::problem::Problem,
+    sweeps: usize,
+    device: &Device,
+) -> (Tensor<1>, f64) {
+    let graph = GraphInput::new(&step.contact_features, &step.body_features, &step.pairs, device);
+    let out = model.forward(&graph);
+    let values: Vec<f32> = out.clone().into_data().try_into_vec::<f32>().expect("f32 output");
+    let masses: Vec<[f64; 2]> =
+        step.per_contact.chunks_exact(PER_CONTACT).map(|c| [c[6] as f64, c[7] as f64]).collect();
+    let warm: Vec<[f64; 2]> = problem
+        .contacts
+        .iter()
+        .zip(values.chunks_exact(2))
+        .zip(&masses)
+        .map(|((c, y), k)| [c.previous[0] as f64 + y[0] as f64 * k[0], c.previous[1] as f64 + y[1] as f64 * k[1]])
+        .collect();
+    let (residual, grad) =
+        crate::unroll::Unrolled::new(&problem.bodies, &problem.contacts).loss_and_gradient(&warm, sweeps);
+    let w = step.weight as f64;
+    let g: Vec<f32> =
+        grad.iter().zip(&masses).flat_map(|(g, k)| [(w * g[0] * k[0]) as f32, (w * g[1] * k[1]) as f32]).collect();
+    let g = Tensor::<2>::from_data(TensorData::new(g, [step.pairs.len(), 2]), device);
+    ((out * g).sum(), w * residual)
+}
+
+/// What a training step minimises.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Objective {
+    /// The complementarity residual at the warm start.
+    Residual,
+    /// The residual left after this many PGS sweeps from the warm start.
+    Unrolled(usize),
+}
+
 /// Trains `net` for `epochs` passes over `train` (shuffled by `seed`), calling `validate` after
-/// each epoch with the f32 network; returns every epoch's network and mean loss.
+/// each epoch with the f32 network and the mean loss.
+#[allow(clippy::too_many_arguments)] // one training run's knobs, read once
 pub fn train(
     net: &Net,
     train: &[StepData],
+    problems: &[(sim::problem::Problem, u32)],
+    objective: Objective,
     epochs: usize,
     lr: f64,
     seed: u64,
@@ -131,13 +177,19 @@ pub fn train(
         }
         let mut sum = 0.0f64;
         for &i in &order {
-            let l = loss(&model, &train[i], &device);
-            let value: f32 = l.clone().into_scalar();
+            let (l, value) = match objective {
+                Objective::Residual => {
+                    let l = loss(&model, &train[i], &device);
+                    let value = l.clone().into_scalar::<f32>() as f64;
+                    (l, value)
+                }
+                Objective::Unrolled(k) => unrolled_loss(&model, &train[i], &problems[train[i].problem].0, k, &device),
+            };
             if !value.is_finite() {
                 tracing::warn!(epoch, step = i, "non-finite loss: step skipped");
                 continue;
             }
-            sum += value as f64;
+            sum += value;
             let grads = GradientsParams::from_grads(l.backward(), &model);
             model = optim.step(lr, model, grads);
         }
@@ -181,7 +233,7 @@ mod tests {
         // Untrained: the warm start is builtin's. Effective normal mass 2 (the torque arm is along
         // the normal), so x = previous / 2; v_n = -0.1 + previous / 2.
         for previous in [0.0f32, 0.2, 0.5] {
-            let step = StepData::new(&ball_on_floor(previous), 1.0).unwrap();
+            let step = StepData::new(&ball_on_floor(previous), 0, 1.0).unwrap();
             let got: f32 = loss(&model, &step, &device).into_scalar();
             let (x, v) = (previous as f64 / 2.0, -0.1 + previous as f64 / 2.0);
             let fb = x + v - (x * x + v * v + 1e-10).sqrt();
@@ -189,20 +241,22 @@ mod tests {
             assert!((got as f64 - fb * fb).abs() < 1e-6, "previous {previous}: {got} vs {}", fb * fb);
         }
         // At the solution (previous = 0.2: v_n = 0, x = 0.1) the residual vanishes.
-        let step = StepData::new(&ball_on_floor(0.2), 1.0).unwrap();
+        let step = StepData::new(&ball_on_floor(0.2), 0, 1.0).unwrap();
         assert!(loss(&model, &step, &device).into_scalar::<f32>() < 1e-8);
     }
 
     #[test]
     fn training_lowers_the_residual() {
+        let problems: Vec<(sim::problem::Problem, u32)> =
+            [0.0f32, 0.05, 0.1, 0.3].iter().map(|&p| (ball_on_floor(p), 1)).collect();
         let steps: Vec<StepData> =
-            [0.0f32, 0.05, 0.1, 0.3].iter().map(|&p| StepData::new(&ball_on_floor(p), 1.0).unwrap()).collect();
+            problems.iter().enumerate().map(|(i, (p, _))| StepData::new(p, i, 1.0).unwrap()).collect();
         let device = Device::flex();
         let net = Net::new(NetConfig { hidden: 8, rounds: 1 }, 2);
         let before: f32 =
             steps.iter().map(|s| loss(&GnnNet::from_net(&net, &device), s, &device).into_scalar::<f32>()).sum();
         let mut after = f32::INFINITY;
-        train(&net, &steps, 30, 1e-2, 3, |_, trained, _| {
+        train(&net, &steps, &problems, Objective::Residual, 30, 1e-2, 3, |_, trained, _| {
             let m = GnnNet::from_net(trained, &device);
             after = steps.iter().map(|s| loss(&m, s, &device).into_scalar::<f32>()).sum();
         });

@@ -20,6 +20,7 @@
 
 mod backprop;
 mod twin;
+mod unroll;
 
 use anyhow::{bail, Context, Result};
 use gnn::net::{Linear, Net, NetConfig, Scratch};
@@ -48,10 +49,14 @@ struct Args {
     /// Ridge strengths tried (relative to each input's own scale).
     #[arg(long, value_delimiter = ',', default_value = "1e-4,1e-3,1e-2,1e-1,1")]
     ridge: Vec<f64>,
-    /// What the readout is fitted to: `residual` (the step's velocity residual) or `mse` (the
-    /// reference solution's correction).
-    #[arg(long, default_value = "residual", value_parser = ["residual", "mse"])]
+    /// What is minimised: `residual` (the step's velocity residual at the warm start), `mse`
+    /// (the reference solution's correction; readout only) or `unrolled` (the residual after
+    /// --sweeps PGS sweeps from the warm start; backprop only).
+    #[arg(long, default_value = "residual", value_parser = ["residual", "mse", "unrolled"])]
     loss: String,
+    /// With `--loss unrolled`: the PGS sweeps unrolled before the residual is taken.
+    #[arg(long, default_value_t = 10)]
+    sweeps: usize,
     /// `readout`: the closed-form readout fit above; `backprop`: the whole network end to end
     /// (burn, Adam) on the step's complementarity residual.
     #[arg(long, default_value = "readout", value_parser = ["readout", "backprop"])]
@@ -262,17 +267,26 @@ fn train_end_to_end(
     validation: &[(sim::problem::Problem, u32)],
 ) -> Result<()> {
     let mean_sweeps = train.iter().map(|(_, s)| *s as f64).sum::<f64>() / train.len() as f64;
-    let data: Vec<backprop::StepData> =
-        train.iter().filter_map(|(p, s)| backprop::StepData::new(p, (*s as f64 / mean_sweeps) as f32)).collect();
+    let data: Vec<backprop::StepData> = train
+        .iter()
+        .enumerate()
+        .filter_map(|(i, (p, s))| backprop::StepData::new(p, i, (*s as f64 / mean_sweeps) as f32))
+        .collect();
+    let objective = match args.loss.as_str() {
+        "residual" => backprop::Objective::Residual,
+        "unrolled" => backprop::Objective::Unrolled(args.sweeps),
+        other => bail!("--loss {other} is for --method readout"),
+    };
     let builtin: u64 = validation.iter().map(|(_, s)| *s as u64).sum();
     let untrained = validation_sweeps(net, validation);
     println!(
-        "backprop on the residual: {} steps with contacts; validation sweeps: builtin {builtin}, untrained {untrained}",
+        "backprop on the {} loss: {} steps with contacts; validation sweeps: builtin {builtin}, untrained {untrained}",
+        args.loss,
         data.len()
     );
     let mut best = (untrained, 0usize, net.clone());
     let started = std::time::Instant::now();
-    backprop::train(net, &data, args.epochs, args.lr, args.seed, |epoch, candidate, loss| {
+    backprop::train(net, &data, train, objective, args.epochs, args.lr, args.seed, |epoch, candidate, loss| {
         let sweeps = validation_sweeps(candidate, validation);
         println!(
             "  epoch {}: mean loss {loss:.4e}, validation {sweeps} sweeps ({:.3}x builtin), {:.0} s",
@@ -285,7 +299,14 @@ fn train_end_to_end(
         }
     });
     let (sweeps, epoch, model) = best;
-    let how = format!("end to end on the complementarity residual (Adam, lr {}, {} epochs, best epoch {epoch}; 0 = untrained, builtin) on {} steps", args.lr, args.epochs, data.len());
+    let how = format!(
+        "end to end on the {} loss{} (Adam, lr {}, {} epochs, best epoch {epoch}; 0 = untrained, builtin) on {} steps",
+        args.loss,
+        if args.loss == "unrolled" { format!(" after {} sweeps", args.sweeps) } else { String::new() },
+        args.lr,
+        args.epochs,
+        data.len()
+    );
     save(args, model, &how, sweeps, builtin, validation.len())
 }
 
