@@ -116,6 +116,7 @@ pub fn unrolled_loss(
     step: &StepData,
     problem: &sim::problem::Problem,
     sweeps: usize,
+    power: f64,
     device: &Device,
 ) -> (Tensor<1>, f64) {
     let graph = GraphInput::new(&step.contact_features, &step.body_features, &step.pairs, device);
@@ -130,8 +131,9 @@ pub fn unrolled_loss(
         .zip(&masses)
         .map(|((c, y), k)| [c.previous[0] as f64 + y[0] as f64 * k[0], c.previous[1] as f64 + y[1] as f64 * k[1]])
         .collect();
-    let (residual, grad) =
-        crate::unroll::Unrolled::new(&problem.bodies, &problem.contacts).loss_and_gradient(&warm, sweeps);
+    let mut unrolled = crate::unroll::Unrolled::new(&problem.bodies, &problem.contacts);
+    unrolled.power = power;
+    let (residual, grad) = unrolled.loss_and_gradient(&warm, sweeps);
     let w = step.weight as f64;
     let g: Vec<f32> =
         grad.iter().zip(&masses).flat_map(|(g, k)| [(w * g[0] * k[0]) as f32, (w * g[1] * k[1]) as f32]).collect();
@@ -145,7 +147,7 @@ pub enum Objective {
     /// The complementarity residual at the warm start.
     Residual,
     /// The residual left after this many PGS sweeps from the warm start.
-    Unrolled(usize),
+    Unrolled { sweeps: usize, power: f64 },
 }
 
 /// Trains `net` for `epochs` passes over `train` (shuffled by `seed`), calling `validate` after
@@ -183,7 +185,9 @@ pub fn train(
                     let value = l.clone().into_scalar::<f32>() as f64;
                     (l, value)
                 }
-                Objective::Unrolled(k) => unrolled_loss(&model, &train[i], &problems[train[i].problem].0, k, &device),
+                Objective::Unrolled { sweeps, power } => {
+                    unrolled_loss(&model, &train[i], &problems[train[i].problem].0, sweeps, power, &device)
+                }
             };
             if !value.is_finite() {
                 tracing::warn!(epoch, step = i, "non-finite loss: step skipped");

@@ -57,6 +57,10 @@ struct Args {
     /// With `--loss unrolled`: the PGS sweeps unrolled before the residual is taken.
     #[arg(long, default_value_t = 10)]
     sweeps: usize,
+    /// With `--loss unrolled`: the power of each change's energy in the loss (2: the energy;
+    /// larger: the largest changes, which decide when PGS stops, weigh more).
+    #[arg(long, default_value_t = 2.0)]
+    power: f64,
     /// `readout`: the closed-form readout fit above; `backprop`: the whole network end to end
     /// (burn, Adam) on the step's complementarity residual.
     #[arg(long, default_value = "readout", value_parser = ["readout", "backprop"])]
@@ -274,7 +278,7 @@ fn train_end_to_end(
         .collect();
     let objective = match args.loss.as_str() {
         "residual" => backprop::Objective::Residual,
-        "unrolled" => backprop::Objective::Unrolled(args.sweeps),
+        "unrolled" => backprop::Objective::Unrolled { sweeps: args.sweeps, power: args.power },
         other => bail!("--loss {other} is for --method readout"),
     };
     let builtin: u64 = validation.iter().map(|(_, s)| *s as u64).sum();

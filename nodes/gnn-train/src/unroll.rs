@@ -32,6 +32,9 @@ struct Update {
 
 /// A problem prepared for unrolled sweeps.
 pub struct Unrolled {
+    /// The loss sums `(d lambda^2 / m)^(power / 2)`: 2 is the energy of the last sweep's
+    /// changes; larger powers weigh the largest changes (what the stopping rule reads) more.
+    pub power: f64,
     rows: Vec<Row>,
     v0: Vec<[f64; 3]>,
     inv: Vec<[f64; 3]>,
@@ -71,7 +74,7 @@ impl Unrolled {
             })
             .collect();
         let v0 = bodies.iter().map(|b| [b.v[0] as f64, b.v[1] as f64, b.w as f64]).collect();
-        Unrolled { rows, v0, inv }
+        Unrolled { power: 2.0, rows, v0, inv }
     }
 
     fn dot(&self, r: &Row, j: &[f64; 6], v: &[[f64; 3]]) -> f64 {
@@ -137,7 +140,7 @@ impl Unrolled {
                     self.apply(r, j, delta, &mut v);
                     lambda[c][if normal { 0 } else { 1 }] = new;
                     if sweep == sweeps && m > 0.0 {
-                        loss += delta * delta / m;
+                        loss += (delta * delta / m).powf(self.power / 2.0);
                     }
                     tape.push(Update { c, normal, lambda_in: l_in, x, lo, hi });
                 }
@@ -156,7 +159,11 @@ impl Unrolled {
             // v_out = v_in + M^-1 J^T delta; loss += delta^2 / m in the last sweep.
             let mut delta_bar = self.pull(r, j, &vbar);
             if i >= last_sweep_start && m > 0.0 {
-                delta_bar += 2.0 * delta / m;
+                // d/d delta of (delta^2 / m)^(p/2) = p (delta^2 / m)^(p/2 - 1) delta / m.
+                let e = delta * delta / m;
+                if e > 0.0 {
+                    delta_bar += self.power * e.powf(self.power / 2.0 - 1.0) * delta / m;
+                }
             }
             // lambda_out = new; delta = new - lambda_in.
             let new_bar = lbar[u.c][comp] + delta_bar;
@@ -219,24 +226,27 @@ mod tests {
     #[test]
     fn the_gradient_matches_finite_differences() {
         let (bodies, contacts) = pile();
-        let u = Unrolled::new(&bodies, &contacts);
+        let mut u = Unrolled::new(&bodies, &contacts);
         let warm: Vec<[f64; 2]> = vec![[0.05, 0.001], [0.03, -0.004], [0.02, 0.002], [0.04, 0.0], [0.01, 0.001]];
-        let (loss, grad) = u.loss_and_gradient(&warm, 3);
-        assert!(loss > 0.0);
-        let h = 1e-7;
-        for c in 0..warm.len() {
-            for k in 0..2 {
-                let mut plus = warm.clone();
-                plus[c][k] += h;
-                let mut minus = warm.clone();
-                minus[c][k] -= h;
-                let fd = (u.loss_and_gradient(&plus, 3).0 - u.loss_and_gradient(&minus, 3).0) / (2.0 * h);
-                let tolerance = 1e-5 * (1.0 + fd.abs().max(grad[c][k].abs()));
-                assert!(
-                    (fd - grad[c][k]).abs() < tolerance,
-                    "contact {c}, component {k}: analytic {} vs {fd}",
-                    grad[c][k]
-                );
+        for power in [2.0, 4.0] {
+            u.power = power;
+            let (loss, grad) = u.loss_and_gradient(&warm, 3);
+            assert!(loss > 0.0);
+            let h = 1e-7;
+            for c in 0..warm.len() {
+                for k in 0..2 {
+                    let mut plus = warm.clone();
+                    plus[c][k] += h;
+                    let mut minus = warm.clone();
+                    minus[c][k] -= h;
+                    let fd = (u.loss_and_gradient(&plus, 3).0 - u.loss_and_gradient(&minus, 3).0) / (2.0 * h);
+                    let tolerance = 1e-5 * (1.0 + fd.abs().max(grad[c][k].abs()));
+                    assert!(
+                        (fd - grad[c][k]).abs() < tolerance,
+                        "power {power}, contact {c}, component {k}: analytic {} vs {fd}",
+                        grad[c][k]
+                    );
+                }
             }
         }
     }
