@@ -186,7 +186,11 @@ pub fn train(
                     (l, value)
                 }
                 Objective::Unrolled { sweeps, power } => {
-                    unrolled_loss(&model, &train[i], &problems[train[i].problem].0, sweeps, power, &device)
+                    let (problem, builtin) = &problems[train[i].problem];
+                    // 0: as many sweeps as builtin took on the step, less one (at most 400): the
+                    // residual there is what decides whether the model stops earlier.
+                    let k = if sweeps == 0 { (builtin.saturating_sub(1) as usize).min(400) } else { sweeps };
+                    unrolled_loss(&model, &train[i], problem, k, power, &device)
                 }
             };
             if !value.is_finite() {

@@ -54,7 +54,8 @@ struct Args {
     /// --sweeps PGS sweeps from the warm start; backprop only).
     #[arg(long, default_value = "residual", value_parser = ["residual", "mse", "unrolled"])]
     loss: String,
-    /// With `--loss unrolled`: the PGS sweeps unrolled before the residual is taken.
+    /// With `--loss unrolled`: the PGS sweeps unrolled before the residual is taken (0: per step,
+    /// one less than builtin took on it, at most 400).
     #[arg(long, default_value_t = 10)]
     sweeps: usize,
     /// With `--loss unrolled`: the power of each change's energy in the loss (2: the energy;
@@ -306,7 +307,11 @@ fn train_end_to_end(
     let how = format!(
         "end to end on the {} loss{} (Adam, lr {}, {} epochs, best epoch {epoch}; 0 = untrained, builtin) on {} steps",
         args.loss,
-        if args.loss == "unrolled" { format!(" after {} sweeps", args.sweeps) } else { String::new() },
+        match (args.loss.as_str(), args.sweeps) {
+            ("unrolled", 0) => format!(" after builtin's sweeps less one (power {})", args.power),
+            ("unrolled", k) => format!(" after {k} sweeps (power {})", args.power),
+            _ => String::new(),
+        },
         args.lr,
         args.epochs,
         data.len()
