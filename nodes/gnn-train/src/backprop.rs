@@ -167,15 +167,11 @@ pub fn train(
     let mut model = GnnNet::from_net(net, &device);
     let mut optim = AdamConfig::new().init();
     let mut order: Vec<usize> = (0..train.len()).collect();
-    let mut state = seed;
+    let mut rng = sph::SplitMix64::new(seed);
     for epoch in 0..epochs {
-        // Fisher-Yates with SplitMix64.
+        // Fisher-Yates.
         for i in (1..order.len()).rev() {
-            state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-            let mut z = state;
-            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-            order.swap(i, ((z ^ (z >> 31)) % (i as u64 + 1)) as usize);
+            order.swap(i, (rng.next_u64() % (i as u64 + 1)) as usize);
         }
         let mut sum = 0.0f64;
         for &i in &order {

@@ -39,10 +39,8 @@ struct Args {
     /// Where the model goes (`.dcg`).
     #[arg(long)]
     out: PathBuf,
-    #[arg(long, default_value_t = 16)]
-    hidden: usize,
-    #[arg(long, default_value_t = 4)]
-    rounds: usize,
+    #[command(flatten)]
+    net: NetConfig,
     /// Seed of the message-passing weights.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -71,37 +69,6 @@ struct Args {
     epochs: usize,
     #[arg(long, default_value_t = 1e-3)]
     lr: f64,
-}
-
-/// Relative velocity (normal, tangent) at every contact caused by impulses `p` (normal, tangent
-/// per contact) on bodies at rest: the problem's Delassus operator `J M^-1 J^T` applied to `p`.
-fn response(problem: &sim::problem::Problem, p: &[[f64; 2]], v: &mut Vec<[f64; 3]>, out: &mut Vec<[f64; 2]>) {
-    v.clear();
-    v.resize(problem.bodies.len(), [0.0; 3]);
-    let cross = |a: [f32; 2], b: [f64; 2]| a[0] as f64 * b[1] - a[1] as f64 * b[0];
-    for (c, l) in problem.contacts.iter().zip(p) {
-        let (n, t) = ([c.normal[0] as f64, c.normal[1] as f64], [c.normal[1] as f64, -c.normal[0] as f64]);
-        let imp = [n[0] * l[0] + t[0] * l[1], n[1] * l[0] + t[1] * l[1]];
-        let (a, b) = (&problem.bodies[c.body_a as usize], &problem.bodies[c.body_b as usize]);
-        let va = &mut v[c.body_a as usize];
-        va[0] -= imp[0] * a.inv_mass as f64;
-        va[1] -= imp[1] * a.inv_mass as f64;
-        va[2] -= a.inv_inertia as f64 * cross(c.ra, imp);
-        let vb = &mut v[c.body_b as usize];
-        vb[0] += imp[0] * b.inv_mass as f64;
-        vb[1] += imp[1] * b.inv_mass as f64;
-        vb[2] += b.inv_inertia as f64 * cross(c.rb, imp);
-    }
-    out.clear();
-    out.extend(problem.contacts.iter().map(|c| {
-        let (va, vb) = (v[c.body_a as usize], v[c.body_b as usize]);
-        let dv = [
-            vb[0] - vb[2] * c.rb[1] as f64 - va[0] + va[2] * c.ra[1] as f64,
-            vb[1] + vb[2] * c.rb[0] as f64 - va[1] - va[2] * c.ra[0] as f64,
-        ];
-        let (n, t) = ([c.normal[0] as f64, c.normal[1] as f64], [c.normal[1] as f64, -c.normal[0] as f64]);
-        [dv[0] * n[0] + dv[1] * n[1], dv[0] * t[0] + dv[1] * t[1]]
-    }));
 }
 
 /// The labelled steps of a recording: (problem, builtin's sweeps).
@@ -203,15 +170,13 @@ impl Normal {
 /// residual row through the problem's Delassus operator.
 struct Residual {
     normal: Normal,
-    v: Vec<[f64; 3]>,
     p: Vec<[f64; 2]>,
-    r: Vec<[f64; 2]>,
     columns: Vec<Vec<[f64; 2]>>,
 }
 
 impl Residual {
     fn new(width: usize) -> Residual {
-        Residual { normal: Normal::new(2 * width), v: Vec::new(), p: Vec::new(), r: Vec::new(), columns: Vec::new() }
+        Residual { normal: Normal::new(2 * width), p: Vec::new(), columns: Vec::new() }
     }
 
     /// Rows of one step: `x` its contact features (velocities after builtin at 9 and 10), `z` the
@@ -227,6 +192,7 @@ impl Residual {
     ) {
         let d = readout + 1;
         let n = problem.contacts.len();
+        let operator = unroll::Unrolled::new(&problem.bodies, &problem.contacts);
         // Column (out, i): the velocities caused by the impulses that parameter puts on every contact.
         self.columns.resize(2 * d, Vec::new());
         for out in 0..2 {
@@ -238,8 +204,7 @@ impl Residual {
                     imp[out] = masses[c][out] as f64 * zi;
                     imp
                 }));
-                response(problem, &self.p, &mut self.v, &mut self.r);
-                self.columns[out * d + i].clone_from(&self.r);
+                self.columns[out * d + i] = operator.delassus(&self.p);
             }
         }
         let mut row = vec![0.0; 2 * d];
@@ -353,7 +318,7 @@ fn main() -> Result<()> {
     runtime::init_logging();
     let train = labelled_steps(&args.data)?;
     let validation = labelled_steps(&args.validation)?;
-    let net = Net::new(NetConfig { hidden: args.hidden, rounds: args.rounds }, args.seed);
+    let net = Net::new(args.net, args.seed);
     let readout = net.readout_width();
     println!(
         "dc-gnn-train: {} training steps, {} validation steps, readout width {readout}",
@@ -428,8 +393,8 @@ fn save(args: &Args, model: Net, how: &str, sweeps: u64, builtin: u64, validatio
     let provenance = format!(
         "dc-gnn-train: {how} of {}, hidden {}, {} rounds, seed {}; validation {validation_steps} steps of {}: {sweeps} sweeps re-solved = {:.3}x builtin",
         args.data.display(),
-        args.hidden,
-        args.rounds,
+        args.net.hidden,
+        args.net.rounds,
         args.seed,
         args.validation.display(),
         sweeps as f64 / builtin as f64
@@ -483,9 +448,8 @@ mod tests {
         };
         let p = [[0.3, -0.1], [1.0, 0.2], [0.0, 0.5], [-0.4, 0.1]];
         let q = [[0.1, 0.1], [-0.2, 0.3], [0.7, 0.0], [0.2, -0.6]];
-        let (mut v, mut gp, mut gq) = (Vec::new(), Vec::new(), Vec::new());
-        response(&problem, &p, &mut v, &mut gp);
-        response(&problem, &q, &mut v, &mut gq);
+        let operator = unroll::Unrolled::new(&problem.bodies, &problem.contacts);
+        let (gp, gq) = (operator.delassus(&p), operator.delassus(&q));
         let dot = |a: &[[f64; 2]], b: &[[f64; 2]]| a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1]).sum::<f64>();
         assert!((dot(&p, &gq) - dot(&q, &gp)).abs() < 1e-12);
         assert!(dot(&p, &gp) > 0.0, "positive definite on moving bodies");

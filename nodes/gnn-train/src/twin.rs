@@ -150,7 +150,7 @@ mod tests {
     fn burn_and_the_f32_network_agree() {
         let device = Device::flex();
         let mut net = Net::new(NetConfig::default(), 12);
-        net.decode = gnn::net::Linear::glorot(net.readout_width(), 2, &mut 13);
+        net.decode = gnn::net::Linear::glorot(net.readout_width(), 2, &mut sph::SplitMix64::new(13));
         // A pile-like graph: 150 contacts among 60 bodies, body 0 fixed.
         let mut state = 5u64;
         let mut unit = || {

@@ -95,6 +95,17 @@ impl Unrolled {
         (0..3).map(|k| self.inv[r.a][k] * j[k] * vbar[r.a][k] + self.inv[r.b][k] * j[3 + k] * vbar[r.b][k]).sum()
     }
 
+    /// The problem's Delassus operator `J M^-1 J^T` applied to impulses `p` (normal, tangent per
+    /// contact): the relative velocity (normal, tangent) each contact gets from them, bodies at rest.
+    pub fn delassus(&self, p: &[[f64; 2]]) -> Vec<[f64; 2]> {
+        let mut v = vec![[0.0f64; 3]; self.v0.len()];
+        for (r, l) in self.rows.iter().zip(p) {
+            self.apply(r, &r.jn, l[0], &mut v);
+            self.apply(r, &r.jt, l[1], &mut v);
+        }
+        self.rows.iter().map(|r| [self.dot(r, &r.jn, &v), self.dot(r, &r.jt, &v)]).collect()
+    }
+
     /// The loss after `sweeps` sweeps from `warm` (normal, tangent per contact) and its gradient
     /// with respect to `warm`.
     pub fn loss_and_gradient(&self, warm: &[[f64; 2]], sweeps: usize) -> (f64, Vec<[f64; 2]>) {

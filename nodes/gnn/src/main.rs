@@ -26,10 +26,8 @@ enum Command {
         /// Bodies of the pile (contacts join random neighbours, a few touch the floor).
         #[arg(long, default_value_t = 100)]
         bodies: usize,
-        #[arg(long, default_value_t = 16)]
-        hidden: usize,
-        #[arg(long, default_value_t = 4)]
-        rounds: usize,
+        #[command(flatten)]
+        net: NetConfig,
         #[arg(long, default_value_t = 2000)]
         reps: usize,
     },
@@ -39,10 +37,8 @@ enum Command {
     Init {
         #[arg(long)]
         out: PathBuf,
-        #[arg(long, default_value_t = 16)]
-        hidden: usize,
-        #[arg(long, default_value_t = 4)]
-        rounds: usize,
+        #[command(flatten)]
+        net: NetConfig,
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
@@ -86,11 +82,12 @@ fn synthetic_pile(bodies: usize, contacts: usize) -> (Vec<ProblemBody>, Vec<Prob
 fn main() -> Result<()> {
     let Some(cli) = runtime::parse_args::<Cli>() else { return Ok(()) };
     match cli.command {
-        Command::Bench { contacts, bodies, hidden, rounds, reps } => {
+        Command::Bench { contacts, bodies, net: config, reps } => {
+            let NetConfig { hidden, rounds } = config;
             let (b, c) = synthetic_pile(bodies, contacts);
-            let mut net = Net::new(NetConfig { hidden, rounds }, 1);
+            let mut net = Net::new(config, 1);
             // A trained network's decoder is not zero; its cost is the same either way.
-            net.decode = gnn::net::Linear::glorot(net.readout_width(), 2, &mut 2);
+            net.decode = gnn::net::Linear::glorot(net.readout_width(), 2, &mut sph::SplitMix64::new(2));
             let mut p = Predictor::new(net);
             let mut out = vec![[0.0f32; 2]; c.len()];
             for _ in 0..reps.min(100) {
@@ -116,8 +113,8 @@ fn main() -> Result<()> {
             println!("{}: format {}, {:?}, checksum {:016x}", file.display(), m.format, m.net.config, m.checksum);
             println!("  made by: {}", m.provenance);
         }
-        Command::Init { out, hidden, rounds, seed } => {
-            let m = ModelFile::new(Net::new(NetConfig { hidden, rounds }, seed), "dc-gnn init (untrained: builtin)");
+        Command::Init { out, net, seed } => {
+            let m = ModelFile::new(Net::new(net, seed), "dc-gnn init (untrained: builtin)");
             m.save(&out)?;
             println!("wrote {}", out.display());
         }

@@ -15,6 +15,7 @@
 
 use crate::features::{BODY_FEATURES, CONTACT_FEATURES};
 use serde::{Deserialize, Serialize};
+use sph::SplitMix64;
 
 /// A dense layer `y = W x + b`, `W` row-major `[out][in]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -32,9 +33,9 @@ impl Linear {
     }
 
     /// Weights uniform in `±sqrt(6 / (inputs + outputs))` (Glorot) from a seeded generator.
-    pub fn glorot(inputs: usize, outputs: usize, rng: &mut u64) -> Linear {
+    pub fn glorot(inputs: usize, outputs: usize, rng: &mut SplitMix64) -> Linear {
         let bound = (6.0 / (inputs + outputs) as f64).sqrt();
-        let weight = (0..inputs * outputs).map(|_| ((next_unit(rng) * 2.0 - 1.0) * bound) as f32).collect();
+        let weight = (0..inputs * outputs).map(|_| ((unit_f64(rng) * 2.0 - 1.0) * bound) as f32).collect();
         Linear { inputs, outputs, weight, bias: vec![0.0; outputs] }
     }
 
@@ -86,19 +87,19 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
     s
 }
 
-/// SplitMix64 to a uniform double in [0, 1).
-fn next_unit(state: &mut u64) -> f64 {
-    *state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+/// A uniform double in [0, 1) with 53 random bits.
+fn unit_f64(rng: &mut SplitMix64) -> f64 {
+    (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64
 }
 
-/// The network's shape.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+/// The network's shape (also the command-line flags of the tools that make networks).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::Args)]
 pub struct NetConfig {
+    /// Width of the contact and body states.
+    #[arg(long, default_value_t = 16)]
     pub hidden: usize,
+    /// Message-passing rounds (weights shared across rounds).
+    #[arg(long, default_value_t = 4)]
     pub rounds: usize,
 }
 
@@ -135,7 +136,7 @@ impl Net {
     /// A fresh network: Glorot weights from `seed`, the decoder at zero (output = builtin).
     pub fn new(config: NetConfig, seed: u64) -> Net {
         let h = config.hidden;
-        let mut rng = seed;
+        let mut rng = SplitMix64::new(seed);
         Net {
             config,
             encode_contact: Linear::glorot(CONTACT_FEATURES, h, &mut rng),
@@ -279,9 +280,9 @@ mod tests {
     use super::*;
 
     fn inputs(nc: usize, nb: usize) -> (Vec<f32>, Vec<f32>, Vec<(u32, u32)>) {
-        let mut rng = 7u64;
-        let xc = (0..nc * CONTACT_FEATURES).map(|_| next_unit(&mut rng) as f32).collect();
-        let xb = (0..nb * BODY_FEATURES).map(|_| next_unit(&mut rng) as f32).collect();
+        let mut rng = SplitMix64::new(7);
+        let xc = (0..nc * CONTACT_FEATURES).map(|_| unit_f64(&mut rng) as f32).collect();
+        let xb = (0..nb * BODY_FEATURES).map(|_| unit_f64(&mut rng) as f32).collect();
         let pairs = (0..nc).map(|i| ((i % nb) as u32, ((i * 7 + 1) % nb) as u32)).collect();
         (xc, xb, pairs)
     }
@@ -300,7 +301,7 @@ mod tests {
     #[test]
     fn messages_carry_information_between_contacts() {
         let mut net = Net::new(NetConfig { hidden: 8, rounds: 2 }, 5);
-        net.decode = Linear::glorot(8 + CONTACT_FEATURES, 2, &mut 11);
+        net.decode = Linear::glorot(8 + CONTACT_FEATURES, 2, &mut SplitMix64::new(11));
         // Two contacts share body 1; a third is apart. Changing contact 0's features changes
         // contact 1's output (one body away) but not contact 2's.
         let (mut xc, xb, _) = inputs(3, 5);

@@ -38,6 +38,13 @@ impl ImpulseHistory {
         lookup(&self.before_previous, key).map(|(i, _)| i)
     }
 
+    /// builtin's warm start: each contact's impulse in the previous step, 0 for new ones.
+    pub fn fill_previous(&self, contacts: &[ContactPoint], out: &mut [Impulse]) {
+        for (c, o) in contacts.iter().zip(out.iter_mut()) {
+            *o = self.previous(&c.key).unwrap_or_default();
+        }
+    }
+
     /// How many consecutive steps contact `key` has existed before the current one (0: new).
     pub fn age(&self, key: &ContactKey) -> u32 {
         lookup(&self.previous, key).map_or(0, |(_, age)| age + 1)
@@ -47,7 +54,14 @@ impl ImpulseHistory {
     pub fn push(&mut self, keys: impl Iterator<Item = ContactKey>, impulses: &[Impulse]) {
         let mut next = std::mem::take(&mut self.before_previous);
         next.clear();
-        next.extend(keys.zip(impulses.iter().copied()).map(|(k, i)| (k, i, self.age(&k))));
+        // Both lists are sorted by key: one merge walk finds each contact's age (every step, for
+        // every model, so no search per contact).
+        let mut old = self.previous.iter().peekable();
+        for (k, i) in keys.zip(impulses.iter().copied()) {
+            while old.next_if(|o| o.0 < k).is_some() {}
+            let age = old.next_if(|o| o.0 == k).map_or(0, |o| o.2 + 1);
+            next.push((k, i, age));
+        }
         debug_assert!(next.windows(2).all(|w| w[0].0 <= w[1].0), "keys must be sorted");
         self.before_previous = std::mem::replace(&mut self.previous, next);
     }

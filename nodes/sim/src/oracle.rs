@@ -8,13 +8,6 @@ use crate::rng::{Sampler, Xoshiro};
 use crate::solver::Impulse;
 use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
 
-/// Builtin's guess: the previous step's impulse of each persisting contact, 0 on new ones.
-pub fn builtin_guess(input: &WarmStartInput<'_>, out: &mut [Impulse]) {
-    for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
-        *o = input.history.previous(&c.key).unwrap_or_default();
-    }
-}
-
 /// What an ablation does with the oracle's solution and builtin's guess.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Ablation {
@@ -75,7 +68,7 @@ impl WarmStartModel for OracleAblation {
         self.exact.clear();
         self.exact.resize(n, Impulse::default());
         (input.oracle)(&mut self.exact);
-        builtin_guess(input, out);
+        input.history.fill_previous(input.contacts, out);
         // builtin's error, exact - builtin... stored as builtin - exact (what the guess adds).
         self.error.clear();
         self.error.extend(

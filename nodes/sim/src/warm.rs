@@ -81,9 +81,7 @@ impl WarmStartModel for Builtin {
         "builtin"
     }
     fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-        for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
-            *o = input.history.previous(&c.key).unwrap_or_default();
-        }
+        input.history.fill_previous(input.contacts, out);
         Ok(())
     }
 }

@@ -594,9 +594,9 @@ impl World {
             let mut oracle = |out: &mut [Impulse]| {
                 scratch.clear();
                 scratch.extend_from_slice(bodies);
-                let start: Vec<Impulse> =
-                    contacts.iter().map(|c| history.previous(&c.key).unwrap_or_default()).collect();
-                *oracle_report = Some(oracle_solver.solve(rows, scratch, &start, &solve));
+                // From builtin's warm start, written where the answer goes.
+                history.fill_previous(contacts, out);
+                *oracle_report = Some(oracle_solver.solve(rows, scratch, out, &solve));
                 out.copy_from_slice(oracle_solver.impulses());
             };
             let mut input = WarmStartInput {
@@ -675,12 +675,19 @@ impl World {
         let count = self.contacts.len().max(1) as f64;
         self.history.push(self.contacts.iter().map(|c| c.key), final_impulses);
         let used = if fallback { warm.fallback.name() } else { warm.model.name() };
+        // The names' strings are reused from step to step (no allocation on the step path).
+        let (mut model, mut used_model) =
+            (std::mem::take(&mut self.stats.model), std::mem::take(&mut self.stats.used_model));
+        model.clear();
+        model.push_str(warm.model.name());
+        used_model.clear();
+        used_model.push_str(used);
         self.stats = StepStats {
             run_id: self.run_id,
             simulation: self.simulation,
             step: self.step - 1,
-            model: warm.model.name().to_string(),
-            used_model: used.to_string(),
+            model,
+            used_model,
             contacts: self.contacts.len() as u32,
             persisting_contacts: persisting as u32,
             sweeps: report.sweeps,
