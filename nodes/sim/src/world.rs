@@ -162,7 +162,6 @@ pub struct World {
     history: ImpulseHistory,
     staging: Vec<(ContactKey, ContactPoint, PositionRow)>,
     stats: StepStats,
-    last_solve: SolveReport,
     min_separation: f32,
     oracle_report: Option<SolveReport>,
     /// Capture each step's velocity problem (and solve a reference with these parameters).
@@ -255,7 +254,6 @@ impl World {
             history: ImpulseHistory::default(),
             staging: Vec::new(),
             stats: StepStats::default(),
-            last_solve: SolveReport::default(),
             min_separation: 0.0,
             oracle_report: None,
             capture: None,
@@ -343,11 +341,6 @@ impl World {
     /// Statistics of the last step (what `stats/solve` carries).
     pub fn stats(&self) -> &StepStats {
         &self.stats
-    }
-
-    /// The velocity solve's report of the last step.
-    pub fn last_solve(&self) -> SolveReport {
-        self.last_solve
     }
 
     /// Smallest separation after the last step's position pass (negative: overlap).
@@ -705,7 +698,6 @@ impl World {
             kinetic_energy: 0.0,
             max_speed: 0.0,
         };
-        self.last_solve = report;
         self.min_separation = min_separation;
         // Measured after the step's timer stopped: bookkeeping, not simulation.
         (self.stats.kinetic_energy, self.stats.max_speed) = self.motion();
