@@ -28,7 +28,10 @@ use gnn::{features, ModelFile, Predictor};
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Parser, Debug)]
-#[command(name = "dc-gnn-train", about = "Fit the contact-graph network's readout on labelled recorded problems")]
+#[command(
+    name = "dc-gnn-train",
+    about = "Train the contact-graph network on labelled recorded problems (readout fit or end to end)"
+)]
 struct Args {
     /// Training recordings (file or folder) with labelled problems.
     #[arg(long)]
