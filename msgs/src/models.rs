@@ -50,9 +50,16 @@ pub const MODELS: &[ModelInfo] = &[
         param: Some(Param { what: "beta: l1 + beta (l1 - l2)", default: 1.0, min: 0.0, max: 2.0 }),
         about: "damped extrapolation of the last two steps (beta 1: linear)",
     },
+    ModelInfo {
+        name: "continue",
+        grid_topic: None,
+        param: Some(Param { what: "G: builtin + G x the last solve's remaining distance", default: 1.0, min: 0.0, max: 4.0 }),
+        about: "builtin plus G times where the previous solve was still going: its last sweep's change times rate / (1 - rate)",
+    },
     plain("builtin-reappear", "builtin, and a contact new this step that existed two steps ago gets that impulse"),
     plain("copy-persisting", "oracle on persisting contacts, 0 on new ones"),
     plain("copy-new", "builtin on persisting contacts, the oracle on new ones"),
+    plain("copy-previous", "the previous step's oracle on persisting contacts, 0 on new: builtin if every solve were finished"),
     ModelInfo {
         name: "blend",
         grid_topic: None,

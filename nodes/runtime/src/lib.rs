@@ -520,6 +520,24 @@ pub fn parse_args<A: clap::Parser>() -> Option<A> {
     Some(A::parse())
 }
 
+/// [`parse_args`], then `check` on the parsed parameters (what clap cannot see: a grid too large,
+/// a file that does not exist, values that only fail together), both when the launcher checks a
+/// launch file (`DC_VALIDATE=1`) and before the node starts: a node whose parameters would fail
+/// later never starts, and the error names the parameter (exit status 2, as clap's).
+pub fn parse_args_checked<A: clap::Parser, E: std::fmt::Display>(
+    check: impl FnOnce(&A) -> std::result::Result<(), E>,
+) -> Option<A> {
+    let validating = std::env::var("DC_VALIDATE").is_ok_and(|v| v == "1");
+    let args = match A::try_parse() {
+        Ok(a) => a,
+        Err(e) => e.exit(),
+    };
+    if let Err(e) = check(&args) {
+        clap::Error::raw(clap::error::ErrorKind::ValueValidation, format!("{e:#}\n")).exit();
+    }
+    (!validating).then_some(args)
+}
+
 /// Sleeps up to `total`, waking early on shutdown; returns false if shut down.
 pub fn sleep_unless_shutdown(node: &Node, total: Duration) -> bool {
     let deadline = std::time::Instant::now() + total;

@@ -19,23 +19,56 @@ pub struct ContactKey {
 }
 
 /// The final impulses of the last two steps, sorted by key, for temporal models; with each
-/// contact's age (consecutive steps it has existed).
+/// contact's age (consecutive steps it has existed) and where the previous solve was still going.
 #[derive(Debug, Clone, Default)]
 pub struct ImpulseHistory {
-    /// (key, final impulse, age in that step: 0 when it was new then).
-    previous: Vec<(ContactKey, Impulse, u32)>,
-    before_previous: Vec<(ContactKey, Impulse, u32)>,
+    previous: Vec<Entry>,
+    before_previous: Vec<Entry>,
+    /// The previous solve's convergence rate ([`crate::solver::ContactSolver::convergence_rate`]).
+    previous_rate: f32,
+}
+
+/// One contact of a past step.
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    key: ContactKey,
+    /// Final impulse.
+    impulse: Impulse,
+    /// Age in that step: 0 when it was new then.
+    age: u32,
+    /// The impulse change of that solve's last sweep.
+    last_change: Impulse,
+}
+
+/// How a solve ended, per contact row and overall: what [`ImpulseHistory::push`] keeps beside the
+/// impulses.
+#[derive(Debug, Clone, Copy)]
+pub struct SolveTrail<'a> {
+    /// Each row's impulse change in the last sweep.
+    pub last_change: &'a [Impulse],
+    /// The solve's convergence rate.
+    pub rate: f32,
 }
 
 impl ImpulseHistory {
     /// The impulse of contact `key` in the previous step, if it existed then.
     pub fn previous(&self, key: &ContactKey) -> Option<Impulse> {
-        lookup(&self.previous, key).map(|(i, _)| i)
+        lookup(&self.previous, key).map(|e| e.impulse)
+    }
+
+    /// The impulse change of the previous solve's last sweep for contact `key`, if it existed then.
+    pub fn previous_last_change(&self, key: &ContactKey) -> Option<Impulse> {
+        lookup(&self.previous, key).map(|e| e.last_change)
+    }
+
+    /// The previous solve's convergence rate (0 before the first step).
+    pub fn previous_rate(&self) -> f32 {
+        self.previous_rate
     }
 
     /// The impulse of contact `key` two steps ago, if it existed then.
     pub fn before_previous(&self, key: &ContactKey) -> Option<Impulse> {
-        lookup(&self.before_previous, key).map(|(i, _)| i)
+        lookup(&self.before_previous, key).map(|e| e.impulse)
     }
 
     /// builtin's warm start: each contact's impulse in the previous step, 0 for new ones.
@@ -47,34 +80,43 @@ impl ImpulseHistory {
 
     /// How many consecutive steps contact `key` has existed before the current one (0: new).
     pub fn age(&self, key: &ContactKey) -> u32 {
-        lookup(&self.previous, key).map_or(0, |(_, age)| age + 1)
+        lookup(&self.previous, key).map_or(0, |e| e.age + 1)
     }
 
-    /// Records the step's final impulses (`keys` sorted) and shifts the older step back.
-    pub fn push(&mut self, keys: impl Iterator<Item = ContactKey>, impulses: &[Impulse]) {
+    /// Records the step's final impulses (`keys` sorted) and how its solve ended, and shifts the
+    /// older step back.
+    pub fn push(&mut self, keys: impl Iterator<Item = ContactKey>, impulses: &[Impulse], trail: SolveTrail<'_>) {
         let mut next = std::mem::take(&mut self.before_previous);
         next.clear();
         // Both lists are sorted by key: one merge walk finds each contact's age (every step, for
         // every model, so no search per contact).
         let mut old = self.previous.iter().peekable();
-        for (k, i) in keys.zip(impulses.iter().copied()) {
-            while old.next_if(|o| o.0 < k).is_some() {}
-            let age = old.next_if(|o| o.0 == k).map_or(0, |o| o.2 + 1);
-            next.push((k, i, age));
+        let changes = trail.last_change.iter().copied().chain(std::iter::repeat(Impulse::default()));
+        for ((key, impulse), last_change) in keys.zip(impulses.iter().copied()).zip(changes) {
+            while old.next_if(|o| o.key < key).is_some() {}
+            let age = old.next_if(|o| o.key == key).map_or(0, |o| o.age + 1);
+            next.push(Entry { key, impulse, age, last_change });
         }
-        debug_assert!(next.windows(2).all(|w| w[0].0 <= w[1].0), "keys must be sorted");
+        debug_assert!(next.windows(2).all(|w| w[0].key <= w[1].key), "keys must be sorted");
         self.before_previous = std::mem::replace(&mut self.previous, next);
+        self.previous_rate = trail.rate;
     }
 
     /// Forgets everything (a new simulation).
     pub fn clear(&mut self) {
         self.previous.clear();
         self.before_previous.clear();
+        self.previous_rate = 0.0;
+    }
+
+    /// A trail of a solve that said nothing about how it ended (tests, recorded impulses).
+    pub fn no_trail() -> SolveTrail<'static> {
+        SolveTrail { last_change: &[], rate: 0.0 }
     }
 }
 
-fn lookup(list: &[(ContactKey, Impulse, u32)], key: &ContactKey) -> Option<(Impulse, u32)> {
-    list.binary_search_by(|(k, _, _)| k.cmp(key)).ok().map(|i| (list[i].1, list[i].2))
+fn lookup<'a>(list: &'a [Entry], key: &ContactKey) -> Option<&'a Entry> {
+    list.binary_search_by(|e| e.key.cmp(key)).ok().map(|i| &list[i])
 }
 
 /// One contact point of the current step.
@@ -111,12 +153,12 @@ mod tests {
         let k = |b| ContactKey { body_a: 0, body_b: b, feature: 0 };
         let one = [Impulse { normal: 1.0, tangent: 0.0 }; 2];
         let mut h = ImpulseHistory::default();
-        h.push([k(1), k(2)].into_iter(), &one);
+        h.push([k(1), k(2)].into_iter(), &one, ImpulseHistory::no_trail());
         assert_eq!((h.age(&k(1)), h.age(&k(3))), (1, 0));
-        h.push([k(1), k(3)].into_iter(), &one);
+        h.push([k(1), k(3)].into_iter(), &one, ImpulseHistory::no_trail());
         assert_eq!((h.age(&k(1)), h.age(&k(2)), h.age(&k(3))), (2, 0, 1));
         assert!(h.before_previous(&k(2)).is_some() && h.previous(&k(2)).is_none());
-        h.push([k(2)].into_iter(), &one[..1]);
+        h.push([k(2)].into_iter(), &one[..1], ImpulseHistory::no_trail());
         assert_eq!(h.age(&k(2)), 1, "a contact that reappears starts again");
     }
 }

@@ -35,7 +35,7 @@ pub mod source;
 pub mod warm;
 pub mod world;
 
-pub use contact::{ContactKey, ContactPoint, ImpulseHistory};
+pub use contact::{ContactKey, ContactPoint, ImpulseHistory, SolveTrail};
 pub use error::SimError;
 pub use msgs::StepStats;
 pub use scene::{SamplerKind, Scene, SceneConfig, SceneKind};

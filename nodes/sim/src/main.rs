@@ -202,27 +202,36 @@ fn run_bench(args: &Args) -> Result<()> {
     Ok(())
 }
 
-fn main() -> Result<()> {
-    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
-    runtime::init_logging();
+/// Everything that would fail once the run started, checked before it starts (and when the
+/// launcher checks a launch file): seeds, world parameters, the models (a learned model's file),
+/// the scene.
+fn check(args: &Args) -> Result<()> {
     if args.bench {
-        return run_bench(&args);
+        return Ok(());
     }
     let seeds = args.seeds()?;
-    let params = args.world_params();
-    params.validate()?;
+    args.world_params().validate()?;
     if args.fallback.is_grid_based() {
         bail!("--fallback must be a local model, not `{}`", args.fallback.name());
     }
-    // Fail before touching the bus when a model cannot be built (a learned model's file) ...
     let files = sim::ModelFiles { gnn: args.gnn_model.clone() };
     for m in if args.models.is_empty() { std::slice::from_ref(&args.model) } else { args.models.as_slice() } {
         if !m.is_grid_based() {
             m.build_with(args.seed, None, &files)?;
         }
     }
-    // ... or the scene cannot be built.
     sim::Scene::build(&args.scene_config(seeds[0])).context("building the scene")?;
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    let Some(args) = runtime::parse_args_checked::<Args, _>(check) else { return Ok(()) };
+    runtime::init_logging();
+    if args.bench {
+        return run_bench(&args);
+    }
+    let seeds = args.seeds()?;
+    let params = args.world_params();
 
     let node = runtime::Node::from_env("dc-sim")?;
     let models = if args.models.is_empty() { vec![args.model] } else { args.models.clone() };

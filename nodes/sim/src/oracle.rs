@@ -3,7 +3,7 @@
 //! error a model must remove, and which part of it, to save sweeps — the accuracy -> sweeps curve
 //! any learned model is judged on. Not usable in a real simulator (the oracle *is* the solve).
 
-use crate::contact::ContactPoint;
+use crate::contact::{ContactKey, ContactPoint};
 use crate::rng::{Sampler, Xoshiro};
 use crate::solver::Impulse;
 use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
@@ -15,6 +15,9 @@ pub enum Ablation {
     CopyPersisting,
     /// `copy-new`: builtin on persisting contacts, exact on new ones.
     CopyNew,
+    /// `copy-previous`: the previous step's exact solution on persisting contacts, 0 on new ones:
+    /// builtin as it would be if every solve were finished, not stopped at the tolerance.
+    CopyPrevious,
     /// `blend:F`: builtin + F (exact - builtin).
     Blend(f32),
     /// `noise:S`: exact + Gaussian noise of S x builtin's RMS error of the step.
@@ -37,6 +40,8 @@ pub struct OracleAblation {
     exact: Vec<Impulse>,
     error: Vec<Impulse>,
     smooth: Vec<Impulse>,
+    /// The previous step's exact solution, sorted by key (`copy-previous`).
+    previous_exact: Vec<(ContactKey, Impulse)>,
 }
 
 impl OracleAblation {
@@ -49,6 +54,7 @@ impl OracleAblation {
             exact: Vec::new(),
             error: Vec::new(),
             smooth: Vec::new(),
+            previous_exact: Vec::new(),
         }
     }
 }
@@ -61,6 +67,7 @@ impl WarmStartModel for OracleAblation {
     fn begin_simulation(&mut self, _simulation: u32, seed: u64) {
         // Its own stream per simulation, apart from the scene sampler's and `random`'s.
         self.rng = Xoshiro::new(self.seed ^ seed.wrapping_mul(0xd1b5_4a32_d192_ed03) ^ 0xab1a);
+        self.previous_exact.clear();
     }
 
     fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
@@ -88,6 +95,16 @@ impl WarmStartModel for OracleAblation {
                         *o = *e;
                     }
                 }
+            }
+            Ablation::CopyPrevious => {
+                for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
+                    *o = match self.previous_exact.binary_search_by(|(k, _)| k.cmp(&c.key)) {
+                        Ok(i) if input.history.previous(&c.key).is_some() => self.previous_exact[i].1,
+                        _ => Impulse::default(),
+                    };
+                }
+                self.previous_exact.clear();
+                self.previous_exact.extend(input.contacts.iter().map(|c| c.key).zip(self.exact.iter().copied()));
             }
             Ablation::Blend(f) => {
                 for (o, e) in out.iter_mut().zip(&self.exact) {
@@ -202,6 +219,37 @@ mod tests {
         smooth_over_contacts(&contacts, &fixed, &alternating, 4, &mut out);
         let energy = |v: &[Impulse]| v.iter().map(|o| o.normal * o.normal).sum::<f32>();
         assert!(energy(&out) < 0.2 * energy(&alternating), "{out:?}");
+    }
+
+    #[test]
+    fn copy_previous_starts_persisting_contacts_from_the_last_exact_solution() {
+        use crate::contact::ImpulseHistory;
+        let imp = |n: f32| Impulse { normal: n, tangent: 0.0 };
+        let mut model = OracleAblation::new("copy-previous".into(), Ablation::CopyPrevious, 0);
+        model.begin_simulation(0, 0);
+        let mut history = ImpulseHistory::default();
+        let mut step = |contacts: &[ContactPoint], exact: &[Impulse], history: &ImpulseHistory| {
+            let mut oracle = |out: &mut [Impulse]| out.copy_from_slice(exact);
+            let mut input = WarmStartInput {
+                run_id: 0,
+                simulation: 0,
+                step: 0,
+                contacts,
+                history,
+                fixed: &[true, false, false, false],
+                problem: None,
+                oracle: &mut oracle,
+            };
+            let mut out = vec![Impulse::default(); contacts.len()];
+            model.warm_start(&mut input, &mut out).unwrap();
+            out
+        };
+        let first = [contact(0, 1), contact(0, 2)];
+        assert_eq!(step(&first, &[imp(1.0), imp(2.0)], &history), [imp(0.0), imp(0.0)], "no past: zero");
+        // The run's own solve stopped short of the exact 1.0 and 2.0.
+        history.push(first.iter().map(|c| c.key), &[imp(0.9), imp(1.8)], ImpulseHistory::no_trail());
+        let second = [contact(0, 1), contact(0, 3)];
+        assert_eq!(step(&second, &[imp(5.0), imp(6.0)], &history), [imp(1.0), imp(0.0)]);
     }
 
     #[test]

@@ -149,6 +149,8 @@ pub struct ContactSolver {
     prepared: Vec<Prepared>,
     impulses: Vec<Impulse>,
     residuals: Vec<f32>,
+    /// Each row's impulse change in the last sweep (the direction the iteration was still moving).
+    last_change: Vec<Impulse>,
 }
 
 impl ContactSolver {
@@ -194,6 +196,8 @@ impl ContactSolver {
             Impulse { normal, tangent }
         }));
         self.residuals.clear();
+        self.last_change.clear();
+        self.last_change.resize(self.impulses.len(), Impulse::default());
 
         // Box2D's WarmStart: the (projected) guess is applied as it is.
         for (c, l) in self.prepared.iter().zip(&self.impulses) {
@@ -222,7 +226,7 @@ impl ContactSolver {
     /// One projected Gauss-Seidel sweep; returns the largest absolute impulse change.
     fn sweep(&mut self, bodies: &mut [SolverBody]) -> f32 {
         let mut residual = 0.0f32;
-        for (c, l) in self.prepared.iter().zip(self.impulses.iter_mut()) {
+        for ((c, l), change) in self.prepared.iter().zip(self.impulses.iter_mut()).zip(self.last_change.iter_mut()) {
             // Tangent first, bounded by the current normal impulse (Box2D's order).
             let dv = relative(bodies, c);
             let vt = dv.dot(c.t);
@@ -239,6 +243,7 @@ impl ContactSolver {
             l.normal = new_n;
             apply(bodies, c, c.n * dn);
 
+            *change = Impulse { normal: dn, tangent: dt };
             residual = residual.max(dt.abs()).max(dn.abs());
         }
         residual
@@ -253,6 +258,36 @@ impl ContactSolver {
     pub fn residuals(&self) -> &[f32] {
         &self.residuals
     }
+
+    /// Each row's impulse change in the last sweep of the last solve (zero without sweeps).
+    pub fn last_change(&self) -> &[Impulse] {
+        &self.last_change
+    }
+
+    /// The last solve's rate of convergence: the geometric mean of the residual's ratio over (at
+    /// most) its last [`RATE_WINDOW`] sweeps, in [0, 1]; 0 when it made fewer than two sweeps.
+    /// PGS that has run for a while converges like its slowest mode, so the distance still to go
+    /// is about `last_change * rate / (1 - rate)`.
+    pub fn convergence_rate(&self) -> f32 {
+        convergence_rate(&self.residuals)
+    }
+}
+
+/// How many of the last sweeps [`ContactSolver::convergence_rate`] averages over.
+pub const RATE_WINDOW: usize = 8;
+
+/// See [`ContactSolver::convergence_rate`].
+pub fn convergence_rate(residuals: &[f32]) -> f32 {
+    let n = residuals.len();
+    if n < 2 {
+        return 0.0;
+    }
+    let m = (n - 1).min(RATE_WINDOW);
+    let (first, last) = (residuals[n - 1 - m], residuals[n - 1]);
+    if first <= 0.0 || !first.is_finite() || !last.is_finite() {
+        return 0.0;
+    }
+    (last / first).powf(1.0 / m as f32).clamp(0.0, 1.0)
 }
 
 /// Relative velocity of b with respect to a at the contact point.
@@ -467,6 +502,22 @@ mod tests {
         assert!((l.normal - 1.0).abs() < 1e-3, "{l:?}");
         // Still sliding: friction at the cone boundary.
         assert!((l.tangent.abs() - 0.5 * l.normal).abs() < 1e-4, "{l:?}");
+        // The last sweep's change is what the residual measured.
+        let d = s.last_change()[0];
+        assert_eq!(d.normal.abs().max(d.tangent.abs()), rep.final_residual);
+    }
+
+    #[test]
+    fn convergence_rate_is_the_mean_ratio_of_the_last_sweeps() {
+        let geometric: Vec<f32> = (0..30).map(|k| 0.9f32.powi(k)).collect();
+        assert!((convergence_rate(&geometric) - 0.9).abs() < 1e-4);
+        assert_eq!(convergence_rate(&[1.0]), 0.0, "one sweep says nothing");
+        assert_eq!(convergence_rate(&[0.0, 0.0]), 0.0);
+        assert_eq!(convergence_rate(&[1.0, f32::NAN]), 0.0);
+        // Only the last RATE_WINDOW sweeps count: an early fast phase does not.
+        let mut late = vec![1e3, 1.0];
+        late.extend((1..=RATE_WINDOW as i32).map(|k| 0.5f32.powi(k)));
+        assert!((convergence_rate(&late) - 0.5).abs() < 1e-4);
     }
 
     #[test]

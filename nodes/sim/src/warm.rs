@@ -272,6 +272,52 @@ impl WarmStartModel for Extrapolate {
     }
 }
 
+/// `continue[:G]`: builtin plus `G` times the distance the previous solve still had to go along
+/// its last sweep's direction. A PGS solve stopped at its tolerance has long been converging like
+/// its slowest (smooth, pile-wide) mode, `change(k+1) ~ rate * change(k)`, so the rest of the way
+/// is the geometric series `last_change * rate / (1 - rate)` (Aitken's extrapolation): exactly the
+/// smooth error that the next solve would otherwise spend its sweeps removing.
+#[derive(Debug)]
+pub struct Continue {
+    name: String,
+    gain: f32,
+}
+
+/// The largest rate [`Continue`] believes (a solve at its cap converges at a rate near 1, and the
+/// series' factor `rate / (1 - rate)` would explode).
+pub const MAX_CONTINUE_RATE: f32 = 0.995;
+
+impl Continue {
+    pub fn new(name: String, gain: f32) -> Continue {
+        Continue { name, gain }
+    }
+
+    /// The factor on the last sweep's change: `gain * rate / (1 - rate)`, rate capped.
+    pub fn factor(gain: f32, rate: f32) -> f32 {
+        let r = rate.clamp(0.0, MAX_CONTINUE_RATE);
+        gain * r / (1.0 - r)
+    }
+}
+
+impl WarmStartModel for Continue {
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        let factor = Continue::factor(self.gain, input.history.previous_rate());
+        for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
+            let (Some(l), Some(d)) = (input.history.previous(&c.key), input.history.previous_last_change(&c.key))
+            else {
+                continue;
+            };
+            let n = (l.normal + factor * d.normal).max(0.0);
+            let t_max = c.friction * n;
+            *o = Impulse { normal: n, tangent: (l.tangent + factor * d.tangent).clamp(-t_max, t_max) };
+        }
+        Ok(())
+    }
+}
+
 /// `builtin-reappear`: builtin, and a contact new this step that existed two steps ago (it
 /// flickered off for one step) starts from its impulse then.
 #[derive(Debug, Default)]
@@ -368,12 +414,16 @@ pub enum ModelKind {
     Random,
     /// Damped extrapolation of the last two steps.
     Extrapolate,
+    /// Builtin plus where the previous solve was still going.
+    Continue,
     /// Builtin, reappearing contacts from two steps back.
     BuiltinReappear,
     /// Oracle ablation: exact on persisting contacts.
     CopyPersisting,
     /// Oracle ablation: exact on new contacts.
     CopyNew,
+    /// Oracle ablation: the previous step's exact solution.
+    CopyPrevious,
     /// Oracle ablation: a fraction of builtin's error removed.
     Blend,
     /// Oracle ablation: the oracle plus noise of builtin's size.
@@ -396,7 +446,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 20] = [
+    pub const ALL: [ModelKind; 22] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -405,9 +455,11 @@ impl ModelKind {
         ModelKind::Bad,
         ModelKind::Random,
         ModelKind::Extrapolate,
+        ModelKind::Continue,
         ModelKind::BuiltinReappear,
         ModelKind::CopyPersisting,
         ModelKind::CopyNew,
+        ModelKind::CopyPrevious,
         ModelKind::Blend,
         ModelKind::Noise,
         ModelKind::SmoothError,
@@ -503,9 +555,11 @@ impl ModelSpec {
             ModelKind::Bad => Box::new(Bad),
             ModelKind::Random => Box::new(Random::new(seed)),
             ModelKind::Extrapolate => Box::new(Extrapolate::new(self.name(), param)),
+            ModelKind::Continue => Box::new(Continue::new(self.name(), param)),
             ModelKind::BuiltinReappear => Box::new(BuiltinReappear),
             ModelKind::CopyPersisting => ablation(Ablation::CopyPersisting),
             ModelKind::CopyNew => ablation(Ablation::CopyNew),
+            ModelKind::CopyPrevious => ablation(Ablation::CopyPrevious),
             ModelKind::Blend => ablation(Ablation::Blend(param)),
             ModelKind::Noise => ablation(Ablation::Noise(param)),
             ModelKind::SmoothError => ablation(Ablation::SmoothError),
@@ -660,8 +714,16 @@ mod tests {
         let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
         let mut history = ImpulseHistory::default();
         // Two steps ago: contacts 1 and 2; last step: contacts 1 and 3 (2 flickered off).
-        history.push([point(1).key, point(2).key].into_iter(), &[imp(1.0, 0.1), imp(2.0, 0.2)]);
-        history.push([point(1).key, point(3).key].into_iter(), &[imp(1.5, 0.2), imp(3.0, 0.3)]);
+        history.push(
+            [point(1).key, point(2).key].into_iter(),
+            &[imp(1.0, 0.1), imp(2.0, 0.2)],
+            ImpulseHistory::no_trail(),
+        );
+        history.push(
+            [point(1).key, point(3).key].into_iter(),
+            &[imp(1.5, 0.2), imp(3.0, 0.3)],
+            ImpulseHistory::no_trail(),
+        );
         let contacts = [point(1), point(2), point(3)];
         assert_eq!(guess(&mut Builtin, &contacts, &history), [imp(1.5, 0.2), imp(0.0, 0.0), imp(3.0, 0.3)]);
         assert_eq!(guess(&mut BuiltinReappear, &contacts, &history), [imp(1.5, 0.2), imp(2.0, 0.2), imp(3.0, 0.3)]);
@@ -670,6 +732,25 @@ mod tests {
         let g = guess(&mut half, &contacts, &history);
         assert_eq!((g[0].normal, g[1], g[2]), (1.75, imp(0.0, 0.0), imp(3.0, 0.3)));
         assert!((g[0].tangent - 0.25).abs() < 1e-6);
+    }
+
+    #[test]
+    fn continue_follows_the_last_sweep_by_the_geometric_series() {
+        let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
+        let mut history = ImpulseHistory::default();
+        let changes = [imp(0.01, -0.002), imp(-0.5, 0.0)];
+        let trail = crate::contact::SolveTrail { last_change: &changes, rate: 0.9 };
+        history.push([point(1).key, point(2).key].into_iter(), &[imp(1.0, 0.1), imp(0.2, 0.0)], trail);
+        let contacts = [point(1), point(2), point(3)];
+        // rate 0.9: the rest of the way is 9 times the last change; gain 0.5 takes half of it.
+        assert!((Continue::factor(0.5, 0.9) - 4.5).abs() < 1e-5);
+        let g = guess(&mut Continue::new("continue:0.5".into(), 0.5), &contacts, &history);
+        assert!((g[0].normal - 1.045).abs() < 1e-6 && (g[0].tangent - 0.091).abs() < 1e-6, "{g:?}");
+        assert_eq!(g[1], imp(0.0, 0.0), "a negative normal is projected to 0 (and its tangent with it)");
+        assert_eq!(g[2], imp(0.0, 0.0), "a new contact starts at 0");
+        // A solve at its cap converges at a rate near 1: the factor stays bounded.
+        assert!(Continue::factor(1.0, 1.0).is_finite() && Continue::factor(1.0, 1.0) <= 200.0);
+        assert_eq!(Continue::factor(1.0, 0.0), 0.0);
     }
 
     #[test]

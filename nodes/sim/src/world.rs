@@ -14,7 +14,7 @@
 //! Our body states are the source of truth; rapier only mirrors poses. Everything that affects the
 //! physics is iterated in sorted order, so a run is bit-identical given the same scene and models.
 
-use crate::contact::{feature_key, ContactKey, ContactPoint, ImpulseHistory};
+use crate::contact::{feature_key, ContactKey, ContactPoint, ImpulseHistory, SolveTrail};
 use crate::error::SimError;
 use crate::problem::Problem;
 use crate::scene::{BodyKind, Scene, SceneConfig, ShapeSpec};
@@ -666,7 +666,8 @@ impl World {
             t_max = t_max.max(dtn.abs());
         }
         let count = self.contacts.len().max(1) as f64;
-        self.history.push(self.contacts.iter().map(|c| c.key), final_impulses);
+        let trail = SolveTrail { last_change: self.solver.last_change(), rate: self.solver.convergence_rate() };
+        self.history.push(self.contacts.iter().map(|c| c.key), final_impulses, trail);
         let used = if fallback { warm.fallback.name() } else { warm.model.name() };
         // The names' strings are reused from step to step (no allocation on the step path).
         let (mut model, mut used_model) =

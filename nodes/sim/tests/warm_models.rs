@@ -159,6 +159,8 @@ fn the_oracle_ablations_span_builtin_to_exact() {
 fn baselines_fill_reappearing_contacts_and_damp_extrapolation() {
     // extrapolate:0 is builtin (l1 + 0 (l1 - l2), clamped into the cone it already is in).
     assert_eq!(sweeps_per_step("extrapolate:0"), sweeps_per_step("builtin"));
+    // continue:0 is builtin too (no step along the last sweep's change).
+    assert_eq!(sweeps_per_step("continue:0"), sweeps_per_step("builtin"));
     let spec: ModelSpec = "extrapolate:0.5".parse().unwrap();
     assert_eq!(spec.build(0).unwrap().name(), "extrapolate:0.5");
 }
