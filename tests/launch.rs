@@ -54,6 +54,27 @@ fn missing_and_unknown_parameters_are_refused() {
     assert!(err.contains("--cuont"), "{err}");
 }
 
+#[test]
+fn parameters_that_would_fail_later_are_refused_before_start() {
+    // Each parses, but would make no grid (or an enormous one) once the run starts.
+    let err = refused(
+        "sph-params",
+        "[[nodes]]\nname = \"zero\"\nbinary = \"dc-sph\"\nparams = { res = 0 }\n\n\
+         [[nodes]]\nname = \"huge\"\nbinary = \"dc-sph\"\nparams = { bounds = \"0,0,1e9,1e9\" }\n\n\
+         [[nodes]]\nname = \"fine\"\nbinary = \"dc-sph\"\nparams = { res = 1e-4 }\n\n\
+         [[nodes]]\nname = \"narrow\"\nbinary = \"dc-sph\"\nparams = { h = 0.01 }\n",
+    );
+    for (line, node, what) in [
+        (1, "zero", "grid spacing (res) must be > 0"),
+        (6, "huge", "above the limit 4096 x 4096"),
+        (11, "fine", "needs 150002 nodes"),
+        (16, "narrow", "below half the grid spacing"),
+    ] {
+        assert!(err.contains(&format!("graph.toml:{line}: node `{node}` (dc-sph): bad parameters")), "{node}: {err}");
+        assert!(err.contains(what), "{node}: {what}:\n{err}");
+    }
+}
+
 fn pids_with(marker: &str) -> Vec<String> {
     let out = std::process::Command::new("pgrep").args(["-f", marker]).output().expect("pgrep");
     String::from_utf8_lossy(&out.stdout).lines().map(str::to_string).collect()

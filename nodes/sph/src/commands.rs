@@ -53,6 +53,25 @@ pub struct GridArgs {
 }
 
 impl GridArgs {
+    /// Checks every parameter before the node starts: the kernel radius, the spacing, the padding
+    /// and the grid they make over the bounds (auto bounds: over the thesis box, the walls of every
+    /// scene generator; the walls of the actual scene are checked again per simulation).
+    pub fn validate(&self) -> Result<(), sph::SphError> {
+        sph::Kernel::new(self.kernel, self.h)?;
+        let bounds = match self.bounds {
+            BoundsArg::Fixed(b) => b,
+            BoundsArg::Auto => Bounds::THESIS_BOX,
+        };
+        GridGeometry::from_bounds(bounds, self.res, self.pad_to)?;
+        if self.h < 0.5 * self.res {
+            return Err(sph::SphError::BadParameter(format!(
+                "kernel radius h {} is below half the grid spacing {}: particles between nodes would reach none",
+                self.h, self.res
+            )));
+        }
+        Ok(())
+    }
+
     /// The transfer configuration these arguments describe.
     pub fn transfer_config(&self) -> TransferConfig {
         TransferConfig {

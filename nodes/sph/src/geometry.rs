@@ -103,6 +103,9 @@ pub struct GridGeometry {
     pub height: usize,
 }
 
+/// The most nodes a grid may have along either axis (the thesis's is 121, a U-Net's 128).
+pub const MAX_GRID_SIDE: usize = 4096;
+
 impl GridGeometry {
     /// A grid whose nodes cover `bounds` with `spacing` between them: node (0, 0) on the lower-left
     /// corner, `ceil(extent / spacing) + 1` nodes per axis (15 / 0.125 + 1 = 121 for the thesis).
@@ -112,19 +115,29 @@ impl GridGeometry {
     /// scene keep their positions and the extra nodes simply lie outside the box.
     pub fn from_bounds(bounds: Bounds, spacing: f32, pad_multiple: usize) -> Result<GridGeometry, SphError> {
         if !(spacing > 0.0 && spacing.is_finite()) {
-            return Err(SphError::BadParameter(format!("grid spacing must be > 0, got {spacing}")));
+            return Err(SphError::BadParameter(format!("grid spacing (res) must be > 0, got {spacing}")));
         }
-        // A tolerance, so that 15 / 0.125 = 120.0000x does not become 121 cells.
-        let cells = |extent: f32| ((extent / spacing) - 1e-4).ceil().max(0.0) as usize;
-        let pad = pad_multiple.max(1);
-        let round_up = |n: usize| n.div_ceil(pad) * pad;
-        let width = round_up(cells(bounds.max[0] - bounds.min[0]) + 1);
-        let height = round_up(cells(bounds.max[1] - bounds.min[1]) + 1);
-        if width * height > 1 << 26 {
+        if pad_multiple > MAX_GRID_SIDE {
             return Err(SphError::BadParameter(format!(
-                "grid of {width} x {height} nodes is too large (spacing {spacing})"
+                "pad-to {pad_multiple} is above the grid limit {MAX_GRID_SIDE}"
             )));
         }
+        // Nodes per axis in f64 (a huge extent or a tiny spacing must not overflow), with a
+        // tolerance so that 15 / 0.125 = 120.0000x does not become 121 cells.
+        let pad = pad_multiple.max(1);
+        let side = |extent: f32, axis: &str| -> Result<usize, SphError> {
+            let cells = ((extent as f64 / spacing as f64) - 1e-4).ceil().max(0.0);
+            let nodes = ((cells + 1.0) / pad as f64).ceil() * pad as f64;
+            if !(nodes <= MAX_GRID_SIDE as f64) {
+                return Err(SphError::BadParameter(format!(
+                    "a grid spacing (res) of {spacing} over {extent} (along {axis}) needs {nodes} nodes, above the limit \
+                     {MAX_GRID_SIDE} x {MAX_GRID_SIDE} (raise the spacing or narrow the bounds)"
+                )));
+            }
+            Ok(nodes as usize)
+        };
+        let width = side(bounds.max[0] - bounds.min[0], "x")?;
+        let height = side(bounds.max[1] - bounds.min[1], "y")?;
         Ok(GridGeometry { origin: bounds.min, spacing, width, height })
     }
 

@@ -37,7 +37,12 @@ struct NodeArgs {
 }
 
 fn main() -> Result<()> {
-    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
+    let Some(args) = runtime::parse_args_checked::<Args, _>(|a| match &a.command {
+        None => a.node.grid.validate(),
+        Some(_) => Ok(()),
+    }) else {
+        return Ok(());
+    };
     runtime::init_logging();
     match args.command {
         Some(command) => commands::run(command),
