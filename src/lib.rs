@@ -50,6 +50,17 @@ pub fn launch(test: &str, text: &str, extra: &[&str]) -> (PathBuf, Output) {
     (file, out)
 }
 
+/// Whether `test` must skip because a prerequisite of this machine is missing (`why`): says so on
+/// stderr and returns true, except under `DC_REQUIRE_ALL=1` (CI, which installs every
+/// prerequisite), where a missing prerequisite fails the test instead of passing it silently.
+pub fn skip_for_missing(test: &str, why: &str) -> bool {
+    if std::env::var("DC_REQUIRE_ALL").is_ok_and(|v| v == "1") {
+        panic!("{test}: a prerequisite is missing under DC_REQUIRE_ALL=1: {why}");
+    }
+    eprintln!("SKIPPED {test}: {why}");
+    true
+}
+
 /// stdout and stderr of a finished command, for assertion messages.
 pub fn text(out: &Output) -> String {
     format!(

@@ -52,6 +52,7 @@ def main():
                     "step": h["step"],
                     "n": len(items) // BODY.size,
                     "x0": body0[6],
+                    "x1": BODY.unpack_from(items, BODY.size)[6],
                 }
     want_counts = expected["counts"]
     got_counts = {t: counts.get(t, 0) for t in want_counts}

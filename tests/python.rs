@@ -1,0 +1,140 @@
+//! The Python examples in `python/` against real data: a recording made by a real graph is read
+//! into numpy arrays and matches what the simulator reported; the headroom probe re-solves its
+//! problems; a live zenoh tap of the repository's own `launch/python-tap.toml` graph receives
+//! the simulator's statistics. Skipped, saying why, where python3 or the PyPI packages
+//! (`python/requirements.txt`) are missing, except under `DC_REQUIRE_ALL=1` (CI).
+
+use deep_contact::{bin, scratch_dir, skip_for_missing, text, unique_namespace};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::Duration;
+
+fn python_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("python")
+}
+
+fn python(script: &str, args: &[&str]) -> Output {
+    Command::new("python3").arg(python_dir().join(script)).args(args).output().expect("run python3")
+}
+
+/// Whether python3 imports `modules`; else skips (or fails under DC_REQUIRE_ALL=1).
+fn have_python(test: &str, modules: &str) -> bool {
+    let ok = Command::new("python3").args(["-c", &format!("import {modules}")]).output();
+    ok.is_ok_and(|o| o.status.success())
+        || !skip_for_missing(test, &format!("python3 cannot import {modules} (pip install -r python/requirements.txt)"))
+}
+
+/// The `total_sweeps` of the `dc-sim run` summary line in a launcher's output.
+fn total_sweeps(out: &Output) -> u64 {
+    let all = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let runs = msgs::control::RunSummary::find_in(all.lines()).unwrap_or_else(|e| panic!("{e}:\n{}", text(out)));
+    assert_eq!(runs.len(), 1, "one run summary:\n{}", text(out));
+    runs[0].total_sweeps
+}
+
+#[test]
+fn python_reads_a_real_recording_into_numpy_and_probes_its_problems() {
+    if !have_python("python reader", "numpy, mcap, cbor2") {
+        return;
+    }
+    let dir = scratch_dir("python-read");
+    let file = dir.join("run.mcap");
+    let graph = dir.join("graph.toml");
+    std::fs::write(
+        &graph,
+        format!(
+            r#"
+[[nodes]]
+name = "recorder"
+binary = "dc-record"
+daemon = true
+params = {{ out = "{}", topics = "bodies,contacts,problem/bodies,problem/contacts,stats/solve,control" }}
+
+[[nodes]]
+name = "sim"
+binary = "dc-sim"
+params = {{ model = "builtin", seeds = "3..5", steps = 60, n = 30, publish-problem = true, label-tolerance = 2e-6 }}
+"#,
+            file.display()
+        ),
+    )
+    .unwrap();
+    let out = Command::new(bin("dc"))
+        .args(["launch"])
+        .arg(&graph)
+        .args(["--namespace", &unique_namespace("python-read")])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let sweeps = total_sweeps(&out);
+
+    let read = python("read_recording.py", &[file.to_str().unwrap(), "--json"]);
+    assert!(read.status.success(), "{}", text(&read));
+    let summary: serde_json::Value = serde_json::from_slice(&read.stdout).expect("one JSON summary");
+    let sims = summary.as_object().unwrap();
+    assert_eq!(sims.keys().collect::<Vec<_>>(), ["3", "4"], "{summary}");
+    let python_sweeps: u64 = sims.values().map(|s| s["sweeps"].as_u64().unwrap()).sum();
+    assert_eq!(python_sweeps, sweeps, "Python's per-step sweeps add up to the simulator's total");
+    for s in sims.values() {
+        assert_eq!((s["steps"].as_u64(), s["model"].as_str()), (Some(60), Some("builtin")), "{s}");
+        // 30 balls and the box's walls; the pile settles inside the box (0..15).
+        assert!(s["bodies"].as_u64().unwrap() > 30, "{s}");
+        let h = s["mean_height"].as_f64().unwrap();
+        assert!(h > 0.0 && h < 15.0, "{s}");
+        assert!(s["contacts"].as_u64().unwrap() > 0, "{s}");
+    }
+
+    // The probe re-solves late problems: from the recorded reference it takes about one sweep.
+    let probe =
+        python("probe_headroom.py", &[file.to_str().unwrap(), "--from-step", "40", "--every", "10", "--limit", "2"]);
+    assert!(probe.status.success(), "{}", text(&probe));
+    let table = String::from_utf8_lossy(&probe.stdout);
+    let ratio = |name: &str| -> f64 {
+        let line = table.lines().find(|l| l.starts_with(name)).unwrap_or_else(|| panic!("no {name}:\n{table}"));
+        line.split_whitespace().last().unwrap().trim_end_matches('x').parse().unwrap()
+    };
+    assert_eq!(ratio("builtin"), 1.0, "{table}");
+    assert!(ratio("reference") < 0.2, "the exact solution needs almost no sweeps:\n{table}");
+
+    // Bad input: a clear message naming the file, no traceback.
+    let junk = dir.join("junk.mcap");
+    std::fs::write(&junk, b"\x89MCAP0\r\n this is not a recording").unwrap();
+    let bad = python("read_recording.py", &[junk.to_str().unwrap()]);
+    assert!(!bad.status.success());
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(err.contains("junk.mcap") && !err.contains("Traceback"), "{err}");
+}
+
+#[test]
+fn python_taps_the_live_statistics_of_the_python_tap_graph() {
+    if !have_python("python live tap", "numpy, cbor2, zenoh") {
+        return;
+    }
+    // The subscriber first (the simulator's publisher waits briefly for a match), then the
+    // repository's launch file as it is.
+    let tap = Command::new("python3")
+        .arg(python_dir().join("subscribe.py"))
+        .args(["--connect", "tcp/127.0.0.1:17447", "--key", "dc/python-tap/stats/solve"])
+        .args(["--count", "50", "--timeout", "60", "--json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start subscribe.py");
+    std::thread::sleep(Duration::from_millis(500));
+    let launch_file = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch/python-tap.toml");
+    let out = Command::new(bin("dc")).arg("launch").arg(&launch_file).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let tapped = tap.wait_with_output().unwrap();
+    assert!(tapped.status.success(), "{}", text(&tapped));
+    let lines: Vec<serde_json::Value> =
+        String::from_utf8_lossy(&tapped.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), 50);
+    // Consecutive steps of one simulation, as the simulator published them, with their sweeps.
+    for w in lines.windows(2) {
+        if w[0]["simulation"] == w[1]["simulation"] {
+            assert_eq!(w[1]["step"].as_u64().unwrap(), w[0]["step"].as_u64().unwrap() + 1, "{w:?}");
+        }
+    }
+    assert!(lines.iter().all(|l| l["model"] == "builtin"), "{lines:?}");
+    assert!(lines.iter().map(|l| l["sweeps"].as_u64().unwrap()).sum::<u64>() > 0);
+}
