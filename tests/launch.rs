@@ -55,6 +55,15 @@ fn missing_and_unknown_parameters_are_refused() {
 }
 
 #[test]
+fn a_graph_of_only_daemons_is_refused() {
+    let err = refused(
+        "daemons",
+        "[[nodes]]\nname = \"rec\"\nbinary = \"dc-record\"\ndaemon = true\nparams = { out = \"x.mcap\" }\n",
+    );
+    assert!(err.contains("every node is a daemon"), "{err}");
+}
+
+#[test]
 fn parameters_that_would_fail_later_are_refused_before_start() {
     // Each parses, but would make no grid (or an enormous one) once the run starts.
     let err = refused(
@@ -104,6 +113,10 @@ params = {{ role = "sink", kind = "grid", timeout-s = 1 }}
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("node `doomed` exited with exit status 1"), "{stderr}");
     assert!(stderr.contains("lost frames"), "the node's own error is forwarded:\n{stderr}");
+    // ... and quoted in the launcher's final error, said once (no `Caused by:` repeat).
+    let last = stderr.lines().find(|l| l.starts_with("dc: error: node `doomed` exited")).expect("final error");
+    assert!(last.contains("exit status 1: error: ") && last.contains("lost frames"), "{last}");
+    assert!(!stderr.contains("Caused by"), "{stderr}");
     assert!(elapsed < Duration::from_secs(30), "the bystander was not stopped ({elapsed:?})");
     assert!(pids_with(&marker).is_empty(), "orphan processes remain: {:?}", pids_with(&marker));
 }

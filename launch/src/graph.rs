@@ -428,6 +428,16 @@ impl Graph {
                 line,
             });
         }
+        if !nodes.is_empty() && nodes.iter().all(|n| n.daemon) {
+            // Daemons are stopped once the workers finish: with none, the graph would start,
+            // stop at once and exit 0 having done nothing.
+            problem(
+                0,
+                "every node is a daemon, so none does work and the graph would stop at once \
+                        (make at least one node `daemon = false`)"
+                    .into(),
+            );
+        }
         if !problems.is_empty() {
             problems.sort_by_key(|p| p.line);
             return Err(invalid(problems));

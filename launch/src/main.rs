@@ -143,7 +143,7 @@ fn main() {
     let code = match real_main(cli) {
         Ok(()) => 0,
         Err(e) => {
-            eprintln!("dc: error: {e:#}");
+            eprintln!("dc: error: {}", runtime::error_text(&e));
             if e.downcast_ref::<RunError>().is_some_and(|r| matches!(r, RunError::Interrupted)) {
                 130
             } else {
@@ -395,8 +395,9 @@ fn unet_sph_args(unet: &std::path::Path, model: &std::path::Path) -> Result<Vec<
         std::process::Command::new(unet).arg("sph-args").arg(model).output().context("running dc-unet sph-args")?;
     if !out.status.success() {
         let stderr = String::from_utf8_lossy(&out.stderr);
-        // The first line is the error; a backtrace may follow.
-        bail!("{}", stderr.lines().next().unwrap_or("").trim_start_matches("Error: "));
+        // The node's `error: ...` line (runtime::exit), else all it said.
+        let message = stderr.lines().rev().find_map(|l| l.strip_prefix("error: ")).unwrap_or(stderr.trim());
+        bail!("{message}");
     }
     Ok(String::from_utf8_lossy(&out.stdout).lines().map(str::to_string).collect())
 }

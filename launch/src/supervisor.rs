@@ -35,10 +35,11 @@ impl Default for RunOptions {
 /// How a graph run ended.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
-    #[error("node `{node}` exited with {status}")]
-    NodeFailed { node: String, status: String },
-    #[error("node `{node}` exited with {status} after {restarts} restarts (its bound): stopping the graph")]
-    RestartsExhausted { node: String, status: String, restarts: u32 },
+    /// `said`: the node's own error (its last `error:` lines), empty if it said none.
+    #[error("node `{node}` exited with {status}{said}")]
+    NodeFailed { node: String, status: String, said: String },
+    #[error("node `{node}` exited with {status} after {restarts} restarts (its bound): stopping the graph{said}")]
+    RestartsExhausted { node: String, status: String, restarts: u32, said: String },
     #[error("node `{node}` could not start: {what}")]
     Spawn { node: String, what: String },
     #[error("interrupted")]
@@ -68,7 +69,16 @@ enum Event {
     /// The node finished its work and keeps its publishers alive until released.
     Done(usize),
     Line(usize, String),
+    /// A stderr line (already printed), and the end of the node's stderr.
+    ErrLine(usize, String),
+    ErrClosed(usize),
 }
+
+/// How many of a node's last stderr lines the launcher keeps, to quote its error when it fails.
+const STDERR_TAIL: usize = 40;
+
+/// How long a failed node's stderr may take to drain before its error is quoted.
+const STDERR_DRAIN: Duration = Duration::from_secs(1);
 
 /// Where a node is in its start-up handshake.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -88,6 +98,24 @@ struct Running {
     done: bool,
     phase: Phase,
     restarts: u32,
+    /// Its last stderr lines, and whether its stderr is still open.
+    stderr_tail: std::collections::VecDeque<String>,
+    stderr_open: bool,
+}
+
+/// What a failed node said about its failure, from its last stderr lines: from the last line
+/// that starts an error (`error: ...` of `runtime::exit`, a tracing `ERROR`, a panic) to the end,
+/// as `": line; line"` for the launcher's message (empty when it said nothing of the kind).
+fn error_said<'a>(tail: impl DoubleEndedIterator<Item = &'a String> + ExactSizeIterator) -> String {
+    let lines: Vec<&String> = tail.collect();
+    let starts = |l: &str| l.starts_with("error:") || l.contains(" ERROR ") || l.contains("panicked at");
+    match lines.iter().rposition(|l| starts(l)) {
+        Some(at) => {
+            let said: Vec<&str> = lines[at..].iter().map(|l| l.trim()).filter(|l| !l.is_empty()).collect();
+            format!(": {}", said.join("; "))
+        }
+        None => String::new(),
+    }
 }
 
 impl Running {
@@ -420,6 +448,8 @@ impl<'a> Supervisor<'a> {
                     done: false,
                     phase: Phase::Starting,
                     restarts: 0,
+                    stderr_tail: Default::default(),
+                    stderr_open: true,
                 }),
                 Err(e) => return Err(self.fail(e)),
             }
@@ -469,8 +499,9 @@ impl<'a> Supervisor<'a> {
         std::thread::spawn(move || {
             for line in BufReader::new(stderr).lines().map_while(Result::ok) {
                 eprintln!("{prefix} {line}");
+                let _ = tx_err.send(Event::ErrLine(i, line));
             }
-            drop(tx_err);
+            let _ = tx_err.send(Event::ErrClosed(i));
         });
         let stdin = child.stdin.take();
         Ok((child, stdin))
@@ -485,6 +516,19 @@ impl<'a> Supervisor<'a> {
                 Event::Connected(i) => self.nodes[i].phase = self.nodes[i].phase.max(Phase::Connected),
                 Event::Done(i) => self.nodes[i].done = true,
                 Event::Line(i, line) => self.capture(i, line),
+                Event::ErrLine(i, line) => {
+                    if let Some(n) = self.nodes.get_mut(i) {
+                        if n.stderr_tail.len() == STDERR_TAIL {
+                            n.stderr_tail.pop_front();
+                        }
+                        n.stderr_tail.push_back(line);
+                    }
+                }
+                Event::ErrClosed(i) => {
+                    if let Some(n) = self.nodes.get_mut(i) {
+                        n.stderr_open = false;
+                    }
+                }
             }
         }
     }
@@ -597,6 +641,13 @@ impl<'a> Supervisor<'a> {
     fn node_failed(&mut self, i: usize, status: ExitStatus) -> Result<(), RunError> {
         let name = self.nodes[i].spec.name.clone();
         let described = describe(status);
+        // Its last words are still in the pipe: let them arrive, to quote its error.
+        let since = Instant::now();
+        while self.nodes[i].stderr_open && since.elapsed() < STDERR_DRAIN {
+            self.pump_events();
+        }
+        let said = error_said(self.nodes[i].stderr_tail.iter());
+        self.nodes[i].stderr_tail.clear();
         // Its shared-memory ports must go at once: publishers would wait on its full queues.
         if let Err(e) = runtime::cleanup_stale_resources() {
             tracing::warn!("cleaning the dead node's resources: {e}");
@@ -615,12 +666,12 @@ impl<'a> Supervisor<'a> {
                 eprintln!("[dc] node `{name}` exited with {described} after {restarts} restarts: stopping the graph");
                 self.bus.notice(false, down);
                 self.stop_and_drain();
-                Err(RunError::RestartsExhausted { node: name, status: described, restarts })
+                Err(RunError::RestartsExhausted { node: name, status: described, restarts, said })
             }
             FailureAction::StopGraph => {
                 eprintln!("[dc] node `{name}` exited with {described}: stopping the graph");
                 self.stop_and_drain();
-                Err(RunError::NodeFailed { node: name, status: described })
+                Err(RunError::NodeFailed { node: name, status: described, said })
             }
         }
     }
@@ -635,6 +686,7 @@ impl<'a> Supervisor<'a> {
         };
         let n = &mut self.nodes[i];
         (n.child, n.stdin, n.exited, n.done, n.phase) = (child, stdin, None, false, Phase::Starting);
+        n.stderr_open = true;
         if self.barrier.connecting() {
             tell(n, runtime::CONNECT_LINE);
         }
@@ -668,7 +720,8 @@ impl<'a> Supervisor<'a> {
         self.drain_lines();
         if let Some(n) = self.nodes.iter().find(|n| n.exited.is_some_and(failed_on_stop)) {
             let status = describe(n.exited.unwrap());
-            return Err(RunError::NodeFailed { node: n.spec.name.clone(), status });
+            let said = error_said(n.stderr_tail.iter());
+            return Err(RunError::NodeFailed { node: n.spec.name.clone(), status, said });
         }
         Ok(std::mem::take(&mut self.report))
     }
@@ -783,6 +836,19 @@ fn die_with_parent(cmd: &mut Command) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_failed_nodes_error_is_quoted_from_its_last_error_line() {
+        let tail = |lines: &[&str]| lines.iter().map(|l| l.to_string()).collect::<Vec<_>>();
+        let t = tail(&["INFO ready", "error: a.mcap: No space left on device", "  while writing chunk 3"]);
+        assert_eq!(error_said(t.iter()), ": error: a.mcap: No space left on device; while writing chunk 3");
+        // The last error counts (an earlier one was recovered from).
+        let t = tail(&["error: first", "INFO retried", "2026-12-01T00:00:00Z ERROR lost frames", ""]);
+        assert_eq!(error_said(t.iter()), ": 2026-12-01T00:00:00Z ERROR lost frames");
+        let t = tail(&["thread 'main' panicked at src/main.rs:3:5:", "attempt to divide by zero"]);
+        assert!(error_said(t.iter()).ends_with("attempt to divide by zero"));
+        assert_eq!(error_said(tail(&["INFO bye"]).iter()), "");
+    }
     use std::os::unix::process::ExitStatusExt;
 
     fn set(hosts: &[&str]) -> BTreeSet<String> {

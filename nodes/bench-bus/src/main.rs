@@ -72,7 +72,11 @@ fn stamped(h: StepHeader) -> StepHeader {
     StepHeader { run_id: monotonic_ns(), ..h }
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> Result<()> {
     let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     if args.role == Role::Inproc {

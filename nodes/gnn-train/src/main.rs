@@ -316,7 +316,11 @@ fn validation_sweeps(net: &Net, steps: &[(sim::problem::Problem, u32)]) -> u64 {
         .sum()
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> Result<()> {
     let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     let train = labelled_steps(&args.data)?;

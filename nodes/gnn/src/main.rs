@@ -79,7 +79,11 @@ fn synthetic_pile(bodies: usize, contacts: usize) -> (Vec<ProblemBody>, Vec<Prob
     (b, c)
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> Result<()> {
     let Some(cli) = runtime::parse_args::<Cli>() else { return Ok(()) };
     match cli.command {
         Command::Bench { contacts, bodies, net: config, reps } => {

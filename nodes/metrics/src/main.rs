@@ -39,7 +39,11 @@ fn parse_phases(s: &str) -> Result<Phases, String> {
     metrics::phases::parse_boundaries(s).map(Phases)
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> Result<()> {
     let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     let node = runtime::Node::from_env("dc-metrics")?;

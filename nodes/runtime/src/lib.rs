@@ -520,6 +520,36 @@ pub fn parse_args<A: clap::Parser>() -> Option<A> {
     Some(A::parse())
 }
 
+/// An error and its causes on one line, `outer: cause: root`, each cause said once: a cause whose
+/// text the message already carries (thiserror's `"{path}: {source}"` both shows and returns its
+/// source) is not repeated, as anyhow's `Caused by:` list would.
+pub fn error_text(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let part = cause.to_string();
+        if !text.contains(&part) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&part);
+        }
+    }
+    text
+}
+
+/// A node binary's exit: `error: <error_text>` on stderr and status 1 for an error (every line of
+/// a multi-line message kept, so the launcher forwards all of it), status 0 otherwise. Use as
+/// `fn main() -> ExitCode { runtime::exit(run()) }`.
+pub fn exit(result: anyhow::Result<()>) -> std::process::ExitCode {
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", error_text(&e));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
 /// [`parse_args`], then `check` on the parsed parameters (what clap cannot see: a grid too large,
 /// a file that does not exist, values that only fail together), both when the launcher checks a
 /// launch file (`DC_VALIDATE=1`) and before the node starts: a node whose parameters would fail
@@ -573,6 +603,21 @@ pub fn parse_duration(s: &str) -> std::result::Result<Duration, String> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn error_text_says_each_cause_once() {
+        #[derive(Debug, thiserror::Error)]
+        #[error("{path}: {source}")]
+        struct Shows {
+            path: String,
+            source: std::io::Error,
+        }
+        let io = std::io::Error::new(std::io::ErrorKind::Other, "No space left on device");
+        let e = anyhow::Error::new(Shows { path: "a.mcap".into(), source: io }).context("recording");
+        assert_eq!(error_text(&e), "recording: a.mcap: No space left on device");
+        let plain = anyhow::anyhow!("root").context("middle").context("top");
+        assert_eq!(error_text(&plain), "top: middle: root");
+    }
+
     use super::*;
 
     #[test]

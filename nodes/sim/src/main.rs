@@ -224,7 +224,11 @@ fn check(args: &Args) -> Result<()> {
     Ok(())
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> Result<()> {
     let Some(args) = runtime::parse_args_checked::<Args, _>(check) else { return Ok(()) };
     runtime::init_logging();
     if args.bench {

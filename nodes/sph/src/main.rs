@@ -36,7 +36,11 @@ struct NodeArgs {
     temporal: bool,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> Result<()> {
     let Some(args) = runtime::parse_args_checked::<Args, _>(|a| match &a.command {
         None => a.node.grid.validate(),
         Some(_) => Ok(()),

@@ -201,7 +201,11 @@ struct BenchArgs {
     nets: Vec<String>,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> Result<()> {
     let Some(cli) = runtime::parse_args::<Cli>() else { return Ok(()) };
     runtime::init_logging();
     match cli.command {
