@@ -7,6 +7,8 @@ use std::collections::BTreeMap;
 #[derive(Debug, Default, Clone)]
 struct RunInfo {
     model: Option<String>,
+    /// The run's sweep cap (from its run start's parameters).
+    max_sweeps: Option<u32>,
     simulations_announced: Option<u32>,
     ended: bool,
 }
@@ -16,7 +18,13 @@ struct SimInfo {
     steps_announced: Option<u32>,
     steps_ended: Option<u32>,
     steps_seen: u32,
+    /// Steps whose statistics arrived (a second copy of one is dropped).
+    seen: std::collections::BTreeSet<u32>,
 }
+
+/// The sweep bound of a step whose run's cap is unknown (no run start seen): far above any cap a
+/// run uses, far below the forged 2^32 - 1.
+pub const UNKNOWN_CAP_BOUND: u32 = 1_000_000;
 
 /// Tracks run and simulation starts and ends, and the steps seen per simulation.
 #[derive(Debug, Default)]
@@ -42,7 +50,10 @@ impl Completeness {
             Some(ControlKind::RunStart) => {
                 run.simulations_announced = Some(c.count);
                 run.model = match msgs::control::details_of(c, details) {
-                    Ok(msgs::ControlDetails::RunStart(p)) => Some(p.model),
+                    Ok(msgs::ControlDetails::RunStart(p)) => {
+                        run.max_sweeps = Some(p.max_sweeps);
+                        Some(p.model)
+                    }
                     other => {
                         tracing::warn!("control: a run start whose details do not decode: {other:?}");
                         None
@@ -60,11 +71,56 @@ impl Completeness {
         }
     }
 
+    /// Whether a step's statistics are possible for what its run announced: sweeps within the
+    /// run's cap, finite non-negative measurements, flags 0 or 1, persisting <= contacts, a step
+    /// inside its simulation's announced length and not seen before. The reason otherwise (the
+    /// caller logs and drops it, so a forged or corrupt frame cannot move a report's totals).
+    pub fn implausible(&self, h: &msgs::SolveStatsHeader) -> Option<String> {
+        let id = (h.step.run_id, h.step.simulation);
+        let cap = self.runs.get(&h.step.run_id).and_then(|r| r.max_sweeps).unwrap_or(UNKNOWN_CAP_BOUND);
+        if h.sweeps > cap {
+            return Some(format!("{} sweeps, above the run's cap {cap}", h.sweeps));
+        }
+        let measured = [
+            ("final_residual", h.final_residual),
+            ("warm_error_normal_mse", h.warm_error_normal_mse),
+            ("warm_error_normal_max", h.warm_error_normal_max),
+            ("warm_error_tangent_mse", h.warm_error_tangent_mse),
+            ("warm_error_tangent_max", h.warm_error_tangent_max),
+            ("solve_us", h.solve_us),
+            ("step_us", h.step_us),
+            ("warm_start_us", h.warm_start_us),
+            ("kinetic_energy", h.kinetic_energy),
+            ("max_speed", h.max_speed),
+        ];
+        if let Some((name, v)) = measured.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            return Some(format!("{name} = {v}"));
+        }
+        if h.converged > 1 || h.fallback > 1 {
+            return Some(format!("flags converged = {}, fallback = {} (0 or 1)", h.converged, h.fallback));
+        }
+        if h.persisting_contacts > h.contacts {
+            return Some(format!("{} persisting of {} contacts", h.persisting_contacts, h.contacts));
+        }
+        let sim = self.sims.get(&id);
+        if let Some(steps) = sim.and_then(|s| s.steps_announced) {
+            if h.step.step >= steps {
+                return Some(format!("step {} of a simulation announced with {steps} steps", h.step.step));
+            }
+        }
+        if sim.is_some_and(|s| s.seen.contains(&h.step.step)) {
+            return Some(format!("step {} of simulation {} arrived twice", h.step.step, h.step.simulation));
+        }
+        None
+    }
+
     /// Records a step's statistics.
-    pub fn step(&mut self, run_id: u64, simulation: u32, model: &str) {
+    pub fn step(&mut self, run_id: u64, simulation: u32, step: u32, model: &str) {
         let run = self.runs.entry(run_id).or_default();
         run.model.get_or_insert_with(|| model.to_string());
-        self.sims.entry((run_id, simulation)).or_default().steps_seen += 1;
+        let sim = self.sims.entry((run_id, simulation)).or_default();
+        sim.steps_seen += 1;
+        sim.seen.insert(step);
     }
 
     /// Runs whose end was announced.
@@ -145,8 +201,8 @@ mod tests {
         let mut k = Completeness::default();
         k.control(&c(1, 0, ControlKind::RunStart, 1), &started("none"));
         k.control(&c(1, 0, ControlKind::SimulationStart, 2), &[]);
-        k.step(1, 0, "none");
-        k.step(1, 0, "none");
+        k.step(1, 0, 0, "none");
+        k.step(1, 0, 1, "none");
         k.control(&c(1, 0, ControlKind::SimulationEnd, 2), &[]);
         k.control(&c(1, 0, ControlKind::RunEnd, 1), &[]);
         assert!(k.missing().is_empty(), "{:?}", k.missing());
@@ -158,8 +214,8 @@ mod tests {
         let mut k = Completeness::default();
         k.control(&c(1, 0, ControlKind::RunStart, 2), &started("builtin"));
         k.control(&c(1, 7, ControlKind::SimulationStart, 250), &[]);
-        for _ in 0..120 {
-            k.step(1, 7, "builtin");
+        for step in 0..120 {
+            k.step(1, 7, step, "builtin");
         }
         let m = k.missing();
         assert!(
@@ -173,5 +229,39 @@ mod tests {
             m.contains(&"run 1 (model builtin): simulation 7 has 120 of 250 steps and no end".to_string()),
             "{m:?}"
         );
+    }
+
+    #[test]
+    fn impossible_statistics_are_named_and_possible_ones_pass() {
+        let mut k = Completeness::default();
+        k.control(&c(1, 0, ControlKind::RunStart, 1), &started("builtin"));
+        k.control(&c(1, 0, ControlKind::SimulationStart, 250), &[]);
+        let good = msgs::SolveStatsHeader {
+            step: StepHeader { run_id: 1, simulation: 0, step: 3 },
+            sweeps: 1000,
+            contacts: 10,
+            persisting_contacts: 9,
+            converged: 1,
+            ..Default::default()
+        };
+        assert_eq!(k.implausible(&good), None);
+        let bad = |f: &dyn Fn(&mut msgs::SolveStatsHeader)| {
+            let mut h = good;
+            f(&mut h);
+            k.implausible(&h).expect("refused")
+        };
+        assert!(bad(&|h| h.sweeps = u32::MAX).contains("above the run's cap 1000"));
+        assert!(bad(&|h| h.solve_us = f32::NAN).contains("solve_us = NaN"));
+        assert!(bad(&|h| h.warm_error_normal_mse = -1.0).contains("warm_error_normal_mse"));
+        assert!(bad(&|h| h.converged = 7).contains("0 or 1"));
+        assert!(bad(&|h| h.persisting_contacts = 11).contains("persisting"));
+        assert!(bad(&|h| h.step.step = 250).contains("announced with 250 steps"));
+        k.step(1, 0, 3, "builtin");
+        assert!(k.implausible(&good).unwrap().contains("arrived twice"));
+        // A run whose start was not seen: only the far bound applies.
+        let other =
+            msgs::SolveStatsHeader { step: StepHeader { run_id: 2, simulation: 0, step: 0 }, sweeps: 5000, ..good };
+        assert_eq!(k.implausible(&other), None);
+        assert!(k.implausible(&msgs::SolveStatsHeader { sweeps: UNKNOWN_CAP_BOUND + 1, ..other }).is_some());
     }
 }

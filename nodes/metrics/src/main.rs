@@ -64,12 +64,21 @@ fn try_main() -> Result<()> {
     let mut completeness = Completeness::default();
     // Per model: cumulative sweeps, for the live summary.
     let mut cumulative: BTreeMap<String, u64> = BTreeMap::new();
+    let mut dropped = 0u64;
     let mut handle_stats = |r: &runtime::Received<msgs::SolveStatsHeader, f32>,
                             aggregate: &mut Aggregate,
                             completeness: &mut Completeness|
      -> Result<()> {
+        if let Some(why) = completeness.implausible(r.header()) {
+            // Logged once in full, then counted: a flood of bad frames must not flood the log.
+            if dropped == 0 {
+                tracing::error!(topic = topics::SOLVE_STATS.name, "dropped an impossible statistics frame: {why}");
+            }
+            dropped += 1;
+            return Ok(());
+        }
         let record = StepRecord::from_msg(r.header(), r.items());
-        completeness.step(record.run_id, record.simulation, &record.model);
+        completeness.step(record.run_id, record.simulation, record.step, &record.model);
         let total = cumulative.entry(record.model.clone()).or_default();
         *total += record.sweeps as u64;
         // Live: the step's header and [cumulative sweeps of its model, sweeps of this step].
@@ -102,7 +111,11 @@ fn try_main() -> Result<()> {
         completeness.control(c.header(), c.items());
     }
 
-    let missing = completeness.missing();
+    let mut missing = completeness.missing();
+    if dropped > 0 {
+        tracing::warn!(topic = topics::SOLVE_STATS.name, dropped, "impossible statistics frames were dropped");
+        missing.push(format!("{}: {dropped} impossible frames dropped (see the log)", topics::SOLVE_STATS.name));
+    }
     for m in &missing {
         tracing::warn!("missing: {m}");
     }
