@@ -2,7 +2,9 @@
 //! normalisation, the grid parameters and a training summary.
 //!
 //! Layout: `DCUNET` magic + format version (8 bytes), little-endian u64 length + JSON metadata,
-//! little-endian u64 length + burnpack weights (burn's own tensor format).
+//! little-endian u64 length + burnpack weights (burn's own tensor format), and (format 2) the
+//! FNV-1a 64 checksum of the metadata and weight bytes. A file whose checksum does not match, or
+//! whose weights are not all finite, is refused. Format 1 files (no checksum) are still read.
 
 use crate::data::{GridSpec, Normalization, Split};
 use crate::model::{UNet, UNetConfig};
@@ -14,7 +16,31 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 const MAGIC: &[u8; 6] = b"DCUNET";
-const FORMAT_VERSION: u16 = 1;
+const FORMAT_VERSION: u16 = 2;
+/// The oldest format this build reads (1: no checksum).
+const OLDEST_FORMAT: u16 = 1;
+
+/// FNV-1a 64 of `parts`, in order.
+fn checksum(parts: &[&[u8]]) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for byte in parts.iter().flat_map(|p| p.iter()) {
+        h ^= *byte as u64;
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+/// Counts the non-finite values of every float parameter of a module.
+struct NonFinite {
+    values: u64,
+}
+
+impl burn::module::ModuleVisitor for NonFinite {
+    fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<burn::tensor::Tensor<D>>) {
+        let bad: i64 = param.val().is_finite().bool_not().int().sum().into_scalar();
+        self.values += bad.max(0) as u64;
+    }
+}
 
 /// What a model file says about itself besides the weights.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -75,6 +101,7 @@ impl ModelFile {
         out.extend_from_slice(&json);
         out.extend_from_slice(&(weights.len() as u64).to_le_bytes());
         out.extend_from_slice(&weights);
+        out.extend_from_slice(&checksum(&[&json, &weights]).to_le_bytes());
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
@@ -105,6 +132,11 @@ impl ModelFile {
             .init(device)
             .try_load_record(record)
             .map_err(|e| format!("weights do not fit the configuration {:?}: {e:?}", meta.config))?;
+        let mut non_finite = NonFinite { values: 0 };
+        model.visit(&mut non_finite);
+        if non_finite.values > 0 {
+            return Err(format!("{} weights are not finite (NaN or infinite): refusing the model", non_finite.values));
+        }
         Ok(ModelFile { meta, model })
     }
 }
@@ -114,23 +146,45 @@ fn parse(bytes: &[u8]) -> std::result::Result<(ModelMeta, &[u8]), String> {
         return Err("not a Deep Contact U-Net model file (no DCUNET header)".into());
     }
     let version = u16::from_le_bytes([bytes[6], bytes[7]]);
-    if version != FORMAT_VERSION {
-        return Err(format!("model format version {version}, this build reads version {FORMAT_VERSION}"));
+    if !(OLDEST_FORMAT..=FORMAT_VERSION).contains(&version) {
+        return Err(format!(
+            "model format version {version}, this build reads versions {OLDEST_FORMAT} to {FORMAT_VERSION}"
+        ));
     }
     let mut at = 8;
     let mut section = |what: &str| -> std::result::Result<&[u8], String> {
         let len = bytes
             .get(at..at + 8)
-            .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize)
+            .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
             .ok_or_else(|| format!("file ends before the {what} length (truncated?)"))?;
-        let body = bytes.get(at + 8..at + 8 + len).ok_or_else(|| {
-            format!("{what} announces {len} bytes, the file holds {} (truncated?)", bytes.len().saturating_sub(at + 8))
-        })?;
+        let held = bytes.len().saturating_sub(at + 8);
+        // Checked: a damaged length must not overflow or index past the file.
+        let body =
+            usize::try_from(len).ok().filter(|&l| l <= held).map(|l| &bytes[at + 8..at + 8 + l]).ok_or_else(|| {
+                format!("{what} announces {len} bytes, the file holds {held} (truncated or damaged?)")
+            })?;
+        let len = body.len();
         at += 8 + len;
         Ok(body)
     };
     let json = section("metadata")?;
     let weights = section("weights")?;
+    if version >= 2 {
+        let stored = bytes
+            .get(at..at + 8)
+            .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
+            .ok_or("file ends before the checksum (truncated?)")?;
+        let computed = checksum(&[json, weights]);
+        if stored != computed {
+            return Err(format!(
+                "checksum mismatch (stored {stored:016x}, computed {computed:016x}): the file is damaged"
+            ));
+        }
+        at += 8;
+    }
+    if at != bytes.len() {
+        return Err(format!("{} bytes after the model's end (damaged?)", bytes.len() - at));
+    }
     let meta: ModelMeta = serde_json::from_slice(json).map_err(|e| format!("metadata: {e}"))?;
     meta.config.validate().map_err(|e| format!("configuration: {e}"))?;
     let nodes = meta.grid_shape[0] * meta.grid_shape[1];

@@ -210,10 +210,52 @@ fn corrupt_and_mismatched_model_files_are_clear_errors() {
     let mut out = bytes[..8].to_vec();
     out.extend_from_slice(&(json.len() as u64).to_le_bytes());
     out.extend_from_slice(&json);
-    out.extend_from_slice(&bytes[16 + json_len..]);
+    let weights = &bytes[16 + json_len + 8..bytes.len() - 8];
+    out.extend_from_slice(&bytes[16 + json_len..16 + json_len + 8]);
+    out.extend_from_slice(weights);
+    out.extend_from_slice(&fnv(&[&json, weights]).to_le_bytes());
     std::fs::write(&mixed, out).unwrap();
     let e = ModelFile::load(&mixed, &d).unwrap_err().to_string();
     assert!(e.contains("mixed.dcu") && e.contains("do not fit the configuration"), "{e}");
+
+    // One flipped byte anywhere in the weights: the checksum refuses the file.
+    for at in [16 + json_len + 8 + 10, bytes.len() / 2, bytes.len() - 9] {
+        let mut flipped = bytes.clone();
+        flipped[at] ^= 0x10;
+        let path = dir.join("flipped.dcu");
+        std::fs::write(&path, &flipped).unwrap();
+        let e = ModelFile::load(&path, &d).unwrap_err().to_string();
+        assert!(e.contains("flipped.dcu") && e.contains("checksum mismatch"), "byte {at}: {e}");
+    }
+
+    // NaN weights under a valid checksum (saved by a buggy trainer): refused as not finite.
+    let mut poisoned = bytes.clone();
+    let end = bytes.len() - 8;
+    let weights_at = 16 + json_len + 8;
+    let mid = weights_at + (end - weights_at) / 2;
+    poisoned[mid..mid + 16].fill(0xff);
+    let sum = fnv(&[&poisoned[16..16 + json_len], &poisoned[weights_at..end]]);
+    poisoned[end..].copy_from_slice(&sum.to_le_bytes());
+    let path = dir.join("nan.dcu");
+    std::fs::write(&path, &poisoned).unwrap();
+    let e = ModelFile::load(&path, &d).unwrap_err().to_string();
+    assert!(e.contains("nan.dcu") && e.contains("not finite"), "{e}");
+
+    // A damaged length does not allocate or overflow: a clear error.
+    let mut huge = bytes.clone();
+    huge[8..16].copy_from_slice(&u64::MAX.to_le_bytes());
+    let path = dir.join("huge.dcu");
+    std::fs::write(&path, &huge).unwrap();
+    let e = ModelFile::load(&path, &d).unwrap_err().to_string();
+    assert!(e.contains("huge.dcu") && e.contains("announces"), "{e}");
+}
+
+/// FNV-1a 64, the model file's checksum.
+fn fnv(parts: &[&[u8]]) -> u64 {
+    parts
+        .iter()
+        .flat_map(|p| p.iter())
+        .fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ *b as u64).wrapping_mul(0x0100_0000_01b3))
 }
 
 #[test]
