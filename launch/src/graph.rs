@@ -12,6 +12,9 @@
 //! [topics]                   # transport per topic; default iceoryx2 (same host)
 //! "bench/bodies" = "zenoh"
 //!
+//! [qos]                      # delivery per topic: "reliable" (default) or "best-effort"
+//! "bodies" = "best-effort"   # a reader that falls behind loses old frames, never slows writers
+//!
 //! [[nodes]]
 //! name = "source"
 //! binary = "dc-bench-bus"
@@ -78,6 +81,8 @@ struct RawFile {
     hosts: BTreeMap<String, Spanned<RawHost>>,
     #[serde(default)]
     topics: BTreeMap<Spanned<String>, Spanned<String>>,
+    #[serde(default)]
+    qos: BTreeMap<Spanned<String>, Spanned<String>>,
     #[serde(default)]
     nodes: Vec<Spanned<RawNode>>,
 }
@@ -214,6 +219,8 @@ pub struct Graph {
     pub queue_depth: usize,
     pub hosts: BTreeMap<String, Host>,
     pub topics: BTreeMap<String, Transport>,
+    /// Topics delivered best effort (`[qos]`); the others are reliable.
+    pub best_effort: std::collections::BTreeSet<String>,
     pub nodes: Vec<NodeSpec>,
 }
 
@@ -342,6 +349,25 @@ impl Graph {
                 }
             };
         }
+        let mut best_effort = std::collections::BTreeSet::new();
+        for (topic, qos) in &raw.qos {
+            if msgs::topics::info(topic.get_ref()).is_none() {
+                problem(
+                    topic.span().start,
+                    format!("[qos]: unknown topic `{}` (known: {})", topic.get_ref(), msgs::topics::names_list()),
+                );
+            }
+            match qos.get_ref().as_str() {
+                "reliable" => {}
+                "best-effort" => {
+                    best_effort.insert(topic.get_ref().clone());
+                }
+                other => problem(
+                    qos.span().start,
+                    format!("[qos] topic `{}`: unknown delivery `{other}` (reliable or best-effort)", topic.get_ref()),
+                ),
+            }
+        }
 
         let mut nodes: Vec<NodeSpec> = Vec::new();
         let mut seen: BTreeMap<String, usize> = BTreeMap::new();
@@ -449,6 +475,7 @@ impl Graph {
             queue_depth: raw.graph.queue_depth.unwrap_or(DEFAULT_QUEUE_DEPTH),
             hosts,
             topics,
+            best_effort,
             nodes,
         })
     }
@@ -493,6 +520,7 @@ impl Graph {
             queue_depth: DEFAULT_QUEUE_DEPTH,
             hosts: [(DEFAULT_HOST.to_string(), default_host())].into(),
             topics: BTreeMap::new(),
+            best_effort: Default::default(),
             nodes: checked,
         })
     }

@@ -271,7 +271,8 @@ fn print_graph(graph: &Graph, only: Option<&str>) -> Result<()> {
             }
         };
         let links = if r.links.is_empty() { "no link".to_string() } else { r.links.join("; ") };
-        println!("  {:<14} {} -> {}  [{links}]", r.topic, show(&r.writers), show(&r.readers));
+        let qos = if plan.best_effort.contains(&r.topic) { "best-effort" } else { "reliable" };
+        println!("  {:<14} {} -> {}  [{links}] {qos}", r.topic, show(&r.writers), show(&r.readers));
     }
     Ok(())
 }

@@ -37,6 +37,8 @@ pub struct Plan {
     pub multi_host: bool,
     namespace: String,
     queue_depth: usize,
+    /// Topics delivered best effort.
+    pub best_effort: std::collections::BTreeSet<String>,
     extra_connect: BTreeMap<String, Vec<String>>,
 }
 
@@ -153,6 +155,7 @@ impl Plan {
             multi_host,
             namespace: graph.namespace.clone(),
             queue_depth: graph.queue_depth,
+            best_effort: graph.best_effort.clone(),
             extra_connect: graph.hosts.iter().map(|(n, h)| (n.clone(), h.zenoh_connect.clone())).collect(),
         };
         if plan.router.is_none() {
@@ -212,6 +215,7 @@ impl Plan {
             topics,
             zenoh,
             queue_depth: self.queue_depth,
+            best_effort: self.best_effort.clone(),
             host: if self.multi_host { host.to_string() } else { String::new() },
         }
     }

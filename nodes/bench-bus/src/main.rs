@@ -59,6 +59,14 @@ struct Args {
     /// Label of the transport in the result line.
     #[arg(long, default_value = "")]
     label: String,
+    /// Use this topic instead of `bench/bodies` / `bench/grid` (the same frame type: `bodies`
+    /// carries body frames too), e.g. to tap the simulator's stream.
+    #[arg(long)]
+    topic: Option<String>,
+    /// Sink: subscribe and never read, until stopped (a stuck viewer: on a reliable topic it
+    /// holds the publisher back once its queue is full, on a best-effort one it must not).
+    #[arg(long)]
+    stall: bool,
 }
 
 /// Header of frame `seq` of `phase` (0 latency, 1 throughput).
@@ -86,7 +94,8 @@ fn try_main() -> Result<()> {
     let node = Node::from_env("dc-bench-bus")?;
     match (args.role, args.kind) {
         (Role::Source, Kind::Bodies) => {
-            let mut p = node.publisher(topics::BENCH_BODIES)?;
+            let mut p =
+                node.publisher_named::<StepHeader, Body>(args.topic.as_deref().unwrap_or(topics::BENCH_BODIES.name))?;
             if !node.ready()? {
                 return Ok(());
             }
@@ -101,7 +110,8 @@ fn try_main() -> Result<()> {
             })
         }
         (Role::Source, Kind::Grid) => {
-            let mut p = node.publisher(topics::BENCH_GRID)?;
+            let mut p = node
+                .publisher_named::<msgs::GridHeader, f32>(args.topic.as_deref().unwrap_or(topics::BENCH_GRID.name))?;
             if !node.ready()? {
                 return Ok(());
             }
@@ -117,9 +127,13 @@ fn try_main() -> Result<()> {
             })
         }
         (Role::Sink, Kind::Bodies) => {
-            let mut s = node.subscriber(topics::BENCH_BODIES)?;
+            let mut s =
+                node.subscriber_named::<StepHeader, Body>(args.topic.as_deref().unwrap_or(topics::BENCH_BODIES.name))?;
             if !node.ready()? {
                 return Ok(());
+            }
+            if args.stall {
+                return stall(&node);
             }
             let mut expected = vec![Body::default(); args.n];
             let errors = std::cell::Cell::new(0);
@@ -143,9 +157,13 @@ fn try_main() -> Result<()> {
             )
         }
         (Role::Sink, Kind::Grid) => {
-            let mut s = node.subscriber(topics::BENCH_GRID)?;
+            let mut s = node
+                .subscriber_named::<msgs::GridHeader, f32>(args.topic.as_deref().unwrap_or(topics::BENCH_GRID.name))?;
             if !node.ready()? {
                 return Ok(());
+            }
+            if args.stall {
+                return stall(&node);
             }
             let mut expected = vec![0f32; GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize];
             let errors = std::cell::Cell::new(0);
@@ -170,6 +188,13 @@ fn try_main() -> Result<()> {
         }
         (Role::Inproc, _) => unreachable!("handled above"),
     }
+}
+
+/// Holds its subscription without reading until the node is stopped.
+fn stall(node: &Node) -> Result<()> {
+    tracing::info!("stalling: subscribed, never reading");
+    while runtime::sleep_unless_shutdown(node, Duration::from_millis(100)) {}
+    Ok(())
 }
 
 fn frame_bytes(args: &Args) -> usize {

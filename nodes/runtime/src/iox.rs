@@ -4,7 +4,8 @@
 //!
 //! Settings chosen against iceoryx2 0.10 defaults:
 //! - `enable_safe_overflow(false)` + `RetryUntilDelivered`: a full subscriber queue holds the
-//!   publisher back instead of silently overwriting unread samples;
+//!   publisher back instead of silently overwriting unread samples; a best-effort topic
+//!   ([`BusConfig::best_effort`]) enables safe overflow instead: the oldest unread sample goes;
 //! - `AllocationStrategy::PowerOfTwo`: slices may grow (contacts 0 -> 30,000) past the initial size;
 //! - limits raised above the defaults (2 publishers, buffer 2, 20 nodes), too small for our graphs.
 
@@ -51,7 +52,7 @@ impl IoxNode {
             .service_builder(&service_name(bus, topic, "")?)
             .publish_subscribe::<[T]>()
             .user_header::<H>()
-            .enable_safe_overflow(false)
+            .enable_safe_overflow(bus.is_best_effort(topic))
             .subscriber_max_buffer_size(bus.queue_depth.max(1))
             .history_size(0)
             .max_publishers(8)

@@ -121,6 +121,11 @@ pub struct BusConfig {
     /// Per-topic transport.
     #[serde(default)]
     pub topics: BTreeMap<String, Transport>,
+    /// Topics delivered best effort: a subscriber that falls behind loses the oldest frames
+    /// instead of holding the publisher back (viewers and taps that must never slow the loop).
+    /// Every other topic is reliable: nothing is lost, a full queue waits.
+    #[serde(default)]
+    pub best_effort: std::collections::BTreeSet<String>,
     #[serde(default)]
     pub zenoh: ZenohConfig,
     /// Queue depth per subscriber; a full queue holds the publisher back (no loss).
@@ -149,6 +154,11 @@ fn default_queue_depth() -> usize {
 impl BusConfig {
     pub fn transport(&self, topic: &str) -> Transport {
         self.topics.get(topic).copied().unwrap_or(self.default_transport)
+    }
+
+    /// Whether `topic` is delivered best effort (see [`BusConfig::best_effort`]).
+    pub fn is_best_effort(&self, topic: &str) -> bool {
+        self.best_effort.contains(topic)
     }
 
     /// The bus key of `topic`: `dc/<namespace>/<topic>`.
@@ -321,7 +331,12 @@ impl Node {
             None
         };
         let zen = if transport.uses_zenoh() {
-            Some(zen::ZenPublisher::new(self.zenoh(topic)?, &self.bus.key(topic), topic)?)
+            Some(zen::ZenPublisher::new(
+                self.zenoh(topic)?,
+                &self.bus.key(topic),
+                topic,
+                self.bus.is_best_effort(topic),
+            )?)
         } else {
             None
         };
@@ -372,6 +387,7 @@ impl Node {
                 &self.bus.key(topic),
                 topic,
                 self.bus.queue_depth.max(1) * 16,
+                self.bus.is_best_effort(topic),
             )?)
         } else {
             None

@@ -1,5 +1,6 @@
 //! zenoh transport: CBOR frames on key `dc/<namespace>/<topic>`, reliable, with blocking congestion
-//! control (zenoh's default `Drop` loses data under load). Reliability is zenoh's default
+//! control (zenoh's default `Drop` loses data under load); a best-effort topic drops instead
+//! (congestion control `Drop`, and a ring buffer at the subscriber that loses its oldest sample). Reliability is zenoh's default
 //! (`Reliable`; choosing it explicitly is an unstable API in 1.10). Sessions listen only on the endpoints
 //! the launch file names and never scout by multicast, so a test or a graph does not wander onto
 //! the host's other interfaces.
@@ -54,10 +55,11 @@ pub(crate) struct ZenPublisher {
 }
 
 impl ZenPublisher {
-    pub(crate) fn new(session: &zenoh::Session, key: &str, topic: &str) -> Result<ZenPublisher> {
+    pub(crate) fn new(session: &zenoh::Session, key: &str, topic: &str, best_effort: bool) -> Result<ZenPublisher> {
+        let congestion = if best_effort { CongestionControl::Drop } else { CongestionControl::Block };
         let publisher = session
             .declare_publisher(key.to_string())
-            .congestion_control(CongestionControl::Block)
+            .congestion_control(congestion)
             .encoding(zenoh::bytes::Encoding::APPLICATION_CBOR)
             .wait()
             .map_err(|e| err(topic, format!("declare publisher on `{key}`: {e}")))?;
@@ -100,27 +102,50 @@ impl ZenPublisher {
 
 pub(crate) struct ZenSubscriber {
     topic: String,
-    subscriber: zenoh::pubsub::Subscriber<FifoChannelHandler<Sample>>,
+    queue: SubscriberQueue,
+}
+
+/// A reliable subscriber's FIFO, or a best-effort one's ring.
+enum SubscriberQueue {
+    Fifo(zenoh::pubsub::Subscriber<FifoChannelHandler<Sample>>),
+    Ring(zenoh::pubsub::Subscriber<zenoh::handlers::RingChannelHandler<Sample>>),
 }
 
 impl ZenSubscriber {
     /// A subscriber with a FIFO of `capacity`: when it is full zenoh blocks the link, which with the
-    /// publisher's blocking congestion control holds the publisher back instead of dropping.
-    pub(crate) fn new(session: &zenoh::Session, key: &str, topic: &str, capacity: usize) -> Result<ZenSubscriber> {
-        let subscriber = session
-            .declare_subscriber(key.to_string())
-            .with(zenoh::handlers::FifoChannel::new(capacity))
-            .wait()
-            .map_err(|e| err(topic, format!("declare subscriber on `{key}`: {e}")))?;
-        Ok(ZenSubscriber { topic: topic.to_string(), subscriber })
+    /// publisher's blocking congestion control holds the publisher back instead of dropping. A
+    /// best-effort one keeps a ring of `capacity` instead: a full ring loses its oldest sample.
+    pub(crate) fn new(
+        session: &zenoh::Session,
+        key: &str,
+        topic: &str,
+        capacity: usize,
+        best_effort: bool,
+    ) -> Result<ZenSubscriber> {
+        let declare = |e: zenoh::Error| err(topic, format!("declare subscriber on `{key}`: {e}"));
+        let builder = session.declare_subscriber(key.to_string());
+        let queue = if best_effort {
+            SubscriberQueue::Ring(builder.with(zenoh::handlers::RingChannel::new(capacity)).wait().map_err(declare)?)
+        } else {
+            SubscriberQueue::Fifo(builder.with(zenoh::handlers::FifoChannel::new(capacity)).wait().map_err(declare)?)
+        };
+        Ok(ZenSubscriber { topic: topic.to_string(), queue })
     }
 
     pub(crate) fn recv_timeout(&self, timeout: Duration) -> Result<Option<Sample>> {
-        self.subscriber.recv_timeout(timeout).map_err(|e| err(&self.topic, format!("receive: {e}")))
+        let got = match &self.queue {
+            SubscriberQueue::Fifo(s) => s.recv_timeout(timeout),
+            SubscriberQueue::Ring(s) => s.recv_timeout(timeout),
+        };
+        got.map_err(|e| err(&self.topic, format!("receive: {e}")))
     }
 
     pub(crate) fn try_recv(&self) -> Result<Option<Sample>> {
-        self.subscriber.try_recv().map_err(|e| err(&self.topic, format!("receive: {e}")))
+        let got = match &self.queue {
+            SubscriberQueue::Fifo(s) => s.try_recv(),
+            SubscriberQueue::Ring(s) => s.try_recv(),
+        };
+        got.map_err(|e| err(&self.topic, format!("receive: {e}")))
     }
 }
 
