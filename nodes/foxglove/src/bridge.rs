@@ -1,5 +1,6 @@
-//! The bridge: Foxglove channels on a [`foxglove::Context`] fed with bus frames, throttled per
-//! topic, converted only when someone listens (a WebSocket client subscribed, or an MCAP sink).
+//! The bridge: Foxglove channels on a [`foxglove::Context`] fed with bus frames, converted only
+//! when someone listens (a WebSocket client subscribed, or an MCAP sink). A live bridge throttles
+//! per topic and shows the latest step; a file bridge writes every frame of every step.
 
 use crate::convert::{self, SceneStyle};
 use crate::throttle::Throttle;
@@ -27,25 +28,66 @@ pub fn heat_topic(bus_topic: &str, channel: &str) -> String {
     format!("/{bus_topic}/heat/{channel}")
 }
 
-/// Rates and style of the bridge.
+/// Per-topic rate limits of a live stream.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BridgeConfig {
+pub struct Rates {
     /// Most messages per second per topic for the scene, grids and heat maps (0: unlimited).
     pub max_hz: f64,
     /// Most messages per second per topic for the small JSON topics (statistics for plots).
     pub plot_hz: f64,
+}
+
+impl Default for Rates {
+    fn default() -> Self {
+        Rates { max_hz: 30.0, plot_hz: 100.0 }
+    }
+}
+
+/// Pace and style of the bridge.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BridgeConfig {
+    /// `Some` for a live stream: throttled per topic, the scene of the latest step only. `None`
+    /// for a file: every frame is converted and every step gets its scene.
+    pub rates: Option<Rates>,
     pub style: SceneStyle,
+}
+
+impl BridgeConfig {
+    /// A live stream at `rates`.
+    pub fn live(rates: Rates, style: SceneStyle) -> BridgeConfig {
+        BridgeConfig { rates: Some(rates), style }
+    }
+
+    /// A file: nothing throttled, nothing dropped.
+    pub fn file(style: SceneStyle) -> BridgeConfig {
+        BridgeConfig { rates: None, style }
+    }
+
+    /// The throttle of the scene, grids and heat maps (unlimited for a file).
+    fn data_throttle(&self) -> Throttle {
+        Throttle::new(self.rates.map_or(0.0, |r| r.max_hz))
+    }
+
+    /// The throttle of the JSON statistics (unlimited for a file).
+    fn plot_throttle(&self) -> Throttle {
+        Throttle::new(self.rates.map_or(0.0, |r| r.plot_hz))
+    }
 }
 
 impl Default for BridgeConfig {
     fn default() -> Self {
-        BridgeConfig { max_hz: 30.0, plot_hz: 100.0, style: SceneStyle::default() }
+        BridgeConfig::live(Rates::default(), SceneStyle::default())
     }
 }
 
-/// How long the scene waits for the contacts of its bodies' step before it goes out without them
-/// (a graph that publishes bodies only), in nanoseconds.
+/// How long a live scene waits for the contacts of its bodies' step before it goes out without
+/// them (a graph that publishes bodies only), in nanoseconds.
 const PAIR_WAIT_NS: u64 = 250_000_000;
+/// Steps a file's scene join holds while their other half is missing. A recording interleaves
+/// its topics in batches (the recorder takes up to 64 frames of one topic at a time), so the
+/// contacts of a step follow its bodies within a few batches; past this many waiting steps the
+/// oldest goes out with what it has (bodies alone), as do the ones still waiting at the end.
+const FILE_PENDING_STEPS: usize = 1024;
 /// How often the transform is repeated (late joiners need one), in hertz.
 const TF_HZ: f64 = 1.0;
 
@@ -55,13 +97,77 @@ fn key(h: &StepHeader) -> Key {
     (h.run_id, h.simulation, h.step)
 }
 
-/// The bodies and contacts of one step, joined for the scene.
+/// The bodies and contacts of the latest step, joined for a live scene.
 #[derive(Default)]
-struct SceneJoin {
+struct LatestJoin {
     bodies: Option<(StepHeader, Vec<Body>)>,
     contacts: Option<(StepHeader, Vec<Contact>)>,
     /// When the first half of the pending pair arrived.
     since_ns: Option<u64>,
+}
+
+/// Half or all of one step's scene in a file.
+struct PendingStep {
+    key: Key,
+    /// The bodies, their header and their time.
+    bodies: Option<(StepHeader, Vec<Body>, u64)>,
+    contacts: Option<Vec<Contact>>,
+}
+
+/// The bodies and contacts of every step, matched by step, for a file.
+struct EveryJoin {
+    /// False when the file has no contacts: each bodies frame is its step's scene at once.
+    contacts_expected: bool,
+    /// Steps waiting for their other half, oldest first.
+    pending: std::collections::VecDeque<PendingStep>,
+    /// Steps that went out without contacts.
+    bodies_alone: u64,
+    /// Contacts whose bodies never came.
+    contacts_alone: u64,
+}
+
+impl EveryJoin {
+    /// The waiting entry of step `key`, added at the back when new.
+    fn entry(&mut self, key: Key) -> &mut PendingStep {
+        // Newest last, and a step's halves arrive close together: search from the back.
+        match self.pending.iter().rposition(|p| p.key == key) {
+            Some(i) => &mut self.pending[i],
+            None => {
+                self.pending.push_back(PendingStep { key, bodies: None, contacts: None });
+                self.pending.back_mut().expect("pushed")
+            }
+        }
+    }
+
+    /// Takes step `key` out when both halves are there.
+    fn take_complete(&mut self, key: Key) -> Option<(StepHeader, Vec<Body>, u64, Vec<Contact>)> {
+        let i = self.pending.iter().rposition(|p| p.key == key && p.bodies.is_some() && p.contacts.is_some())?;
+        let p = self.pending.remove(i).expect("found");
+        let (h, bodies, t) = p.bodies.expect("checked");
+        Some((h, bodies, t, p.contacts.expect("checked")))
+    }
+
+    /// Takes the oldest waiting step out (`all`: every one, else only past the limit), for its
+    /// scene without contacts where it has bodies.
+    fn take_overdue(&mut self, all: bool) -> Option<(StepHeader, Vec<Body>, u64)> {
+        while (all && !self.pending.is_empty()) || self.pending.len() > FILE_PENDING_STEPS {
+            let p = self.pending.pop_front().expect("not empty");
+            match p.bodies {
+                Some(b) => {
+                    self.bodies_alone += 1;
+                    return Some(b);
+                }
+                None => self.contacts_alone += 1,
+            }
+        }
+        None
+    }
+}
+
+/// How the scene's two halves (bodies, contacts) are joined.
+enum SceneJoin {
+    Live(LatestJoin),
+    File(EveryJoin),
 }
 
 /// A grid topic's outputs.
@@ -142,7 +248,7 @@ impl Bridge {
             ),
         ] {
             let channel = json_channel(ctx, &foxglove_topic(topic), name, schema)?;
-            json.insert(topic.to_string(), JsonOut { channel, kind, throttle: Throttle::new(config.plot_hz) });
+            json.insert(topic.to_string(), JsonOut { channel, kind, throttle: config.plot_throttle() });
         }
         Ok(Bridge {
             ctx: ctx.clone(),
@@ -150,8 +256,16 @@ impl Bridge {
             scene: ctx.channel_builder(SCENE_TOPIC).build(),
             tf: ctx.channel_builder(TF_TOPIC).build(),
             control: json_channel(ctx, CONTROL_TOPIC, "dc.Control", convert::CONTROL_SCHEMA.as_str())?,
-            scene_throttle: Throttle::new(config.max_hz),
-            join: SceneJoin::default(),
+            scene_throttle: config.data_throttle(),
+            join: match config.rates {
+                Some(_) => SceneJoin::Live(LatestJoin::default()),
+                None => SceneJoin::File(EveryJoin {
+                    contacts_expected: true,
+                    pending: Default::default(),
+                    bodies_alone: 0,
+                    contacts_alone: 0,
+                }),
+            },
             tf_throttle: Throttle::new(TF_HZ),
             tf_for: None,
             grids: BTreeMap::new(),
@@ -183,12 +297,21 @@ impl Bridge {
             self.scene_throttle.skipped += 1;
             return;
         }
-        self.join.since_ns.get_or_insert(now_ns);
-        let slot = self.join.bodies.get_or_insert_with(|| (*h, Vec::new()));
-        slot.0 = *h;
-        slot.1.clear();
-        slot.1.extend_from_slice(bodies);
-        self.try_emit_scene(now_ns);
+        match &mut self.join {
+            SceneJoin::Live(join) => {
+                join.since_ns.get_or_insert(now_ns);
+                let slot = join.bodies.get_or_insert_with(|| (*h, Vec::new()));
+                slot.0 = *h;
+                slot.1.clear();
+                slot.1.extend_from_slice(bodies);
+                self.try_emit_live_scene(now_ns);
+            }
+            SceneJoin::File(join) if !join.contacts_expected => self.emit_scene(h, bodies, &[], now_ns),
+            SceneJoin::File(join) => {
+                join.entry(key(h)).bodies = Some((*h, bodies.to_vec(), now_ns));
+                self.emit_file_scenes(Some(key(h)));
+            }
+        }
     }
 
     /// A contacts frame at `now_ns`.
@@ -196,33 +319,84 @@ impl Bridge {
         if !self.scene.has_sinks() || !self.scene_throttle.due(now_ns) {
             return;
         }
-        self.join.since_ns.get_or_insert(now_ns);
-        let slot = self.join.contacts.get_or_insert_with(|| (*h, Vec::new()));
-        slot.0 = *h;
-        slot.1.clear();
-        slot.1.extend_from_slice(contacts);
-        self.try_emit_scene(now_ns);
+        match &mut self.join {
+            SceneJoin::Live(join) => {
+                join.since_ns.get_or_insert(now_ns);
+                let slot = join.contacts.get_or_insert_with(|| (*h, Vec::new()));
+                slot.0 = *h;
+                slot.1.clear();
+                slot.1.extend_from_slice(contacts);
+                self.try_emit_live_scene(now_ns);
+            }
+            SceneJoin::File(join) => {
+                join.entry(key(h)).contacts = Some(contacts.to_vec());
+                self.emit_file_scenes(Some(key(h)));
+            }
+        }
     }
 
-    /// Sends the scene once bodies and contacts of one step are both there (or the bodies alone
-    /// after [`PAIR_WAIT_NS`]).
-    fn try_emit_scene(&mut self, now_ns: u64) {
-        let Some((bh, _)) = &self.join.bodies else { return };
-        let matched = self.join.contacts.as_ref().is_some_and(|(ch, _)| key(ch) == key(bh));
-        let waited = self.join.since_ns.is_some_and(|t| now_ns.saturating_sub(t) >= PAIR_WAIT_NS);
+    /// Live: sends the scene once bodies and contacts of one step are both there (or the bodies
+    /// alone after [`PAIR_WAIT_NS`]).
+    fn try_emit_live_scene(&mut self, now_ns: u64) {
+        let SceneJoin::Live(join) = &mut self.join else { return };
+        let Some((bh, _)) = &join.bodies else { return };
+        let matched = join.contacts.as_ref().is_some_and(|(ch, _)| key(ch) == key(bh));
+        let waited = join.since_ns.is_some_and(|t| now_ns.saturating_sub(t) >= PAIR_WAIT_NS);
         if !matched && !waited {
             return;
         }
-        let (bh, bodies) = self.join.bodies.take().expect("checked above");
-        let contacts = match self.join.contacts.take() {
+        let (bh, bodies) = join.bodies.take().expect("checked above");
+        let contacts = match join.contacts.take() {
             Some((ch, c)) if key(&ch) == key(&bh) => c,
             _ => Vec::new(),
         };
-        self.join.since_ns = None;
-        let scene = convert::scene_update(&bh, &bodies, &contacts, &self.config.style, now_ns);
-        self.scene.log_with_meta(&scene, PartialMetadata::with_log_time(now_ns));
-        self.scene_throttle.take(now_ns);
+        join.since_ns = None;
+        self.emit_scene(&bh, &bodies, &contacts, now_ns);
+    }
+
+    /// File: sends the scene of step `completed` if both its halves are there, then the scenes
+    /// of steps that waited too long; `None`: the scenes of every waiting step (the end).
+    fn emit_file_scenes(&mut self, completed: Option<Key>) {
+        let SceneJoin::File(join) = &mut self.join else { return };
+        if let Some((h, bodies, t, contacts)) = completed.and_then(|k| join.take_complete(k)) {
+            self.emit_scene(&h, &bodies, &contacts, t);
+        }
+        let all = completed.is_none();
+        loop {
+            let SceneJoin::File(join) = &mut self.join else { return };
+            let Some((h, bodies, t)) = join.take_overdue(all) else { return };
+            self.emit_scene(&h, &bodies, &[], t);
+        }
+    }
+
+    fn emit_scene(&mut self, h: &StepHeader, bodies: &[Body], contacts: &[Contact], time_ns: u64) {
+        let scene = convert::scene_update(h, bodies, contacts, &self.config.style, time_ns);
+        self.scene.log_with_meta(&scene, PartialMetadata::with_log_time(time_ns));
+        self.scene_throttle.take(time_ns);
         self.count(SCENE_TOPIC);
+    }
+
+    /// File: whether contacts frames will come (true unless told otherwise); without them each
+    /// bodies frame goes out as its step's scene at once instead of waiting for its contacts.
+    pub fn expect_contacts(&mut self, expected: bool) {
+        if let SceneJoin::File(join) = &mut self.join {
+            join.contacts_expected = expected;
+        }
+    }
+
+    /// Sends what is still waiting: a file's steps whose contacts never came go out with their
+    /// bodies alone. Call once after the last frame.
+    pub fn finish(&mut self) {
+        self.emit_file_scenes(None);
+    }
+
+    /// File: steps whose scene went out without contacts, and contacts frames without bodies
+    /// (both 0 for a live bridge).
+    pub fn unpaired(&self) -> (u64, u64) {
+        match &self.join {
+            SceneJoin::Live(_) => (0, 0),
+            SceneJoin::File(j) => (j.bodies_alone, j.contacts_alone),
+        }
     }
 
     /// A grid frame of bus topic `topic`. A frame whose geometry does not match its values is
@@ -236,7 +410,7 @@ impl Bridge {
             let out = GridOut {
                 grid: self.ctx.channel_builder(foxglove_topic(topic)).build(),
                 heat: BTreeMap::new(),
-                throttle: Throttle::new(self.config.max_hz),
+                throttle: self.config.data_throttle(),
             };
             self.grids.insert(topic.to_string(), out);
         }

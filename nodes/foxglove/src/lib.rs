@@ -13,15 +13,20 @@
 //! | `control`            | `/control`                    | JSON, schema `dc.Control`           |
 //!
 //! Back-pressure: the bus holds a publisher back while a subscriber's queue is full, so the node
-//! drains every subscriber at full rate whatever the clients do. What reaches Foxglove is throttled
-//! per topic ([`throttle::Throttle`]) and converted only when a client subscribes; the SDK queues
-//! messages per client and drops the oldest for a slow one, so no client can hold up the bus.
+//! drains every subscriber at full rate whatever the clients do. What reaches a live client is
+//! throttled per topic ([`throttle::Throttle`]) and converted only when a client subscribes; the SDK
+//! queues messages per client and drops the oldest for a slow one, so no client can hold up the bus.
+//!
+//! A viz file ([`BridgeConfig::file`]) is not throttled: every recorded step gets its scene, grids,
+//! heat maps and statistics, each stamped with simulation time ([`timeline`]: step x dt from the
+//! run's parameters), so Foxglove's file mode plays the physics at real speed.
 
 pub mod bridge;
 pub mod convert;
 pub mod throttle;
+pub mod timeline;
 
-pub use bridge::{Bridge, BridgeConfig};
+pub use bridge::{Bridge, BridgeConfig, Rates};
 
 /// Errors of the bridge.
 #[derive(Debug, thiserror::Error)]

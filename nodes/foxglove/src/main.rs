@@ -1,13 +1,14 @@
 //! dc-foxglove: serves the graph's streams to Foxglove (WebSocket protocol, subprotocol
 //! `foxglove.sdk.v1`) as well-known schemas; `dc-foxglove viz IN OUT` writes the same conversion of
-//! a recording as an MCAP file for Foxglove's file mode.
+//! a recording as an MCAP file for Foxglove's file mode: every step, at simulation time.
 
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};
 use foxglove_bridge::convert::SceneStyle;
-use foxglove_bridge::{Bridge, BridgeConfig};
+use foxglove_bridge::timeline::{FileClock, Timeline};
+use foxglove_bridge::{Bridge, BridgeConfig, Rates};
 use msgs::FrameKind;
-use msgs::{topics, ControlKind, FrameHeader, FrameItem};
+use msgs::{topics, ControlDetails, ControlKind, FrameHeader, FrameItem};
 use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -27,12 +28,13 @@ struct Args {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Convert a recording (a `dc-record` MCAP file or a folder of them) into an MCAP file of
-    /// Foxglove schemas (scene, grids, heat maps, JSON statistics).
+    /// Foxglove schemas (scene, grids, heat maps, JSON statistics): every recorded step, stamped
+    /// with simulation time (step x dt from the run's parameters).
     Viz {
         input: PathBuf,
         output: PathBuf,
         #[command(flatten)]
-        convert: ConvertArgs,
+        style: StyleArgs,
     },
 }
 
@@ -48,19 +50,25 @@ struct NodeArgs {
     /// Messages each client may have queued before the oldest are dropped.
     #[arg(long, default_value_t = 256)]
     backlog: usize,
-    #[command(flatten)]
-    convert: ConvertArgs,
-}
-
-/// How frames become Foxglove messages.
-#[derive(clap::Args, Debug, Clone)]
-struct ConvertArgs {
     /// Most messages per second per topic for the scene, grids and heat maps (0: unlimited).
     #[arg(long, default_value_t = 30.0)]
     max_hz: f64,
     /// Most messages per second per topic for the JSON statistics (0: unlimited).
     #[arg(long, default_value_t = 100.0)]
     plot_hz: f64,
+    #[command(flatten)]
+    style: StyleArgs,
+}
+
+impl NodeArgs {
+    fn config(&self) -> BridgeConfig {
+        BridgeConfig::live(Rates { max_hz: self.max_hz, plot_hz: self.plot_hz }, self.style.style())
+    }
+}
+
+/// How the scene is drawn.
+#[derive(clap::Args, Debug, Clone)]
+struct StyleArgs {
     /// Contact arrow length per unit of normal impulse, metres per N·s.
     #[arg(long, default_value_t = 1.0)]
     impulse_scale: f32,
@@ -69,13 +77,9 @@ struct ConvertArgs {
     max_arrow: f32,
 }
 
-impl ConvertArgs {
-    fn config(&self) -> BridgeConfig {
-        BridgeConfig {
-            max_hz: self.max_hz,
-            plot_hz: self.plot_hz,
-            style: SceneStyle { impulse_scale: self.impulse_scale, max_arrow: self.max_arrow },
-        }
+impl StyleArgs {
+    fn style(&self) -> SceneStyle {
+        SceneStyle { impulse_scale: self.impulse_scale, max_arrow: self.max_arrow }
     }
 }
 
@@ -102,11 +106,15 @@ const DEFAULT_TOPICS: &[&str] = &[
     topics::CONTROL.name,
 ];
 
-fn main() -> anyhow::Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> anyhow::Result<()> {
     let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     match args.command {
-        Some(Command::Viz { input, output, convert }) => viz(&input, &output, convert.config()),
+        Some(Command::Viz { input, output, style }) => viz(&input, &output, style.style()),
         None => serve(args.node),
     }
 }
@@ -252,7 +260,7 @@ fn serve(args: NodeArgs) -> anyhow::Result<()> {
     anyhow::ensure!(!sources.is_empty(), "no topics to bridge");
 
     let ctx = foxglove::Context::new();
-    let mut bridge = Bridge::new(&ctx, args.convert.config())?;
+    let mut bridge = Bridge::new(&ctx, args.config())?;
     let (host, port) = &args.address;
     // Served before the graph starts, so a client can be there from the first step.
     let server = ctx
@@ -315,32 +323,40 @@ fn serve(args: NodeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Decodes one recorded frame and hands it to the bridge; why not, when it does not decode.
-fn give_recorded(bridge: &mut Bridge, kind: FrameKind, topic: &str, data: &[u8], t: u64) -> Result<(), String> {
+/// Decodes one recorded frame and hands it to the bridge, stamped by `clock`; why not, when it
+/// does not decode.
+fn give_recorded(
+    bridge: &mut Bridge,
+    clock: &mut FileClock,
+    kind: FrameKind,
+    topic: &str,
+    data: &[u8],
+    log_time: u64,
+) -> Result<(), String> {
     let bad = |e: msgs::CodecError| e.to_string();
     let r = match kind {
         FrameKind::Bodies => {
             let f = msgs::decode::<msgs::StepHeader, msgs::Body>(data).map_err(bad)?;
-            bridge.on_bodies(&f.header, &f.items, t);
+            bridge.on_bodies(&f.header, &f.items, clock.step(&f.header, log_time));
             Ok(())
         }
         FrameKind::Contacts => {
             let f = msgs::decode::<msgs::StepHeader, msgs::Contact>(data).map_err(bad)?;
-            bridge.on_contacts(&f.header, &f.items, t);
+            bridge.on_contacts(&f.header, &f.items, clock.step(&f.header, log_time));
             Ok(())
         }
         FrameKind::Grid => {
             let f = msgs::decode::<msgs::GridHeader, f32>(data).map_err(bad)?;
-            bridge.on_grid(topic, &f.header, &f.items, t)
+            bridge.on_grid(topic, &f.header, &f.items, clock.step(&f.header.step, log_time))
         }
         FrameKind::SolveStats => {
             let f = msgs::decode::<msgs::SolveStatsHeader, f32>(data).map_err(bad)?;
-            bridge.on_stats(topic, &f.header, &f.items, t);
+            bridge.on_stats(topic, &f.header, &f.items, clock.step(&f.header.step, log_time));
             Ok(())
         }
         FrameKind::Control => {
             let f = msgs::decode::<msgs::Control, u8>(data).map_err(bad)?;
-            bridge.on_control(&f.header, &f.items, t);
+            bridge.on_control(&f.header, &f.items, clock.control(&f.header, log_time));
             Ok(())
         }
         // No Foxglove view of the contact problem: the scene already shows the contacts.
@@ -349,15 +365,63 @@ fn give_recorded(bridge: &mut Bridge, kind: FrameKind, topic: &str, data: &[u8],
     r.map_err(|e| e.to_string())
 }
 
-/// `dc-foxglove viz IN OUT`.
-fn viz(input: &std::path::Path, output: &std::path::Path, config: BridgeConfig) -> anyhow::Result<()> {
+/// What a first pass over a recording learns before its frames are converted.
+struct Survey {
+    /// The runs with a time step, laid end to end in the order their run starts were recorded
+    /// (the recorder may write a run's first steps before its run start).
+    timeline: Timeline,
+    /// Whether there are contacts frames (a scene waits for its step's contacts only if so).
+    contacts: bool,
+}
+
+/// Reads the control messages of `files` (and notes whether they hold contacts).
+fn survey(files: &[PathBuf]) -> anyhow::Result<Survey> {
+    let mut timeline = Timeline::default();
+    let mut contacts = false;
+    for file in files {
+        let mut reader = recorder::RecordingReader::open(file)?;
+        while let Some(m) = reader.next_message() {
+            let m = m?;
+            contacts |= m.channel.kind == Some(FrameKind::Contacts);
+            if m.channel.kind != Some(FrameKind::Control) {
+                continue;
+            }
+            let Ok(f) = msgs::decode::<msgs::Control, u8>(&m.data) else { continue };
+            if f.header.kind() != Some(ControlKind::RunStart) {
+                continue;
+            }
+            match f.details() {
+                Ok(ControlDetails::RunStart(params)) => {
+                    if !timeline.add_run(f.header.step.run_id, &params)
+                        && timeline.dt_ns(f.header.step.run_id).is_none()
+                    {
+                        tracing::warn!(
+                            run_id = f.header.step.run_id,
+                            dt = params.dt,
+                            "run start with an unusable time step"
+                        );
+                    }
+                }
+                Ok(_) => {}
+                Err(e) => tracing::warn!(run_id = f.header.step.run_id, "run start without usable parameters: {e}"),
+            }
+        }
+    }
+    Ok(Survey { timeline, contacts })
+}
+
+/// `dc-foxglove viz IN OUT`: every frame of the recording, none throttled, at simulation time.
+fn viz(input: &std::path::Path, output: &std::path::Path, style: SceneStyle) -> anyhow::Result<()> {
     let files = recorder::recording_files(input)?;
+    let survey = survey(&files)?;
+    let mut clock = FileClock::new(survey.timeline);
     let ctx = foxglove::Context::new();
     let mcap = ctx
         .mcap_writer()
         .create_new_buffered_file(output)
         .with_context(|| format!("cannot create {}", output.display()))?;
-    let mut bridge = Bridge::new(&ctx, config)?;
+    let mut bridge = Bridge::new(&ctx, BridgeConfig::file(style))?;
+    bridge.expect_contacts(survey.contacts);
     let (mut read, mut skipped) = (0u64, 0u64);
     for file in &files {
         let mut reader = recorder::RecordingReader::open(file)?;
@@ -365,7 +429,7 @@ fn viz(input: &std::path::Path, output: &std::path::Path, config: BridgeConfig) 
             let m = m?;
             read += 1;
             let Some(kind) = m.channel.kind else { continue };
-            if let Err(e) = give_recorded(&mut bridge, kind, &m.channel.topic, &m.data, m.log_time) {
+            if let Err(e) = give_recorded(&mut bridge, &mut clock, kind, &m.channel.topic, &m.data, m.log_time) {
                 skipped += 1;
                 if skipped <= 10 {
                     tracing::warn!(file = %file.display(), topic = %m.channel.topic, "skipped a message: {e}");
@@ -373,11 +437,23 @@ fn viz(input: &std::path::Path, output: &std::path::Path, config: BridgeConfig) 
             }
         }
     }
+    bridge.finish();
     mcap.close().with_context(|| format!("cannot finish {}", output.display()))?;
     let written: u64 = bridge.counters.sent.values().sum();
     for (topic, n) in &bridge.counters.sent {
         println!("{topic}: {n}");
     }
+    let (bodies_alone, contacts_alone) = bridge.unpaired();
+    if bodies_alone + contacts_alone > 0 {
+        println!("{bodies_alone} step(s) without contacts, {contacts_alone} contacts frame(s) without bodies");
+    }
+    println!(
+        "times: {} frame(s) at simulation time ({} run(s) with a time step), {} at their recorded log time, {} node notice(s) at the latest time",
+        clock.simulation,
+        clock.timeline().runs(),
+        clock.log_time,
+        clock.latest
+    );
     println!(
         "read {read} messages from {} file(s), wrote {written} to {} ({skipped} skipped)",
         files.len(),

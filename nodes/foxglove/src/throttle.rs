@@ -1,5 +1,5 @@
-//! Per-topic rate limits on a caller-supplied clock (nanoseconds), so the live node (wall clock) and
-//! the viz writer (recording log times) share them.
+//! Per-topic rate limits of the live bridge on a caller-supplied clock (nanoseconds); a viz file
+//! uses unlimited ones (`Throttle::new(0.0)`).
 
 /// Lets through at most `hz` events per second; `hz <= 0` lets everything through.
 #[derive(Debug, Clone)]

@@ -26,19 +26,48 @@ pub struct SceneUpdate {
     pub entities: Vec<SceneEntity>,
 }
 
-/// `foxglove.SceneEntity`: id, frame, arrows, cubes, cylinders.
+/// `foxglove.SceneEntity`: time, id, frame, metadata, arrows, cubes, cylinders.
 #[derive(Clone, PartialEq, prost::Message)]
 pub struct SceneEntity {
+    #[prost(message, optional, tag = "1")]
+    pub timestamp: Option<Timestamp>,
     #[prost(string, tag = "2")]
     pub frame_id: String,
     #[prost(string, tag = "3")]
     pub id: String,
+    #[prost(message, repeated, tag = "6")]
+    pub metadata: Vec<KeyValuePair>,
     #[prost(message, repeated, tag = "7")]
     pub arrows: Vec<Primitive>,
     #[prost(message, repeated, tag = "8")]
     pub cubes: Vec<Primitive>,
     #[prost(message, repeated, tag = "10")]
     pub cylinders: Vec<Primitive>,
+}
+
+/// `google.protobuf.Timestamp`, as Foxglove's schemas carry it.
+#[derive(Clone, Copy, PartialEq, prost::Message)]
+pub struct Timestamp {
+    #[prost(int64, tag = "1")]
+    pub seconds: i64,
+    #[prost(int32, tag = "2")]
+    pub nanos: i32,
+}
+
+impl Timestamp {
+    /// Nanoseconds since the epoch.
+    pub fn ns(&self) -> u64 {
+        self.seconds as u64 * 1_000_000_000 + self.nanos as u64
+    }
+}
+
+/// `foxglove.KeyValuePair`.
+#[derive(Clone, PartialEq, prost::Message)]
+pub struct KeyValuePair {
+    #[prost(string, tag = "1")]
+    pub key: String,
+    #[prost(string, tag = "2")]
+    pub value: String,
 }
 
 /// Any primitive (arrow, cube, cylinder): its pose, field 1 in all of them; the other fields are
@@ -82,6 +111,8 @@ pub struct Quaternion {
 /// `foxglove.Grid`.
 #[derive(Clone, PartialEq, prost::Message)]
 pub struct Grid {
+    #[prost(message, optional, tag = "1")]
+    pub timestamp: Option<Timestamp>,
     #[prost(string, tag = "2")]
     pub frame_id: String,
     #[prost(fixed32, tag = "4")]
@@ -112,6 +143,8 @@ pub const FLOAT32: i32 = 7;
 /// `foxglove.RawImage`.
 #[derive(Clone, PartialEq, prost::Message)]
 pub struct RawImage {
+    #[prost(message, optional, tag = "1")]
+    pub timestamp: Option<Timestamp>,
     #[prost(fixed32, tag = "2")]
     pub width: u32,
     #[prost(fixed32, tag = "3")]
