@@ -1,7 +1,7 @@
 //! `dc-record info`: what a recording holds, like `ros2 bag info`.
 
-use crate::read::{Item, RecordingReader};
-use crate::{Error, Result};
+use crate::read::{Damage, Item, ReadOptions, RecordingReader};
+use crate::Result;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -46,15 +46,28 @@ pub struct Info {
     pub compressions: BTreeSet<String>,
     /// Metadata records: name and entries.
     pub metadata: Vec<(String, BTreeMap<String, String>)>,
+    /// Damaged regions skipped (a lenient read only; a strict one stops with an error).
+    pub damage: Vec<Damage>,
+    /// Messages lost in the skipped regions, per topic, as far as the file tells.
+    pub skipped: BTreeMap<String, u64>,
 }
 
 impl Info {
     /// Reads `path` once. A damaged file, a non-MCAP file or an unknown wire version is an error
     /// naming the file.
     pub fn read(path: &Path) -> Result<Info> {
-        let mut reader = RecordingReader::open(path)?;
-        let file_size = std::fs::metadata(path).map_err(|source| Error::Io { path: path.into(), source })?.len();
-        let mut info = Info { path: path.to_path_buf(), file_size, ..Default::default() };
+        Self::from_reader(RecordingReader::open(path)?)
+    }
+
+    /// Reads `path` once with `options`: with [`ReadOptions::lenient`], damaged regions are
+    /// skipped, listed in [`Info::damage`], and everything intact is counted.
+    pub fn read_with(path: &Path, options: ReadOptions) -> Result<Info> {
+        Self::from_reader(RecordingReader::open_with(path, options)?)
+    }
+
+    /// Reads what `reader` has left.
+    pub fn from_reader(mut reader: RecordingReader) -> Result<Info> {
+        let mut info = Info { path: reader.path().to_path_buf(), file_size: reader.size(), ..Default::default() };
         let mut last_step: BTreeMap<(u64, u32), u32> = BTreeMap::new();
         while let Some(item) = reader.next_item() {
             match item? {
@@ -96,12 +109,14 @@ impl Info {
                 Item::Metadata(m) => info.metadata.push((m.name, m.metadata)),
                 Item::Chunk { compression, compressed, uncompressed } => {
                     info.chunks += 1;
-                    info.compressed_bytes += compressed;
-                    info.uncompressed_bytes += uncompressed;
+                    info.compressed_bytes = info.compressed_bytes.saturating_add(compressed);
+                    info.uncompressed_bytes = info.uncompressed_bytes.saturating_add(uncompressed);
                     info.compressions.insert(if compression.is_empty() { "none".into() } else { compression });
                 }
             }
         }
+        info.damage = reader.damage().to_vec();
+        info.skipped = reader.skipped().clone();
         Ok(info)
     }
 
@@ -166,6 +181,15 @@ impl fmt::Display for Info {
         writeln!(f, "Simulations:       {}", self.simulations.len())?;
         for ((run, sim), r) in &self.simulations {
             writeln!(f, "  run {run} simulation {sim}: steps {}..={} ({} steps)", r.first, r.last, r.steps)?;
+        }
+        if !self.damage.is_empty() {
+            writeln!(f, "Damage:            {} region(s) skipped", self.damage.len())?;
+            for d in &self.damage {
+                writeln!(f, "  {d}")?;
+            }
+            for (topic, n) in &self.skipped {
+                writeln!(f, "  lost on {topic}: {n} messages")?;
+            }
         }
         for (name, m) in &self.metadata {
             writeln!(f, "Metadata `{name}`:")?;

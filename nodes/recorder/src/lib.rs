@@ -5,10 +5,13 @@
 //!   writer leaves only complete chunks behind), channel metadata with the frame type and wire
 //!   version, run metadata as MCAP metadata records.
 //! - [`read::RecordingReader`]: streams a file record by record with bounded memory (one chunk at a
-//!   time), checks the magic and every channel's wire version, and names the file in every error.
+//!   time), trusts no length in the file, checks the magic, every chunk's CRC and every channel's
+//!   wire version, and names the file and the byte in every error; leniently, it skips damaged
+//!   chunks and resumes at the next intact record.
 //! - [`join::Steps`]: what the trainer reads: a recording (one file or a folder of files) as steps
 //!   joined per (run, simulation, step): bodies + contacts (+ solver statistics).
-//! - [`info::Info`] (`dc-record info`) and [`recover::recover`] (`dc-record recover`).
+//! - [`info::Info`] (`dc-record info`) and [`recover::recover`] (`dc-record recover`: every intact
+//!   chunk, with a report per topic of what was kept and skipped).
 //! - [`bench`]: the recorder's end-of-run counts and a recording's missing steps, for
 //!   `dc-record bench` (a 10,000-body simulator recorded live: drops, MB/s, msgs/s, CPU time).
 //!
@@ -47,12 +50,19 @@ pub enum Error {
     Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: not an MCAP file ({detail})")]
     NotMcap { path: PathBuf, detail: String },
-    #[error("{path}: damaged or truncated MCAP file: {detail} (a recorder killed mid-run leaves such a file; `dc-record recover IN OUT` rescues its complete messages)")]
-    Damaged { path: PathBuf, detail: String },
+    #[error("{path}: damaged or truncated MCAP file at byte {offset}: {detail} (a recorder killed mid-run leaves such a file; `dc-record recover IN OUT` rescues its intact chunks)")]
+    Damaged { path: PathBuf, offset: u64, detail: String },
     #[error("{path}: topic `{topic}` was recorded with wire version {found}; this build reads version {expected}")]
     WireVersion { path: PathBuf, topic: String, found: String, expected: u32 },
     #[error("{path}: MCAP writer: {source}")]
     Write { path: PathBuf, source: mcap::McapError },
+    /// The operating system refused a write (`No space left on device` ...): the writer stops
+    /// there, and every later call returns the same error; the file keeps every chunk flushed
+    /// before it (`dc-record recover` rescues them).
+    #[error("{error} writing {path}")]
+    WriteIo { path: PathBuf, error: std::io::Error },
+    #[error("{path}: nothing recovered: {detail}")]
+    NothingRecovered { path: PathBuf, detail: String },
     #[error("{path}: no .mcap recordings there")]
     NoRecordings { path: PathBuf },
 }

@@ -1,13 +1,43 @@
-//! Streaming a recording record by record, one chunk in memory at a time.
+//! Streaming a recording record by record, one chunk in memory at a time, trusting no length
+//! read from the file.
+//!
+//! The MCAP framing (the magic, then records of `opcode: u8, length: u64 LE, content`) and the
+//! records this project uses are parsed here rather than by the `mcap` crate's readers: those add
+//! and allocate whatever a damaged length says (the magic followed by junk made them overflow or
+//! ask for exabytes). Here every length is checked, with checked arithmetic, against the bytes
+//! left (in the file, the record, the chunk) and against a cap ([`MAX_RECORD_LEN`],
+//! [`MAX_CHUNK_LEN`]); memory follows the bytes actually there, never a length field; a chunk
+//! is used only when its CRC (when it has one) checks out. A damaged file is an
+//! [`Error::Damaged`] naming the file, the byte offset and what is wrong.
+//!
+//! In lenient mode ([`ReadOptions::lenient`], what `recover` and `info` use) damage is not an
+//! error: the damaged record is skipped whole and reading resumes at the next intact record,
+//! found by scanning forward for a plausible opcode and length whose content parses (a chunk
+//! whose CRC checks out), as `mcap recover` does. What was skipped is kept in
+//! [`RecordingReader::damage`] and, per topic, in [`RecordingReader::skipped`] (counted from the
+//! message indexes that follow a skipped chunk).
 
 use crate::{Error, FrameKind, Result, MESSAGE_ENCODING, META_TYPE, META_WIRE_VERSION};
-use mcap::records::Record;
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::fmt;
 use std::fs::File;
-use std::io::Read;
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+
+/// The longest record accepted (1 GiB; a chunk of this project holds about 1 MiB).
+pub const MAX_RECORD_LEN: u64 = 1 << 30;
+/// The largest uncompressed chunk accepted (1 GiB).
+pub const MAX_CHUNK_LEN: u64 = 1 << 30;
+/// The longest record other than a chunk that a forward scan for an intact record considers.
+const MAX_SCANNED_RECORD_LEN: u64 = 16 << 20;
+/// The profile `RecordingWriter` writes: in such a file an unknown opcode is damage.
+const OWN_PROFILE: &str = "deep-contact";
+
+/// MCAP opcodes (the `mcap` crate's `records::op`, under their names in the specification).
+mod op {
+    pub use mcap::records::op::*;
+}
 
 /// A channel of a recording.
 #[derive(Debug, Clone, PartialEq)]
@@ -36,7 +66,7 @@ pub enum Item {
     Channel(Arc<Channel>),
     Message(Message),
     Metadata(mcap::records::Metadata),
-    /// A chunk was read: its sizes and compression (before the messages it holds).
+    /// An intact chunk was read: its sizes and compression (before the messages it holds).
     Chunk {
         compression: String,
         compressed: u64,
@@ -49,60 +79,220 @@ pub enum Item {
 pub struct ReadOptions {
     /// Accept a channel whose wire version differs from this build's (recovery copies bytes only).
     pub any_wire_version: bool,
+    /// Skip damage and resume at the next intact record instead of stopping with an error
+    /// (see [`RecordingReader::damage`]).
+    pub lenient: bool,
 }
 
-/// Reads a recording from start to end with bounded memory: the raw file is read in pieces and
-/// one chunk at a time is decompressed. Every error names the file.
+/// A damaged region that a lenient reader skipped.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Damage {
+    /// Byte offset of the damaged record (of the end of the file for a file without a footer).
+    pub offset: u64,
+    /// The opcode the damaged record claimed (`None`: the file ended inside a record header).
+    pub opcode: Option<u8>,
+    /// What is wrong.
+    pub detail: String,
+    /// Where reading resumed (the next intact record); `None` when nothing intact followed.
+    pub resumed_at: Option<u64>,
+    /// Messages the skipped region held, per topic, as far as the message indexes after it tell.
+    pub messages: BTreeMap<String, u64>,
+}
+
+impl Damage {
+    /// What kind of record was damaged, in words.
+    pub fn what(&self) -> &'static str {
+        self.opcode.map_or("record header", record_name)
+    }
+
+    /// Whether the damaged record was (or may have been: its opcode is lost) a chunk.
+    pub fn may_be_chunk(&self) -> bool {
+        // At byte 0 only the magic can be damaged.
+        self.offset > 0 && self.opcode.is_none_or(|o| o == op::CHUNK || !is_known(o))
+    }
+
+    /// The strict reader's error for this damage.
+    pub fn to_error(&self, path: &Path) -> Error {
+        Error::Damaged { path: path.to_path_buf(), offset: self.offset, detail: self.detail.clone() }
+    }
+
+    /// Bytes skipped, given the file's size.
+    pub fn skipped_bytes(&self, file_size: u64) -> u64 {
+        self.resumed_at.unwrap_or(file_size).saturating_sub(self.offset)
+    }
+}
+
+impl fmt::Display for Damage {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "at byte {}: {}", self.offset, self.detail)?;
+        match self.resumed_at {
+            Some(at) => write!(f, "; resumed at byte {at} ({} bytes skipped)", at.saturating_sub(self.offset))?,
+            None => write!(f, "; nothing intact after it")?,
+        }
+        if !self.messages.is_empty() {
+            let n: u64 = self.messages.values().sum();
+            let per: Vec<String> = self.messages.iter().map(|(t, n)| format!("{t} {n}")).collect();
+            write!(f, "; {n} messages lost ({})", per.join(", "))?;
+        }
+        Ok(())
+    }
+}
+
+/// What [`RecordingReader::from_source`] reads from: a file, or bytes in memory.
+pub trait Source: Read + Seek + Send + Sync {}
+impl<S: Read + Seek + Send + Sync> Source for S {}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum State {
+    /// In the data section.
+    Data,
+    /// After the data end record: only the footer is read.
+    Summary,
+    Done,
+}
+
+/// A record that does not parse: where, which, and why.
+#[derive(Debug)]
+struct Fault {
+    offset: u64,
+    opcode: Option<u8>,
+    detail: String,
+}
+
+/// Why reading a record stopped: damage (skipped in lenient mode) or an error that ends reading.
+enum Stop {
+    Fault(Fault),
+    Error(Error),
+}
+
+/// A channel record as stored.
+#[derive(Debug, Clone)]
+struct RawChannel {
+    id: u16,
+    topic: String,
+    encoding: String,
+    metadata: BTreeMap<String, String>,
+}
+
+/// A message record's fields.
+#[derive(Debug, Clone, Copy)]
+struct MessageHeader {
+    channel_id: u16,
+    sequence: u32,
+    log_time: u64,
+    publish_time: u64,
+}
+
+/// A record inside a chunk that this reader uses.
+enum Inner {
+    Channel(RawChannel),
+    Message(MessageHeader, Vec<u8>),
+}
+
+/// A chunk that decompressed, checked out and parsed.
+struct ParsedChunk {
+    compression: String,
+    compressed: u64,
+    uncompressed: u64,
+    records: Vec<Inner>,
+}
+
+/// Reads a recording from start to end with bounded memory: records are read one at a time (a
+/// chunk is decompressed whole, one at a time). Every error names the file.
 pub struct RecordingReader {
     path: PathBuf,
-    file: File,
-    reader: LinearReader,
+    source: BufReader<Box<dyn Source>>,
+    size: u64,
+    /// Where the source's read position is (`u64::MAX`: unknown, after a failed seek).
+    at: u64,
+    /// Start of the next record.
+    pos: u64,
+    state: State,
     pending: VecDeque<Item>,
     channels: HashMap<u16, Arc<Channel>>,
     options: ReadOptions,
-    in_summary: bool,
-    done: bool,
-    /// Bytes of the file consumed so far (for reports on damaged files).
-    consumed: u64,
+    /// The header names another writer's profile: unknown opcodes are extensions, not damage.
+    foreign: bool,
+    damage: Vec<Damage>,
+    skipped: BTreeMap<String, u64>,
+    /// The message indexes being read belong to a skipped chunk: they count lost messages.
+    counting_skipped: bool,
+    /// The summary section's channels (lenient mode: for messages whose declaration was lost).
+    summary_channels: Option<HashMap<u16, RawChannel>>,
 }
 
 impl RecordingReader {
-    /// Opens `path`, checking the MCAP magic.
+    /// Opens `path` for strict reading, checking the MCAP magic.
     pub fn open(path: &Path) -> Result<RecordingReader> {
         Self::open_with(path, ReadOptions::default())
     }
 
     pub fn open_with(path: &Path, options: ReadOptions) -> Result<RecordingReader> {
         let io = |source| Error::Io { path: path.to_path_buf(), source };
-        let mut file = File::open(path).map_err(io)?;
+        let file = File::open(path).map_err(io)?;
         if file.metadata().map_err(io)?.is_dir() {
             return Err(Error::NotMcap { path: path.to_path_buf(), detail: "a folder".into() });
         }
-        let mut magic = [0u8; 8];
-        let n = read_full(&mut file, &mut magic).map_err(io)?;
-        if n < 8 || &magic[..] != mcap::MAGIC {
-            return Err(Error::NotMcap {
-                path: path.to_path_buf(),
-                detail: format!("the first {n} bytes are not the MCAP magic"),
-            });
-        }
-        let file = File::open(path).map_err(io)?;
-        let reader = LinearReader::new_with_options(LinearReaderOptions::default().with_emit_chunks(true));
-        Ok(RecordingReader {
-            path: path.to_path_buf(),
-            file,
-            reader,
+        Self::from_source(path, file, options)
+    }
+
+    /// Reads `source` (a file, `std::io::Cursor` over bytes in memory ...); `name` is the path that
+    /// errors name.
+    pub fn from_source(
+        name: &Path,
+        mut source: impl Source + 'static,
+        options: ReadOptions,
+    ) -> Result<RecordingReader> {
+        let io = |source| Error::Io { path: name.to_path_buf(), source };
+        let size = source.seek(SeekFrom::End(0)).map_err(io)?;
+        source.seek(SeekFrom::Start(0)).map_err(io)?;
+        let mut reader = RecordingReader {
+            path: name.to_path_buf(),
+            source: BufReader::with_capacity(1 << 16, Box::new(source)),
+            size,
+            at: 0,
+            pos: 0,
+            state: State::Data,
             pending: VecDeque::new(),
             channels: HashMap::new(),
             options,
-            in_summary: false,
-            done: false,
-            consumed: 0,
-        })
+            foreign: false,
+            damage: Vec::new(),
+            skipped: BTreeMap::new(),
+            counting_skipped: false,
+            summary_channels: None,
+        };
+        reader.start()?;
+        Ok(reader)
+    }
+
+    /// Checks the magic; a lenient reader looks past a damaged one for the first intact record.
+    fn start(&mut self) -> Result<()> {
+        let n = self.size.min(8) as usize;
+        let mut magic = vec![0u8; n];
+        self.read_at(0, &mut magic).map_err(|e| self.io(e))?;
+        if magic == mcap::MAGIC {
+            self.pos = 8;
+            return Ok(());
+        }
+        let detail = format!("the first {n} bytes are not the MCAP magic");
+        if self.options.lenient {
+            if let Some(at) = self.resync(0).map_err(|e| self.io(e))? {
+                self.note_damage(Fault { offset: 0, opcode: None, detail }, Some(at));
+                self.pos = at;
+                return Ok(());
+            }
+        }
+        Err(Error::NotMcap { path: self.path.clone(), detail })
     }
 
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// Size of the file in bytes.
+    pub fn size(&self) -> u64 {
+        self.size
     }
 
     /// The channels seen so far, by id.
@@ -110,13 +300,20 @@ impl RecordingReader {
         &self.channels
     }
 
-    /// Bytes of the file read so far.
+    /// Bytes of the file read so far (the start of the next record).
     pub fn consumed(&self) -> u64 {
-        self.consumed
+        self.pos
     }
 
-    fn damaged(&self, detail: impl std::fmt::Display) -> Error {
-        damaged(&self.path, self.consumed, detail)
+    /// The damaged regions skipped so far (lenient mode), in file order.
+    pub fn damage(&self) -> &[Damage] {
+        &self.damage
+    }
+
+    /// Messages known to be lost in skipped regions, per topic (or `channel N (undeclared)` for
+    /// messages whose channel declaration was lost), so far.
+    pub fn skipped(&self) -> &BTreeMap<String, u64> {
+        &self.skipped
     }
 
     /// The next item of the data section; `None` after the footer. After an error it returns `None`.
@@ -125,16 +322,13 @@ impl RecordingReader {
             if let Some(item) = self.pending.pop_front() {
                 return Some(Ok(item));
             }
-            if self.done {
+            if self.state == State::Done {
                 return None;
             }
-            match self.fill() {
-                Ok(()) => {}
-                Err(e) => {
-                    self.done = true;
-                    self.pending.clear();
-                    return Some(Err(e));
-                }
+            if let Err(e) = self.fill() {
+                self.state = State::Done;
+                self.pending.clear();
+                return Some(Err(e));
             }
         }
     }
@@ -150,82 +344,229 @@ impl RecordingReader {
         }
     }
 
-    /// Reads the file until at least one item is pending or the file ended.
+    /// Reads records until at least one item is pending or the file ended.
     fn fill(&mut self) -> Result<()> {
-        loop {
-            // Fields, not methods, while the reader's event borrows it.
-            let record = match self.reader.next_event() {
-                None => {
-                    self.done = true;
-                    return Ok(());
+        while self.pending.is_empty() && self.state != State::Done {
+            match self.step() {
+                Ok(()) => {}
+                Err(Stop::Error(e)) => return Err(e),
+                Err(Stop::Fault(fault)) if !self.options.lenient => {
+                    return Err(Error::Damaged { path: self.path.clone(), offset: fault.offset, detail: fault.detail })
                 }
-                Some(Err(e)) => return Err(damaged(&self.path, self.consumed, e)),
-                Some(Ok(LinearReadEvent::ReadRequest(need))) => {
-                    let buf = self.reader.insert(need.max(1 << 16));
-                    let n = self.file.read(buf).map_err(|source| Error::Io { path: self.path.clone(), source })?;
-                    self.reader.notify_read(n);
-                    self.consumed += n as u64;
-                    continue;
-                }
-                Some(Ok(LinearReadEvent::Record { opcode, data })) => {
-                    mcap::parse_record(opcode, data).map(|r| r.into_owned())
-                }
-            };
-            let record = record.map_err(|e| damaged(&self.path, self.consumed, e))?;
-            self.take(record)?;
-            if !self.pending.is_empty() {
-                return Ok(());
+                Err(Stop::Fault(fault)) => self.skip_damage(fault)?,
             }
-        }
-    }
-
-    fn take(&mut self, record: Record<'static>) -> Result<()> {
-        if self.in_summary {
-            return Ok(());
-        }
-        match record {
-            Record::Chunk { header, data } => {
-                self.pending.push_back(Item::Chunk {
-                    compression: header.compression.clone(),
-                    compressed: header.compressed_size,
-                    uncompressed: header.uncompressed_size,
-                });
-                let chunk = mcap::read::ChunkReader::new(header, &data).map_err(|e| self.damaged(e))?;
-                for record in chunk {
-                    let record = record.map_err(|e| self.damaged(format!("in a chunk: {e}")))?;
-                    self.take(record.into_owned())?;
-                }
-            }
-            Record::Channel(c) => {
-                let channel = self.channel(c)?;
-                if self.channels.get(&channel.id).is_none_or(|old| **old != *channel) {
-                    self.channels.insert(channel.id, channel.clone());
-                    self.pending.push_back(Item::Channel(channel));
-                }
-            }
-            Record::Message { header, data } => {
-                let Some(channel) = self.channels.get(&header.channel_id).cloned() else {
-                    return Err(
-                        self.damaged(format!("a message on channel {} that was never declared", header.channel_id))
-                    );
-                };
-                self.pending.push_back(Item::Message(Message {
-                    channel,
-                    sequence: header.sequence,
-                    log_time: header.log_time,
-                    publish_time: header.publish_time,
-                    data: data.into_owned(),
-                }));
-            }
-            Record::Metadata(m) => self.pending.push_back(Item::Metadata(m)),
-            Record::DataEnd(_) => self.in_summary = true,
-            _ => {}
         }
         Ok(())
     }
 
-    fn channel(&self, c: mcap::records::Channel) -> Result<Arc<Channel>> {
-        let kind = if c.message_encoding == MESSAGE_ENCODING {
+    /// Skips a damaged record: resumes at the next intact one, or ends.
+    fn skip_damage(&mut self, fault: Fault) -> Result<()> {
+        let resumed = if self.state == State::Data && fault.offset < self.size {
+            self.resync(fault.offset + 1).map_err(|e| self.io(e))?
+        } else {
+            None
+        };
+        // The message indexes after a skipped chunk (or after a record whose opcode is lost)
+        // say what it held.
+        self.counting_skipped = !matches!(fault.opcode, Some(o) if o != op::CHUNK && is_known(o));
+        self.note_damage(fault, resumed);
+        match resumed {
+            Some(at) => self.pos = at,
+            None => self.state = State::Done,
+        }
+        Ok(())
+    }
+
+    fn note_damage(&mut self, fault: Fault, resumed_at: Option<u64>) {
+        let damage = Damage {
+            offset: fault.offset,
+            opcode: fault.opcode,
+            detail: fault.detail,
+            resumed_at,
+            messages: BTreeMap::new(),
+        };
+        tracing::warn!(path = %self.path.display(), "skipped damage: {damage}");
+        self.damage.push(damage);
+    }
+
+    fn io(&self, source: std::io::Error) -> Error {
+        Error::Io { path: self.path.clone(), source }
+    }
+
+    /// Reads and takes in the record at `pos`.
+    fn step(&mut self) -> Result<(), Stop> {
+        let offset = self.pos;
+        let left = self.size.saturating_sub(offset);
+        let fault = |opcode, detail: String| Stop::Fault(Fault { offset, opcode, detail });
+        if left == 0 {
+            let detail = "the file ends here without a footer (its writer did not finish)".to_string();
+            return Err(fault(None, detail));
+        }
+        if left < 9 {
+            return Err(fault(None, format!("the file ends inside a record header ({left} bytes left)")));
+        }
+        let mut head = [0u8; 9];
+        self.read_at(offset, &mut head).map_err(|e| Stop::Error(self.io(e)))?;
+        let (opcode, len) = (head[0], u64::from_le_bytes(head[1..9].try_into().expect("8 bytes")));
+        check_len(opcode, len, left - 9).map_err(|d| fault(Some(opcode), d))?;
+        let end = offset + 9 + len; // <= size, checked above
+        if self.state == State::Summary && opcode != op::FOOTER {
+            // The summary repeats what the data section holds: its records are skipped unread.
+            self.pos = end;
+            return Ok(());
+        }
+        let mut body = vec![0u8; len as usize];
+        self.read_at(offset + 9, &mut body).map_err(|e| Stop::Error(self.io(e)))?;
+        self.take(offset, opcode, &body)?;
+        self.pos = end;
+        if opcode == op::FOOTER {
+            self.check_end_magic(end)?;
+            self.state = State::Done;
+        }
+        Ok(())
+    }
+
+    fn check_end_magic(&mut self, at: u64) -> Result<(), Stop> {
+        let fault = |detail: String| Stop::Fault(Fault { offset: at, opcode: None, detail });
+        if self.size - at < 8 {
+            return Err(fault(format!(
+                "the file ends {} bytes after its footer, before the closing magic",
+                self.size - at
+            )));
+        }
+        let mut magic = [0u8; 8];
+        self.read_at(at, &mut magic).map_err(|e| Stop::Error(self.io(e)))?;
+        if magic != *mcap::MAGIC {
+            return Err(fault("no MCAP magic after the footer".into()));
+        }
+        Ok(())
+    }
+
+    /// Takes in one record of the data section.
+    fn take(&mut self, offset: u64, opcode: u8, body: &[u8]) -> Result<(), Stop> {
+        let fault = |detail: String| {
+            Stop::Fault(Fault { offset, opcode: Some(opcode), detail: format!("{}: {detail}", record_name(opcode)) })
+        };
+        if opcode != op::MESSAGE_INDEX {
+            self.counting_skipped = false;
+        }
+        match opcode {
+            op::HEADER => {
+                let (profile, _library) = parse_header(body).map_err(fault)?;
+                self.foreign = profile != OWN_PROFILE;
+            }
+            op::CHUNK => {
+                let chunk = parse_chunk(body).map_err(fault)?;
+                self.pending.push_back(Item::Chunk {
+                    compression: chunk.compression,
+                    compressed: chunk.compressed,
+                    uncompressed: chunk.uncompressed,
+                });
+                for record in chunk.records {
+                    match record {
+                        Inner::Channel(c) => self.add_channel(c)?,
+                        Inner::Message(header, data) => self.add_message(offset, header, data)?,
+                    }
+                }
+            }
+            op::CHANNEL => {
+                let c = parse_channel(body).map_err(fault)?;
+                self.add_channel(c)?;
+            }
+            op::MESSAGE => {
+                let (header, data) = parse_message(body).map_err(fault)?;
+                self.add_message(offset, header, data.to_vec())?;
+            }
+            op::SCHEMA => parse_schema(body).map_err(fault)?,
+            op::METADATA => {
+                let (name, metadata) = parse_metadata(body).map_err(fault)?;
+                self.pending.push_back(Item::Metadata(mcap::records::Metadata { name, metadata }));
+            }
+            op::MESSAGE_INDEX => {
+                let entries = parse_message_index(body).map_err(fault)?;
+                if self.counting_skipped {
+                    let channel_id = u16::from_le_bytes([body[0], body[1]]);
+                    let topic = self.topic_name(channel_id);
+                    *self.skipped.entry(topic.clone()).or_default() += entries;
+                    if let Some(last) = self.damage.last_mut() {
+                        *last.messages.entry(topic).or_default() += entries;
+                    }
+                }
+            }
+            op::DATA_END => {
+                if body.len() != 4 {
+                    return Err(fault(format!("{} bytes (4 expected)", body.len())));
+                }
+                self.state = State::Summary;
+            }
+            op::FOOTER => {
+                if body.len() != 20 {
+                    return Err(fault(format!("{} bytes (20 expected)", body.len())));
+                }
+            }
+            op::ATTACHMENT
+            | op::ATTACHMENT_INDEX
+            | op::CHUNK_INDEX
+            | op::STATISTICS
+            | op::METADATA_INDEX
+            | op::SUMMARY_OFFSET => {}
+            other if other >= 0x80 && self.foreign => {} // another writer's extension
+            other => {
+                return Err(fault(format!("0x{other:02x} is no MCAP opcode (this file's writer uses none of its own)")))
+            }
+        }
+        Ok(())
+    }
+
+    /// The topic of a channel id for reports.
+    fn topic_name(&mut self, id: u16) -> String {
+        if let Some(c) = self.channels.get(&id) {
+            return c.topic.clone();
+        }
+        match self.summary_channel(id) {
+            Some(c) => c.topic,
+            None => format!("channel {id} (undeclared)"),
+        }
+    }
+
+    fn add_channel(&mut self, c: RawChannel) -> Result<(), Stop> {
+        let channel = self.channel(c).map_err(Stop::Error)?;
+        if self.channels.get(&channel.id).is_none_or(|old| **old != *channel) {
+            self.channels.insert(channel.id, channel.clone());
+            self.pending.push_back(Item::Channel(channel));
+        }
+        Ok(())
+    }
+
+    fn add_message(&mut self, offset: u64, header: MessageHeader, data: Vec<u8>) -> Result<(), Stop> {
+        let id = header.channel_id;
+        if !self.channels.contains_key(&id) {
+            if !self.options.lenient {
+                let detail = format!("a message on channel {id} that was never declared");
+                return Err(Stop::Fault(Fault { offset, opcode: Some(op::MESSAGE), detail }));
+            }
+            // Its declaration was in a skipped region: the summary may still have it.
+            match self.summary_channel(id) {
+                Some(c) => self.add_channel(c)?,
+                None => {
+                    *self.skipped.entry(format!("channel {id} (undeclared)")).or_default() += 1;
+                    return Ok(());
+                }
+            }
+        }
+        let channel = self.channels[&id].clone();
+        self.pending.push_back(Item::Message(Message {
+            channel,
+            sequence: header.sequence,
+            log_time: header.log_time,
+            publish_time: header.publish_time,
+            data,
+        }));
+        Ok(())
+    }
+
+    fn channel(&self, c: RawChannel) -> Result<Arc<Channel>> {
+        let kind = if c.encoding == MESSAGE_ENCODING {
             c.metadata
                 .get(META_TYPE)
                 .and_then(|t| FrameKind::from_type_name(t))
@@ -245,7 +586,183 @@ impl RecordingReader {
                 }
             }
         }
-        Ok(Arc::new(Channel { id: c.id, topic: c.topic, encoding: c.message_encoding, metadata: c.metadata, kind }))
+        Ok(Arc::new(Channel { id: c.id, topic: c.topic, encoding: c.encoding, metadata: c.metadata, kind }))
+    }
+
+    /// A channel of the summary section (read once, best effort; lenient mode only).
+    fn summary_channel(&mut self, id: u16) -> Option<RawChannel> {
+        if !self.options.lenient {
+            return None;
+        }
+        if self.summary_channels.is_none() {
+            let channels = self.read_summary_channels().unwrap_or_default();
+            self.summary_channels = Some(channels);
+        }
+        self.summary_channels.as_ref().and_then(|c| c.get(&id).cloned())
+    }
+
+    /// The channel records of an intact summary section, found through the footer.
+    fn read_summary_channels(&mut self) -> std::io::Result<HashMap<u16, RawChannel>> {
+        let mut out = HashMap::new();
+        // Footer record (9 + 20 bytes) and the closing magic (8).
+        let Some(footer_at) = self.size.checked_sub(37) else { return Ok(out) };
+        let mut tail = [0u8; 37];
+        self.read_at(footer_at, &mut tail)?;
+        if tail[0] != op::FOOTER || tail[1..9] != 20u64.to_le_bytes() || tail[29..] != *mcap::MAGIC {
+            return Ok(out);
+        }
+        let summary_start = u64::from_le_bytes(tail[9..17].try_into().expect("8 bytes"));
+        let mut at = summary_start;
+        if at < 8 || at > footer_at {
+            return Ok(out);
+        }
+        while at + 9 <= footer_at {
+            let mut head = [0u8; 9];
+            self.read_at(at, &mut head)?;
+            let len = u64::from_le_bytes(head[1..9].try_into().expect("8 bytes"));
+            if len > footer_at - at - 9 || len > MAX_SCANNED_RECORD_LEN {
+                break;
+            }
+            if head[0] == op::CHANNEL {
+                let mut body = vec![0u8; len as usize];
+                self.read_at(at + 9, &mut body)?;
+                if let Ok(c) = parse_channel(&body) {
+                    out.insert(c.id, c);
+                }
+            }
+            at += 9 + len;
+        }
+        Ok(out)
+    }
+
+    /// Reads `buf.len()` bytes at `offset` (within the file: callers check).
+    fn read_at(&mut self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        if offset != self.at {
+            let moved = i64::try_from(offset as i128 - self.at as i128).ok().filter(|_| self.at != u64::MAX);
+            self.at = u64::MAX;
+            match moved {
+                Some(delta) => self.source.seek_relative(delta)?,
+                None => {
+                    self.source.seek(SeekFrom::Start(offset))?;
+                }
+            }
+        }
+        self.at = u64::MAX;
+        self.source.read_exact(buf)?;
+        self.at = offset + buf.len() as u64;
+        Ok(())
+    }
+
+    /// The offset of the first intact record at or after `from`, scanning forward: a plausible
+    /// opcode and length (cheap checks on a window of the file), then the whole record parsed (a
+    /// chunk decompressed and its CRC checked).
+    fn resync(&mut self, from: u64) -> std::io::Result<Option<u64>> {
+        const WINDOW: u64 = 1 << 16;
+        // Bytes a cheap check may look at past a candidate's offset.
+        const LOOKAHEAD: u64 = 128;
+        let mut window: Vec<u8> = Vec::new();
+        let mut window_start = from;
+        let mut p = from;
+        while p.saturating_add(9) <= self.size {
+            let want = LOOKAHEAD.min(self.size - p);
+            if p < window_start || p + want > window_start + window.len() as u64 {
+                let n = WINDOW.min(self.size - p) as usize;
+                window.resize(n, 0);
+                self.read_at(p, &mut window)?;
+                window_start = p;
+            }
+            let w = &window[(p - window_start) as usize..];
+            if self.plausible(p, w) && self.intact(p)? {
+                return Ok(Some(p));
+            }
+            p += 1;
+        }
+        Ok(None)
+    }
+
+    /// Cheap checks of a candidate record at `p` whose first bytes are `w` (at least 128, or up
+    /// to the end of the file).
+    fn plausible(&self, p: u64, w: &[u8]) -> bool {
+        let opcode = w[0];
+        let len = u64::from_le_bytes(w[1..9].try_into().expect("8 bytes"));
+        let left = self.size - p - 9;
+        if len > left || len > MAX_RECORD_LEN {
+            return false;
+        }
+        let small = len <= MAX_SCANNED_RECORD_LEN;
+        let field = |at: usize, n: usize| w.get(9 + at..9 + at + n);
+        let u32_at = |at| field(at, 4).map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes")) as u64);
+        let u64_at = |at| field(at, 8).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")));
+        match opcode {
+            op::CHUNK => {
+                // start, end, uncompressed size, crc, compression name, compressed size.
+                let Some(name_len) = u32_at(28) else { return false };
+                let Some(name) = field(32, name_len.min(16) as usize) else { return false };
+                if !matches!(name, b"" | b"zstd" | b"lz4") || name_len > 4 {
+                    return false;
+                }
+                let head = 32 + name_len + 8;
+                let (Some(uncompressed), Some(compressed)) = (u64_at(16), u64_at(32 + name_len as usize)) else {
+                    return false;
+                };
+                len.checked_sub(head).is_some_and(|rest| compressed <= rest) && uncompressed <= MAX_CHUNK_LEN
+            }
+            op::MESSAGE_INDEX => len >= 6 && small && u32_at(2).is_some_and(|n| n == len - 6 && n % 16 == 0),
+            op::DATA_END => len == 4,
+            op::FOOTER => len == 20 && left >= 28,
+            op::MESSAGE => {
+                let id = field(0, 2).map(|b| u16::from_le_bytes([b[0], b[1]]));
+                len >= 22
+                    && id.is_some_and(|id| {
+                        self.channels.contains_key(&id)
+                            || self.summary_channels.as_ref().is_some_and(|c| c.contains_key(&id))
+                    })
+            }
+            op::HEADER | op::CHANNEL | op::SCHEMA | op::METADATA => len >= 8 && small,
+            _ => false,
+        }
+    }
+
+    /// Whether the record at `p` (plausible) parses whole; a record with no CRC or little
+    /// structure must also be followed by a plausible record header (or the end of the file).
+    fn intact(&mut self, p: u64) -> std::io::Result<bool> {
+        let mut head = [0u8; 9];
+        self.read_at(p, &mut head)?;
+        let (opcode, len) = (head[0], u64::from_le_bytes(head[1..9].try_into().expect("8 bytes")));
+        let end = p + 9 + len;
+        if opcode == op::FOOTER {
+            let mut magic = [0u8; 8];
+            self.read_at(end, &mut magic)?;
+            return Ok(magic == *mcap::MAGIC);
+        }
+        let mut body = vec![0u8; len as usize];
+        self.read_at(p + 9, &mut body)?;
+        let parses = match opcode {
+            op::CHUNK => match parse_chunk(&body) {
+                // A chunk with a CRC that checks out stands on its own.
+                Ok(_) if u32::from_le_bytes(body[24..28].try_into().expect("4 bytes")) != 0 => return Ok(true),
+                Ok(_) => true,
+                Err(_) => false,
+            },
+            op::HEADER => parse_header(&body).is_ok(),
+            op::CHANNEL => parse_channel(&body).is_ok(),
+            op::SCHEMA => parse_schema(&body).is_ok(),
+            op::METADATA => parse_metadata(&body).is_ok(),
+            op::MESSAGE_INDEX => parse_message_index(&body).is_ok(),
+            _ => true,
+        };
+        if !parses {
+            return Ok(false);
+        }
+        if end == self.size {
+            return Ok(true);
+        }
+        if self.size - end < 9 {
+            return Ok(false);
+        }
+        self.read_at(end, &mut head)?;
+        let next_len = u64::from_le_bytes(head[1..9].try_into().expect("8 bytes"));
+        Ok(is_known(head[0]) && head[0] != 0 && next_len <= self.size - end - 9)
     }
 }
 
@@ -256,17 +773,245 @@ impl Iterator for RecordingReader {
     }
 }
 
-fn read_full(file: &mut File, buf: &mut [u8]) -> std::io::Result<usize> {
-    let mut n = 0;
-    while n < buf.len() {
-        match file.read(&mut buf[n..])? {
-            0 => break,
-            k => n += k,
-        }
-    }
-    Ok(n)
+/// An opcode of the MCAP specification.
+fn is_known(opcode: u8) -> bool {
+    (op::HEADER..=op::DATA_END).contains(&opcode)
 }
 
-fn damaged(path: &Path, consumed: u64, detail: impl std::fmt::Display) -> Error {
-    Error::Damaged { path: path.to_path_buf(), detail: format!("{detail} (after reading {consumed} bytes)") }
+fn record_name(opcode: u8) -> &'static str {
+    match opcode {
+        op::HEADER => "header record",
+        op::FOOTER => "footer record",
+        op::SCHEMA => "schema record",
+        op::CHANNEL => "channel record",
+        op::MESSAGE => "message record",
+        op::CHUNK => "chunk",
+        op::MESSAGE_INDEX => "message index record",
+        op::CHUNK_INDEX => "chunk index record",
+        op::ATTACHMENT => "attachment record",
+        op::ATTACHMENT_INDEX => "attachment index record",
+        op::STATISTICS => "statistics record",
+        op::METADATA => "metadata record",
+        op::METADATA_INDEX => "metadata index record",
+        op::SUMMARY_OFFSET => "summary offset record",
+        op::DATA_END => "data end record",
+        _ => "record of unknown opcode",
+    }
+}
+
+/// A record's length against the bytes after its header and the cap.
+fn check_len(opcode: u8, len: u64, left: u64) -> Result<(), String> {
+    let what = record_name(opcode);
+    if len > left {
+        return Err(format!(
+            "a {what} (opcode 0x{opcode:02x}) of {len} bytes, but the file has only {left} bytes after its header"
+        ));
+    }
+    if len > MAX_RECORD_LEN {
+        return Err(format!("a {what} of {len} bytes, more than the {MAX_RECORD_LEN} a record may hold"));
+    }
+    Ok(())
+}
+
+/// Reads the fields of one record (or chunk), every length checked against what is left.
+struct Fields<'a> {
+    data: &'a [u8],
+    at: usize,
+}
+
+impl<'a> Fields<'a> {
+    fn new(data: &'a [u8]) -> Fields<'a> {
+        Fields { data, at: 0 }
+    }
+
+    fn left(&self) -> usize {
+        self.data.len() - self.at
+    }
+
+    fn bytes(&mut self, n: u64, what: &str) -> Result<&'a [u8], String> {
+        match usize::try_from(n).ok().filter(|&n| n <= self.left()) {
+            Some(n) => {
+                let out = &self.data[self.at..self.at + n];
+                self.at += n;
+                Ok(out)
+            }
+            None => Err(format!(
+                "{what} of {n} bytes at byte {} of the record, which has only {} left",
+                self.at,
+                self.left()
+            )),
+        }
+    }
+
+    fn array<const N: usize>(&mut self, what: &str) -> Result<[u8; N], String> {
+        Ok(self.bytes(N as u64, what)?.try_into().expect("N bytes"))
+    }
+
+    fn u16(&mut self, what: &str) -> Result<u16, String> {
+        Ok(u16::from_le_bytes(self.array(what)?))
+    }
+
+    fn u32(&mut self, what: &str) -> Result<u32, String> {
+        Ok(u32::from_le_bytes(self.array(what)?))
+    }
+
+    fn u64(&mut self, what: &str) -> Result<u64, String> {
+        Ok(u64::from_le_bytes(self.array(what)?))
+    }
+
+    fn string(&mut self, what: &str) -> Result<String, String> {
+        let len = self.u32(what)?;
+        let bytes = self.bytes(len.into(), what)?;
+        String::from_utf8(bytes.to_vec()).map_err(|_| format!("{what} is not UTF-8"))
+    }
+
+    fn string_map(&mut self, what: &str) -> Result<BTreeMap<String, String>, String> {
+        let len = self.u32(what)?;
+        let mut map = Fields::new(self.bytes(len.into(), what)?);
+        let mut out = BTreeMap::new();
+        while map.left() > 0 {
+            let key = map.string("a metadata key")?;
+            let value = map.string("a metadata value")?;
+            if out.insert(key, value).is_some() {
+                return Err(format!("{what} repeats a key"));
+            }
+        }
+        Ok(out)
+    }
+
+    fn end(&self, what: &str) -> Result<(), String> {
+        match self.left() {
+            0 => Ok(()),
+            n => Err(format!("{n} bytes left over after the {what}")),
+        }
+    }
+}
+
+fn parse_header(body: &[u8]) -> Result<(String, String), String> {
+    let mut f = Fields::new(body);
+    let profile = f.string("the profile")?;
+    let library = f.string("the library")?;
+    f.end("header")?;
+    Ok((profile, library))
+}
+
+fn parse_channel(body: &[u8]) -> Result<RawChannel, String> {
+    let mut f = Fields::new(body);
+    let id = f.u16("the channel id")?;
+    let _schema = f.u16("the schema id")?;
+    let topic = f.string("the topic")?;
+    let encoding = f.string("the message encoding")?;
+    let metadata = f.string_map("the channel metadata")?;
+    f.end("channel")?;
+    Ok(RawChannel { id, topic, encoding, metadata })
+}
+
+fn parse_schema(body: &[u8]) -> Result<(), String> {
+    let mut f = Fields::new(body);
+    f.u16("the schema id")?;
+    f.string("the schema name")?;
+    f.string("the schema encoding")?;
+    let len = f.u32("the schema data")?;
+    f.bytes(len.into(), "the schema data")?;
+    f.end("schema")
+}
+
+fn parse_message(body: &[u8]) -> Result<(MessageHeader, &[u8]), String> {
+    let mut f = Fields::new(body);
+    let header = MessageHeader {
+        channel_id: f.u16("the channel id")?,
+        sequence: f.u32("the sequence")?,
+        log_time: f.u64("the log time")?,
+        publish_time: f.u64("the publish time")?,
+    };
+    Ok((header, &body[f.at..]))
+}
+
+fn parse_metadata(body: &[u8]) -> Result<(String, BTreeMap<String, String>), String> {
+    let mut f = Fields::new(body);
+    let name = f.string("the metadata name")?;
+    let metadata = f.string_map("the metadata")?;
+    f.end("metadata")?;
+    Ok((name, metadata))
+}
+
+/// The entries of a message index record.
+fn parse_message_index(body: &[u8]) -> Result<u64, String> {
+    let mut f = Fields::new(body);
+    f.u16("the channel id")?;
+    let len = f.u32("the index entries")?;
+    f.bytes(len.into(), "the index entries")?;
+    f.end("message index")?;
+    if len % 16 != 0 {
+        return Err(format!("index entries of {len} bytes, not a multiple of 16"));
+    }
+    Ok(u64::from(len / 16))
+}
+
+/// A chunk record: header, decompressed records (size and CRC checked), parsed.
+fn parse_chunk(body: &[u8]) -> Result<ParsedChunk, String> {
+    let mut f = Fields::new(body);
+    let _start = f.u64("the start time")?;
+    let _end = f.u64("the end time")?;
+    let uncompressed = f.u64("the uncompressed size")?;
+    let crc = f.u32("the CRC")?;
+    let compression = f.string("the compression")?;
+    let compressed = f.u64("the compressed size")?;
+    // Padding after the compressed records is allowed.
+    let data = f.bytes(compressed, "the compressed records")?;
+    if uncompressed > MAX_CHUNK_LEN {
+        return Err(format!(
+            "an uncompressed size of {uncompressed} bytes, more than the {MAX_CHUNK_LEN} a chunk may hold"
+        ));
+    }
+    let records = decompress(&compression, data, uncompressed)?;
+    if crc != 0 {
+        let computed = crc32fast::hash(&records);
+        if computed != crc {
+            return Err(format!(
+                "CRC mismatch (stored {crc:08x}, computed {computed:08x} over the decompressed records)"
+            ));
+        }
+    }
+    let mut f = Fields::new(&records);
+    let mut out = Vec::new();
+    while f.left() > 0 {
+        let at = f.at;
+        let in_chunk = |e: String| format!("in the record at byte {at} of the decompressed chunk: {e}");
+        let opcode = f.array::<1>("a record's opcode").map_err(in_chunk)?[0];
+        let len = f.u64("a record's length").map_err(in_chunk)?;
+        let body = f.bytes(len, "a record").map_err(in_chunk)?;
+        match opcode {
+            op::CHANNEL => out.push(Inner::Channel(parse_channel(body).map_err(in_chunk)?)),
+            op::MESSAGE => {
+                let (header, data) = parse_message(body).map_err(in_chunk)?;
+                out.push(Inner::Message(header, data.to_vec()));
+            }
+            op::SCHEMA => parse_schema(body).map_err(in_chunk)?,
+            other => return Err(in_chunk(format!("a {} (opcode 0x{other:02x}) in a chunk", record_name(other)))),
+        }
+    }
+    Ok(ParsedChunk { compression, compressed, uncompressed, records: out })
+}
+
+/// Decompresses a chunk's records, to exactly `size` bytes (memory follows the bytes produced,
+/// not `size`).
+fn decompress(compression: &str, data: &[u8], size: u64) -> Result<Vec<u8>, String> {
+    let mut out = Vec::with_capacity(size.min(data.len() as u64 * 4).min(16 << 20) as usize);
+    let limit = size.saturating_add(1);
+    let read = match compression {
+        "" => {
+            out.extend_from_slice(data);
+            Ok(data.len())
+        }
+        "zstd" => zstd::stream::read::Decoder::with_buffer(data).and_then(|d| d.take(limit).read_to_end(&mut out)),
+        "lz4" => lz4::Decoder::new(data).and_then(|d| d.take(limit).read_to_end(&mut out)),
+        other => return Err(format!("unknown compression `{}`", other.escape_debug())),
+    };
+    read.map_err(|e| format!("the {compression} records do not decompress: {e}"))?;
+    if out.len() as u64 != size {
+        let n = if out.len() as u64 > size { format!("more than {size}") } else { out.len().to_string() };
+        return Err(format!("the records decompress to {n} bytes, the chunk header says {size}"));
+    }
+    Ok(out)
 }

@@ -1,27 +1,61 @@
 //! `dc-record recover`: rewrites a recording whose writer died (no summary, no footer, perhaps a
-//! torn last chunk) into a valid indexed file with every complete message.
+//! torn last chunk) or whose bytes were damaged into a valid indexed file with every message of
+//! every intact chunk: a damaged chunk is skipped and reading resumes at the next intact record.
 
-use crate::read::{Item, ReadOptions, RecordingReader};
+use crate::read::{Damage, Item, ReadOptions, RecordingReader};
 use crate::write::RecordingWriter;
 use crate::{Error, Result};
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
+use std::fmt;
 use std::path::Path;
 
-/// What [`recover`] rescued.
+/// What [`recover`] rescued and what it had to leave.
 #[derive(Debug, Clone, Default)]
 pub struct Recovered {
+    /// Messages kept (all topics).
     pub messages: u64,
     pub channels: u64,
     pub metadata: u64,
-    /// Why reading stopped before a footer (the damage), `None` for an intact input.
-    pub damage: Option<String>,
-    /// Bytes of the input that were read up to the damage (or the whole file).
+    /// Messages kept, per topic.
+    pub kept: BTreeMap<String, u64>,
+    /// Messages lost in skipped chunks, per topic, as far as the message indexes after them tell
+    /// (a torn last chunk has none), and messages whose channel declaration was lost.
+    pub skipped: BTreeMap<String, u64>,
+    /// The damaged regions skipped, in file order; empty for an intact input.
+    pub damage: Vec<Damage>,
+    /// Bytes of the input read (its size, unless an error stopped the copy).
     pub bytes_read: u64,
+    /// Size of the input in bytes.
+    pub input_size: u64,
 }
 
-/// Copies every channel, metadata record and message of `input` up to the first damage into a new
-/// file `output`, which gets a summary, indexes and a footer. A file that is not MCAP at all is an
-/// error; damage after the magic is not.
+impl Recovered {
+    /// Damaged chunks (and torn records, or records whose opcode was lost) that were skipped.
+    pub fn skipped_chunks(&self) -> usize {
+        self.damage.iter().filter(|d| d.may_be_chunk() && d.skipped_bytes(self.input_size) > 0).count()
+    }
+}
+
+impl fmt::Display for Recovered {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let topics: std::collections::BTreeSet<&String> = self.kept.keys().chain(self.skipped.keys()).collect();
+        for topic in topics {
+            let kept = self.kept.get(topic).copied().unwrap_or(0);
+            match self.skipped.get(topic) {
+                Some(n) => writeln!(f, "  {topic}: kept {kept}, skipped {n}")?,
+                None => writeln!(f, "  {topic}: kept {kept}")?,
+            }
+        }
+        for d in &self.damage {
+            writeln!(f, "  skipped {d}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Copies every channel, metadata record and message of the intact parts of `input` into a new
+/// file `output`, which gets a summary, indexes and a footer. A file that is not MCAP at all, or
+/// a damaged one of which nothing could be kept, is an error (and leaves no output).
 pub fn recover(input: &Path, output: &Path) -> Result<Recovered> {
     if input.canonicalize().ok().is_some_and(|i| output.canonicalize().ok() == Some(i)) {
         return Err(Error::Io {
@@ -29,10 +63,22 @@ pub fn recover(input: &Path, output: &Path) -> Result<Recovered> {
             source: std::io::Error::new(std::io::ErrorKind::AlreadyExists, "recover would overwrite its input"),
         });
     }
-    let mut reader = RecordingReader::open_with(input, ReadOptions { any_wire_version: true })?;
-    let mut writer = RecordingWriter::create(output)?;
+    let reader = RecordingReader::open_with(input, ReadOptions { any_wire_version: true, lenient: true })?;
+    let writer = RecordingWriter::create(output)?;
+    let result = recover_into(reader, writer);
+    // The empty output goes (a regular file only: never a device such as /dev/null).
+    if matches!(result, Err(Error::NothingRecovered { .. }))
+        && std::fs::symlink_metadata(output).is_ok_and(|m| m.file_type().is_file())
+    {
+        std::fs::remove_file(output).ok();
+    }
+    result
+}
+
+/// [`recover`] from a reader (best opened lenient, with any wire version) into a writer.
+pub fn recover_into(mut reader: RecordingReader, mut writer: RecordingWriter) -> Result<Recovered> {
     let mut ids: HashMap<u16, u16> = HashMap::new();
-    let mut out = Recovered::default();
+    let mut out = Recovered { input_size: reader.size(), ..Default::default() };
     while let Some(item) = reader.next_item() {
         match item {
             Ok(Item::Channel(c)) => {
@@ -45,20 +91,30 @@ pub fn recover(input: &Path, output: &Path) -> Result<Recovered> {
                 let id = ids[&m.channel.id];
                 writer.write_to_channel(id, m.log_time, m.publish_time, &m.data)?;
                 out.messages += 1;
+                *out.kept.entry(m.channel.topic.clone()).or_default() += 1;
             }
             Ok(Item::Metadata(m)) => {
                 writer.write_metadata(&m.name, m.metadata)?;
                 out.metadata += 1;
             }
             Ok(Item::Chunk { .. }) => {}
-            Err(e @ Error::Damaged { .. }) => {
-                out.damage = Some(e.to_string());
+            // A strict reader's damage ends the copy; a lenient one reports it below.
+            Err(Error::Damaged { offset, detail, .. }) => {
+                out.damage.push(Damage { offset, opcode: None, detail, resumed_at: None, messages: BTreeMap::new() });
                 break;
             }
             Err(e) => return Err(e),
         }
     }
+    out.damage.splice(0..0, reader.damage().iter().cloned());
+    out.skipped = reader.skipped().clone();
     out.bytes_read = reader.consumed();
+    if out.messages == 0 && !out.damage.is_empty() {
+        return Err(Error::NothingRecovered {
+            path: reader.path().to_path_buf(),
+            detail: format!("no intact message in {} bytes; {}", out.input_size, out.damage[0]),
+        });
+    }
     writer.finish()?;
     Ok(out)
 }

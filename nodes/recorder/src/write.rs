@@ -3,8 +3,9 @@
 use crate::{Error, FrameKind, Result, MESSAGE_ENCODING, META_TYPE, META_WIRE_VERSION};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 /// Target uncompressed size of a chunk; a chunk is also closed by every [`RecordingWriter::flush`].
 pub const CHUNK_SIZE: u64 = 1 << 20;
@@ -13,6 +14,11 @@ pub const CHUNK_SIZE: u64 = 1 << 20;
 ///
 /// Chunks are built in memory and written whole (`disable_seeking`), so a writer killed at any
 /// moment leaves a file whose chunks are all complete but perhaps the last one.
+///
+/// A write the operating system refuses (a full disk ...) stops the writer: that call returns
+/// [`Error::WriteIo`] naming the OS error and the file, every later call returns the same error
+/// without touching the file again, and dropping the writer neither panics nor writes; the file
+/// keeps every chunk flushed before the failure (`recover` restores them).
 ///
 /// Why every chunk is zstd, although the issue asked for lz4 or none on float grids: the MCAP
 /// format stores the compression per chunk, but `mcap` 0.24's `Writer` takes it once, from the
@@ -27,7 +33,11 @@ pub const CHUNK_SIZE: u64 = 1 << 20;
 /// recorder CPU time well under the wall time.
 pub struct RecordingWriter {
     path: PathBuf,
-    writer: Option<mcap::Writer<BufWriter<File>>>,
+    writer: Option<mcap::Writer<Sink>>,
+    /// The first I/O error of the output, shared with the [`Sink`] under the MCAP writer.
+    failed: Arc<Mutex<Option<std::io::Error>>>,
+    /// The output file, for `sync_all` at the end (none for another kind of output).
+    file: Option<File>,
     channels: HashMap<String, u16>,
     sequences: HashMap<u16, u32>,
     messages: u64,
@@ -41,22 +51,36 @@ impl RecordingWriter {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
         let file = File::create(path).map_err(io)?;
+        let sync = file.try_clone().map_err(io)?;
+        Self::start(path, Box::new(file), Some(sync))
+    }
+
+    /// Writes to `out` (a pipe, a buffer, a test's failing writer ...); `name` is the path that
+    /// errors name.
+    pub fn to_output(name: &Path, out: impl Write + Send + 'static) -> Result<RecordingWriter> {
+        Self::start(name, Box::new(out), None)
+    }
+
+    fn start(path: &Path, out: Box<dyn Write + Send>, file: Option<File>) -> Result<RecordingWriter> {
         let options = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Zstd))
             .chunk_size(Some(CHUNK_SIZE))
             .disable_seeking(true)
             .profile("deep-contact")
             .library(concat!("dc-record ", env!("CARGO_PKG_VERSION"), " (mcap-rs 0.24)"));
-        let writer = options
-            .create(BufWriter::with_capacity(1 << 20, file))
-            .map_err(|source| Error::Write { path: path.to_path_buf(), source })?;
-        Ok(RecordingWriter {
+        let failed = Arc::new(Mutex::new(None));
+        let sink = Sink { out: Some(BufWriter::with_capacity(1 << 20, out)), position: 0, failed: failed.clone() };
+        let mut w = RecordingWriter {
             path: path.to_path_buf(),
-            writer: Some(writer),
+            writer: None,
+            failed,
+            file,
             channels: HashMap::new(),
             sequences: HashMap::new(),
             messages: 0,
-        })
+        };
+        w.writer = Some(options.create(sink).map_err(|e| w.err(e))?);
+        Ok(w)
     }
 
     pub fn path(&self) -> &Path {
@@ -68,12 +92,31 @@ impl RecordingWriter {
         self.messages
     }
 
-    fn err(&self, source: mcap::McapError) -> Error {
-        Error::Write { path: self.path.clone(), source }
+    /// A copy of the output's first I/O error, if one happened.
+    fn first_error(&self) -> Option<std::io::Error> {
+        self.failed.lock().unwrap_or_else(|e| e.into_inner()).as_ref().map(copy_io_error)
     }
 
-    fn writer(&mut self) -> &mut mcap::Writer<BufWriter<File>> {
-        self.writer.as_mut().expect("the writer lives until finish()")
+    /// Whether a write failed (every later call fails the same way).
+    pub fn has_failed(&self) -> bool {
+        self.failed.lock().unwrap_or_else(|e| e.into_inner()).is_some()
+    }
+
+    /// An error of the MCAP writer, named after the output's first I/O error when there was one.
+    fn err(&self, source: mcap::McapError) -> Error {
+        match (self.first_error(), source) {
+            (Some(first), _) => Error::WriteIo { path: self.path.clone(), error: first },
+            (None, mcap::McapError::Io(error)) => Error::WriteIo { path: self.path.clone(), error },
+            (None, source) => Error::Write { path: self.path.clone(), source },
+        }
+    }
+
+    /// The MCAP writer, or the first I/O error once the output failed: nothing more reaches it.
+    fn writer(&mut self) -> Result<&mut mcap::Writer<Sink>> {
+        if let Some(first) = self.first_error() {
+            return Err(Error::WriteIo { path: self.path.clone(), error: first });
+        }
+        Ok(self.writer.as_mut().expect("the writer lives until finish()"))
     }
 
     /// Adds the channel of `topic` (once): encoding `cbor`, metadata with the frame type and the
@@ -89,14 +132,14 @@ impl RecordingWriter {
             ("header".to_string(), header.to_string()),
             ("item".to_string(), item.to_string()),
         ]);
-        let id = self.writer().add_channel(0, topic, MESSAGE_ENCODING, &metadata).map_err(|e| self.err(e))?;
+        let id = self.writer()?.add_channel(0, topic, MESSAGE_ENCODING, &metadata).map_err(|e| self.err(e))?;
         self.channels.insert(topic.to_string(), id);
         Ok(id)
     }
 
     /// Adds a channel with the given encoding and metadata as found in another file (recovery).
     pub fn add_raw_channel(&mut self, topic: &str, encoding: &str, metadata: &BTreeMap<String, String>) -> Result<u16> {
-        let id = self.writer().add_channel(0, topic, encoding, metadata).map_err(|e| self.err(e))?;
+        let id = self.writer()?.add_channel(0, topic, encoding, metadata).map_err(|e| self.err(e))?;
         self.channels.insert(topic.to_string(), id);
         Ok(id)
     }
@@ -112,7 +155,7 @@ impl RecordingWriter {
         let seq = self.sequences.entry(channel_id).or_insert(0);
         *seq = seq.wrapping_add(1);
         let header = mcap::records::MessageHeader { channel_id, sequence: *seq, log_time, publish_time };
-        self.writer().write_to_known_channel(&header, data).map_err(|e| self.err(e))?;
+        self.writer()?.write_to_known_channel(&header, data).map_err(|e| self.err(e))?;
         self.messages += 1;
         Ok(())
     }
@@ -120,34 +163,100 @@ impl RecordingWriter {
     /// Writes a metadata record (run parameters, git revision ...).
     pub fn write_metadata(&mut self, name: &str, metadata: BTreeMap<String, String>) -> Result<()> {
         let record = mcap::records::Metadata { name: name.to_string(), metadata };
-        self.writer().write_metadata(&record).map_err(|e| self.err(e))
+        self.writer()?.write_metadata(&record).map_err(|e| self.err(e))
     }
 
     /// Closes the current chunk and pushes everything to the operating system: a kill after this
     /// loses nothing written before it.
     pub fn flush(&mut self) -> Result<()> {
-        self.writer().flush().map_err(|e| self.err(e))
+        self.writer()?.flush().map_err(|e| self.err(e))
     }
 
     /// Writes the summary (indexes, statistics) and the footer; returns the messages written.
     pub fn finish(mut self) -> Result<u64> {
-        let mut writer = self.writer.take().expect("the writer lives until finish()");
-        writer.finish().map_err(|e| self.err(e))?;
-        let mut inner = writer.into_inner();
-        inner.flush().map_err(|source| Error::Io { path: self.path.clone(), source })?;
-        inner.get_ref().sync_all().map_err(|source| Error::Io { path: self.path.clone(), source })?;
+        self.writer()?.finish().map_err(|e| self.err(e))?;
+        let writer = self.writer.take().expect("the writer lives until finish()");
+        let mut sink = writer.into_inner();
+        sink.flush().map_err(|error| Error::WriteIo { path: self.path.clone(), error })?;
+        if let Some(file) = &self.file {
+            file.sync_all().map_err(|error| Error::WriteIo { path: self.path.clone(), error })?;
+        }
         Ok(self.messages)
     }
 }
 
 impl Drop for RecordingWriter {
     fn drop(&mut self) {
-        // An unfinished writer (an error path) must not panic in mcap's own drop: finish it here
-        // and only log a failure.
-        if let Some(mut w) = self.writer.take() {
-            if let Err(e) = w.finish() {
-                tracing::error!(path = %self.path.display(), "could not finish the recording: {e}");
-            }
+        let Some(mut w) = self.writer.take() else { return };
+        if self.has_failed() {
+            // The error was returned already; the file stays as the last write left it.
+            return;
         }
+        // An unfinished writer (an error path elsewhere): finish it here and only log a failure.
+        if let Err(e) = w.finish() {
+            tracing::error!("could not finish the recording: {}", self.err(e));
+        }
+    }
+}
+
+/// The output under the MCAP writer: counts its position itself (the writer asks for it at every
+/// chunk; a `BufWriter<File>` would flush to answer, and an error there left `mcap` 0.24's writer
+/// without its output, to panic later), and remembers the first I/O error, after which nothing
+/// reaches the output again, not even the buffer's flush on drop: the file keeps what was written
+/// before the failure.
+struct Sink {
+    out: Option<BufWriter<Box<dyn Write + Send>>>,
+    position: u64,
+    failed: Arc<Mutex<Option<std::io::Error>>>,
+}
+
+impl Sink {
+    fn run<T>(
+        &mut self,
+        op: impl FnOnce(&mut BufWriter<Box<dyn Write + Send>>) -> std::io::Result<T>,
+    ) -> std::io::Result<T> {
+        let mut failed = self.failed.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(first) = failed.as_ref() {
+            return Err(copy_io_error(first));
+        }
+        let out = self.out.as_mut().expect("the output lives until drop");
+        op(out).inspect_err(|e| {
+            *failed = Some(copy_io_error(e));
+            // Drop what is still buffered: nothing more reaches the output.
+            if let Some(out) = self.out.take() {
+                let _ = out.into_parts();
+            }
+        })
+    }
+}
+
+impl Write for Sink {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.run(|out| out.write(buf))?;
+        self.position += n as u64;
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.run(|out| out.flush())
+    }
+}
+
+impl Seek for Sink {
+    /// Only tells the position: with `disable_seeking` the MCAP writer builds each chunk in memory.
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        match pos {
+            SeekFrom::Current(0) | SeekFrom::End(0) => Ok(self.position),
+            SeekFrom::Start(p) if p == self.position => Ok(self.position),
+            _ => Err(std::io::Error::new(std::io::ErrorKind::Unsupported, "the recording output does not seek")),
+        }
+    }
+}
+
+/// `std::io::Error` is not `Clone`: the same OS error, or the same kind and message.
+fn copy_io_error(e: &std::io::Error) -> std::io::Error {
+    match e.raw_os_error() {
+        Some(code) => std::io::Error::from_raw_os_error(code),
+        None => std::io::Error::new(e.kind(), e.to_string()),
     }
 }

@@ -194,6 +194,55 @@ fn killed_recorder_loses_at_most_the_last_flush_and_recover_makes_it_indexed() {
     );
 }
 
+#[cfg(target_os = "linux")]
+#[test]
+fn a_recorder_on_a_full_disk_stops_with_one_error_naming_it() {
+    // /dev/full refuses every write with ENOSPC (no root, no tmpfs needed). It logged ~1,440
+    // lines of `attempted another write after a write method failed` and never named the cause.
+    let bus = format!(r#"{{"namespace":"{}"}}"#, namespace("full"));
+    let mut rec = Command::new(DC_RECORD)
+        .args(["--out", "/dev/full", "--topics", "control,bodies,contacts,stats/solve", "--flush-ms", "200"])
+        .env("DC_BUS", &bus)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = rec.stderr.take().unwrap();
+    let drain = std::thread::spawn(move || {
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut stderr, &mut text).ok();
+        text
+    });
+    std::thread::sleep(Duration::from_millis(500));
+    let mut sim = Command::new(bin("dc-sim"))
+        .args(["--seeds", "0..1000", "--steps", "50", "--model", "builtin", "--n", "40"])
+        .env("DC_BUS", &bus)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(status) = rec.try_wait().unwrap() {
+            break Some(status);
+        }
+        if Instant::now() > deadline {
+            unsafe { libc::kill(pid_of(&rec), libc::SIGKILL) };
+            rec.wait().unwrap();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    unsafe { libc::kill(pid_of(&sim), libc::SIGKILL) };
+    sim.wait().unwrap();
+    let stderr = drain.join().unwrap();
+    let status = status.unwrap_or_else(|| panic!("the recorder did not stop on a full disk:\n{stderr}"));
+    assert_eq!(status.code(), Some(1), "{stderr}");
+    assert_eq!(stderr.matches("No space left on device").count(), 1, "{stderr}");
+    assert!(stderr.contains("writing /dev/full"), "{stderr}");
+    assert!(!stderr.contains("attempted another write") && !stderr.contains("panicked"), "{stderr}");
+}
+
 #[test]
 fn info_and_replay_refuse_bad_input_naming_the_file() {
     let dir = scratch("badcli");

@@ -5,6 +5,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use msgs::HasStep;
 use msgs::{ControlKind, FrameHeader, FrameItem};
+use recorder::read::ReadOptions;
 use recorder::{FrameKind, RecordingWriter};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -47,20 +48,27 @@ enum Command {
     Bench(bench::BenchArgs),
 }
 
-fn main() -> anyhow::Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> anyhow::Result<()> {
     let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     match &args.command {
         Some(Command::Info { file }) => {
-            let info = recorder::Info::read(file)?;
+            // Lenient: everything intact is counted and the damage listed; damage still fails.
+            let info = recorder::Info::read_with(file, ReadOptions { lenient: true, ..Default::default() })?;
             print!("{info}");
-            Ok(())
+            match info.damage.first() {
+                Some(d) => Err(d.to_error(file).into()),
+                None => Ok(()),
+            }
         }
         Some(Command::Recover { input, output }) => {
             let r = recorder::recover::recover(input, output)?;
-            match &r.damage {
-                Some(d) => tracing::warn!("input damaged after {} bytes: {d}", r.bytes_read),
-                None => tracing::info!("input was intact"),
+            if r.damage.is_empty() {
+                tracing::info!("input was intact");
             }
             println!(
                 "recovered {} messages on {} channels, {} metadata records into {}",
@@ -69,6 +77,8 @@ fn main() -> anyhow::Result<()> {
                 r.metadata,
                 output.display()
             );
+            // Per topic kept and skipped, then each damaged region skipped (the reader logged it).
+            print!("{r}");
             Ok(())
         }
         Some(Command::Bench(bench_args)) => bench::run(bench_args),
@@ -255,7 +265,8 @@ fn record(args: &Args) -> anyhow::Result<()> {
     tracing::info!(topics = %names.join(","), "recording");
     let flush_every = Duration::from_millis(args.flush_ms.max(1));
     let mut batch = Vec::new();
-    let mut write_failed = 0u64;
+    // A refused write stops the recorder (below), so a run that ends well dropped nothing.
+    let write_failed = 0u64;
     let started = Instant::now();
     let mut bytes = 0u64;
     let mut first_frame: Option<Instant> = None;
@@ -277,19 +288,15 @@ fn record(args: &Args) -> anyhow::Result<()> {
                 if sub.kind() == FrameKind::Control && is_graph_notice(&data) {
                     // A launcher's notice (node down / up) belongs to every run in progress.
                     for open in files.open.values_mut() {
-                        if let Err(e) = open.writer.write(sub.topic(), sub.kind(), log_time, log_time, &data) {
-                            write_failed += 1;
-                            tracing::error!("dropped a message of `{}`: {e}", sub.topic());
-                        }
+                        open.writer.write(sub.topic(), sub.kind(), log_time, log_time, &data)?;
                     }
                     continue;
                 }
                 let open = files.file(step.run_id)?;
-                if let Err(e) = open.writer.write(sub.topic(), sub.kind(), log_time, log_time, &data) {
-                    write_failed += 1;
-                    tracing::error!("dropped a message of `{}`: {e}", sub.topic());
-                    continue;
-                }
+                // A refused write (a full disk ...) stops the recorder with that one error: the
+                // writer keeps its file as it was after the last flush (`recover` rescues it),
+                // the other open files are finished as the recorder's values drop.
+                open.writer.write(sub.topic(), sub.kind(), log_time, log_time, &data)?;
                 if sub.kind() == FrameKind::Control {
                     let c: msgs::Control = msgs::decode_header(&data)?;
                     node.observe_control(&c);

@@ -83,7 +83,11 @@ fn publisher(node: &runtime::Node, kind: FrameKind, topic: &str) -> anyhow::Resu
     })
 }
 
-fn main() -> anyhow::Result<()> {
+fn main() -> std::process::ExitCode {
+    runtime::exit(try_main())
+}
+
+fn try_main() -> anyhow::Result<()> {
     let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
     let files = recorder::recording_files(&args.input)?;
