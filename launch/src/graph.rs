@@ -15,6 +15,12 @@
 //! [qos]                      # delivery per topic: "reliable" (default) or "best-effort"
 //! "bodies" = "best-effort"   # a reader that falls behind loses old frames, never slows writers
 //!
+//! [security]                 # optional: TLS on every zenoh link (PEM files, relative to this file)
+//! ca = "certs/ca.pem"        # the CA that signs every host's certificate
+//! cert = "certs/{host}.pem"  # `{host}` becomes each host's name
+//! key = "certs/{host}.key"
+//! mutual = true              # default: both ends of a link show a certificate
+//!
 //! [[nodes]]
 //! name = "source"
 //! binary = "dc-bench-bus"
@@ -84,7 +90,41 @@ struct RawFile {
     #[serde(default)]
     qos: BTreeMap<Spanned<String>, Spanned<String>>,
     #[serde(default)]
+    security: Option<Spanned<RawSecurity>>,
+    #[serde(default)]
     nodes: Vec<Spanned<RawNode>>,
+}
+
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+struct RawSecurity {
+    ca: String,
+    cert: String,
+    key: String,
+    #[serde(default = "yes")]
+    mutual: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// TLS on every zenoh link of a graph (`[security]`): the CA, and per host its certificate and key
+/// (absolute paths, `{host}` already replaced).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Security {
+    pub ca: PathBuf,
+    pub certs: BTreeMap<String, (PathBuf, PathBuf)>,
+    pub mutual: bool,
+}
+
+impl Security {
+    /// The TLS files of `host`'s nodes and launcher.
+    pub fn of_host(&self, host: &str) -> Option<runtime::TlsConfig> {
+        let (cert, key) = self.certs.get(host)?;
+        let text = |p: &Path| p.display().to_string();
+        Some(runtime::TlsConfig { ca: text(&self.ca), cert: text(cert), key: text(key), mutual: self.mutual })
+    }
 }
 
 #[derive(Debug, Deserialize, Default)]
@@ -221,6 +261,8 @@ pub struct Graph {
     pub topics: BTreeMap<String, Transport>,
     /// Topics delivered best effort (`[qos]`); the others are reliable.
     pub best_effort: std::collections::BTreeSet<String>,
+    /// TLS on every zenoh link (`[security]`).
+    pub security: Option<Security>,
     pub nodes: Vec<NodeSpec>,
 }
 
@@ -349,6 +391,39 @@ impl Graph {
                 }
             };
         }
+        let security = raw.security.as_ref().and_then(|sec| {
+            let at = sec.span().start;
+            let r = sec.get_ref();
+            let base = Path::new(file).parent().unwrap_or(Path::new("."));
+            let resolve = |p: &str, host: &str| -> PathBuf {
+                let p = PathBuf::from(p.replace("{host}", host));
+                if p.is_absolute() {
+                    p
+                } else {
+                    base.join(p)
+                }
+            };
+            let mut missing = Vec::new();
+            let ca = resolve(&r.ca, "");
+            let mut certs = BTreeMap::new();
+            for host in hosts.keys() {
+                let (cert, key) = (resolve(&r.cert, host), resolve(&r.key, host));
+                missing
+                    .extend([&ca, &cert, &key].into_iter().filter(|p| !p.is_file()).map(|p| p.display().to_string()));
+                certs.insert(host.clone(), (cert, key));
+            }
+            missing.sort();
+            missing.dedup();
+            if missing.is_empty() {
+                Some(Security { ca, certs, mutual: r.mutual })
+            } else {
+                problem(
+                    at,
+                    format!("[security]: no such file: {} (scripts/make-certs.sh makes a test CA)", missing.join(", ")),
+                );
+                None
+            }
+        });
         let mut best_effort = std::collections::BTreeSet::new();
         for (topic, qos) in &raw.qos {
             if msgs::topics::info(topic.get_ref()).is_none() {
@@ -476,8 +551,18 @@ impl Graph {
             hosts,
             topics,
             best_effort,
+            security,
             nodes,
         })
+    }
+
+    /// The scheme of the graph's zenoh endpoints: `tls` when `[security]` is given, else `tcp`.
+    pub fn link_scheme(&self) -> &'static str {
+        if self.security.is_some() {
+            "tls"
+        } else {
+            "tcp"
+        }
     }
 
     /// A graph built in code (`dc eval`, `dc bench`) rather than read from a file: every node on
@@ -521,6 +606,7 @@ impl Graph {
             hosts: [(DEFAULT_HOST.to_string(), default_host())].into(),
             topics: BTreeMap::new(),
             best_effort: Default::default(),
+            security: None,
             nodes: checked,
         })
     }

@@ -39,6 +39,8 @@ pub struct Plan {
     queue_depth: usize,
     /// Topics delivered best effort.
     pub best_effort: std::collections::BTreeSet<String>,
+    /// TLS on every zenoh link.
+    pub security: Option<crate::graph::Security>,
     extra_connect: BTreeMap<String, Vec<String>>,
 }
 
@@ -146,7 +148,7 @@ impl Plan {
             .hosts
             .values()
             .find(|h| h.router)
-            .map(|h| (format!("tcp/{}:{}", h.address, h.zenoh_port), h.name.clone()));
+            .map(|h| (format!("{}/{}:{}", graph.link_scheme(), h.address, h.zenoh_port), h.name.clone()));
         let mut plan = Plan {
             members,
             transports,
@@ -156,6 +158,7 @@ impl Plan {
             namespace: graph.namespace.clone(),
             queue_depth: graph.queue_depth,
             best_effort: graph.best_effort.clone(),
+            security: graph.security.clone(),
             extra_connect: graph.hosts.iter().map(|(n, h)| (n.clone(), h.zenoh_connect.clone())).collect(),
         };
         if plan.router.is_none() {
@@ -169,7 +172,7 @@ impl Plan {
                     .collect();
                 for (i, member) in users.into_iter().enumerate() {
                     let port = if host.zenoh_port == 0 { free_port(&host.address) } else { host.zenoh_port + i as u16 };
-                    plan.endpoints.insert(member, format!("tcp/{}:{port}", host.address));
+                    plan.endpoints.insert(member, format!("{}/{}:{port}", graph.link_scheme(), host.address));
                 }
             }
         }
@@ -183,6 +186,11 @@ impl Plan {
         (launcher && self.multi_host) || self.transports.iter().any(|((m, _), t)| m == member && t.uses_zenoh())
     }
 
+    /// The TLS files of `host`'s nodes, when the graph is secured.
+    pub fn tls_of(&self, host: &str) -> Option<runtime::TlsConfig> {
+        self.security.as_ref().and_then(|s| s.of_host(host))
+    }
+
     /// The bus configuration `member` (on `host`) receives.
     pub fn bus(&self, member: &str, host: &str) -> BusConfig {
         let topics = self
@@ -193,9 +201,12 @@ impl Plan {
             .collect();
         let zenoh = match (&self.router, self.uses_zenoh(member)) {
             (_, false) => ZenohConfig::default(),
-            (Some((endpoint, _)), true) => {
-                ZenohConfig { listen: vec![], connect: vec![endpoint.clone()], mode: Some("client".into()) }
-            }
+            (Some((endpoint, _)), true) => ZenohConfig {
+                listen: vec![],
+                connect: vec![endpoint.clone()],
+                mode: Some("client".into()),
+                tls: self.tls_of(host),
+            },
             (None, true) => ZenohConfig {
                 listen: self.endpoints.get(member).cloned().into_iter().collect(),
                 // A full mesh: zenoh peers do not relay for third parties.
@@ -207,6 +218,7 @@ impl Plan {
                     .chain(self.extra_connect.get(host).into_iter().flatten().cloned())
                     .collect(),
                 mode: None,
+                tls: self.tls_of(host),
             },
         };
         BusConfig {

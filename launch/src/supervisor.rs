@@ -149,7 +149,7 @@ impl LauncherBus {
         let router = match &plan.router {
             Some((endpoint, router_host)) if router_host == host => {
                 tracing::info!(endpoint, "zenoh router for the graph");
-                Some(runtime::open_router(endpoint).map_err(bus_err)?)
+                Some(runtime::open_router(endpoint, plan.tls_of(host).as_ref()).map_err(bus_err)?)
             }
             _ => None,
         };

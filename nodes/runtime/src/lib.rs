@@ -106,6 +106,22 @@ pub struct ZenohConfig {
     /// `peer` (default) or `client` (through a router).
     #[serde(default)]
     pub mode: Option<String>,
+    /// TLS for every link (endpoints are then `tls/...`); None: plain TCP.
+    #[serde(default)]
+    pub tls: Option<TlsConfig>,
+}
+
+/// A node's TLS files (PEM): the graph's CA, and this host's certificate and private key, used
+/// both to accept links and to open them.
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+pub struct TlsConfig {
+    /// The CA every certificate of the graph is signed by.
+    pub ca: String,
+    pub cert: String,
+    pub key: String,
+    /// Mutual TLS: a peer must present a certificate signed by the CA too (not only the side
+    /// that accepts the link).
+    pub mutual: bool,
 }
 
 /// How a node reaches the bus; written by the launcher, read by the runtime.

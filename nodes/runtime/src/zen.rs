@@ -24,7 +24,8 @@ pub(crate) fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, String> 
     let json = |v: &[String]| serde_json::to_string(v).expect("strings serialise");
     let mode = cfg.mode.clone().unwrap_or_else(|| "peer".to_string());
     // Never the zenoh default (every interface): loopback with an OS-chosen port unless told.
-    let listen = if cfg.listen.is_empty() { vec!["tcp/127.0.0.1:0".to_string()] } else { cfg.listen.clone() };
+    let scheme = if cfg.tls.is_some() { "tls" } else { "tcp" };
+    let listen = if cfg.listen.is_empty() { vec![format!("{scheme}/127.0.0.1:0")] } else { cfg.listen.clone() };
     let mut settings = vec![
         ("mode", format!("\"{mode}\"")),
         ("connect/endpoints", json(&cfg.connect)),
@@ -37,10 +38,27 @@ pub(crate) fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, String> 
     } else {
         settings.push(("listen/endpoints", json(&listen)));
     }
+    settings.extend(tls_settings(cfg.tls.as_ref()));
     for (key, value) in settings {
         config.insert_json5(key, &value).map_err(|e| format!("config {key} = {value}: {e}"))?;
     }
     zenoh::open(config).wait().map_err(|e| format!("open session: {e}"))
+}
+
+/// The zenoh settings of `tls`: the same certificate to accept and to open links, signed by the
+/// graph's CA; peers' names (their addresses) are verified.
+fn tls_settings(tls: Option<&crate::TlsConfig>) -> Vec<(&'static str, String)> {
+    let Some(t) = tls else { return Vec::new() };
+    let quoted = |s: &str| serde_json::to_string(s).expect("strings serialise");
+    vec![
+        ("transport/link/tls/root_ca_certificate", quoted(&t.ca)),
+        ("transport/link/tls/listen_certificate", quoted(&t.cert)),
+        ("transport/link/tls/listen_private_key", quoted(&t.key)),
+        ("transport/link/tls/connect_certificate", quoted(&t.cert)),
+        ("transport/link/tls/connect_private_key", quoted(&t.key)),
+        ("transport/link/tls/enable_mtls", t.mutual.to_string()),
+        ("transport/link/tls/verify_name_on_connect", "true".to_string()),
+    ]
 }
 
 fn err(topic: &str, what: impl std::fmt::Display) -> Error {
@@ -150,13 +168,14 @@ impl ZenSubscriber {
 }
 
 /// Opens a zenoh router session listening on `endpoint` (the graph's router, run by a launcher).
-pub fn open_router(endpoint: &str) -> Result<zenoh::Session, String> {
+pub fn open_router(endpoint: &str, tls: Option<&crate::TlsConfig>) -> Result<zenoh::Session, String> {
     let mut config = zenoh::Config::default();
-    let settings = [
+    let mut settings = vec![
         ("mode", "\"router\"".to_string()),
         ("listen/endpoints", serde_json::to_string(&[endpoint]).expect("strings serialise")),
         ("scouting/multicast/enabled", "false".to_string()),
     ];
+    settings.extend(tls_settings(tls));
     for (key, value) in settings {
         config.insert_json5(key, &value).map_err(|e| format!("config {key} = {value}: {e}"))?;
     }
