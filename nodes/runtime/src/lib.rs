@@ -643,7 +643,7 @@ mod tests {
             path: String,
             source: std::io::Error,
         }
-        let io = std::io::Error::new(std::io::ErrorKind::Other, "No space left on device");
+        let io = std::io::Error::other("No space left on device");
         let e = anyhow::Error::new(Shows { path: "a.mcap".into(), source: io }).context("recording");
         assert_eq!(error_text(&e), "recording: a.mcap: No space left on device");
         let plain = anyhow::anyhow!("root").context("middle").context("top");

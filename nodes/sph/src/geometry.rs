@@ -128,7 +128,7 @@ impl GridGeometry {
         let side = |extent: f32, axis: &str| -> Result<usize, SphError> {
             let cells = ((extent as f64 / spacing as f64) - 1e-4).ceil().max(0.0);
             let nodes = ((cells + 1.0) / pad as f64).ceil() * pad as f64;
-            if !(nodes <= MAX_GRID_SIDE as f64) {
+            if nodes.is_nan() || nodes > MAX_GRID_SIDE as f64 {
                 return Err(SphError::BadParameter(format!(
                     "a grid spacing (res) of {spacing} over {extent} (along {axis}) needs {nodes} nodes, above the limit \
                      {MAX_GRID_SIDE} x {MAX_GRID_SIDE} (raise the spacing or narrow the bounds)"
