@@ -63,8 +63,13 @@ pub struct Steps {
 impl Steps {
     /// Steps of `path`: an `.mcap` file or a folder of them.
     pub fn open(path: &Path) -> Result<Steps> {
-        Ok(Steps {
-            files: recording_files(path)?.into(),
+        Ok(Steps::of_files(recording_files(path)?))
+    }
+
+    /// Steps of these recordings, in this order.
+    pub fn of_files(files: Vec<std::path::PathBuf>) -> Steps {
+        Steps {
+            files: files.into(),
             reader: None,
             pending: BTreeMap::new(),
             ready: VecDeque::new(),
@@ -74,7 +79,7 @@ impl Steps {
             problem_seen: false,
             incomplete: 0,
             undecodable: 0,
-        })
+        }
     }
 
     /// At most `window` incomplete steps are held before the oldest is given up.

@@ -145,15 +145,52 @@ impl Split {
 
 /// The simulations in a recording (file or folder), read from its steps.
 pub fn list_simulations(path: &Path) -> Result<BTreeSet<SimKey>> {
-    let mut out = BTreeSet::new();
-    for file in recorder::recording_files(path)? {
-        let info = recorder::Info::read(&file)?;
-        out.extend(info.simulations.keys().copied());
+    Ok(Recordings::survey(path, false)?.simulations)
+}
+
+/// The recordings of a training set that read intact, with their simulations, and those left out.
+#[derive(Debug, Clone)]
+pub struct Recordings {
+    /// What the user named (a file or a folder).
+    pub path: PathBuf,
+    pub files: Vec<PathBuf>,
+    pub simulations: BTreeSet<SimKey>,
+    /// Files left out, with why (`skip_bad`).
+    pub skipped: Vec<(PathBuf, String)>,
+}
+
+impl Recordings {
+    /// Reads every recording of `path` through. A damaged or unreadable one is an error, or with
+    /// `skip_bad` is left out and listed (a folder of overnight recordings with one cut short
+    /// still trains); no usable simulation at all is an error either way.
+    pub fn survey(path: &Path, skip_bad: bool) -> Result<Recordings> {
+        let mut out = Recordings {
+            path: path.to_path_buf(),
+            files: Vec::new(),
+            simulations: BTreeSet::new(),
+            skipped: Vec::new(),
+        };
+        for file in recorder::recording_files(path)? {
+            match recorder::Info::read(&file) {
+                Ok(info) if info.simulations.is_empty() => out.skipped.push((file, "no simulation steps".into())),
+                Ok(info) => {
+                    out.simulations.extend(info.simulations.keys().copied());
+                    out.files.push(file);
+                }
+                Err(e) if skip_bad => out.skipped.push((file, e.to_string())),
+                Err(e) => return Err(e.into()),
+            }
+        }
+        for (file, why) in &out.skipped {
+            tracing::warn!(file = %file.display(), "left out of training: {why}");
+        }
+        if out.simulations.is_empty() {
+            let skipped =
+                if out.skipped.is_empty() { String::new() } else { format!(" ({} files left out)", out.skipped.len()) };
+            return Err(UnetError::Data(format!("{}: no simulation steps recorded{skipped}", path.display())));
+        }
+        Ok(out)
     }
-    if out.is_empty() {
-        return Err(UnetError::Data(format!("{}: no simulation steps recorded", path.display())));
-    }
-    Ok(out)
 }
 
 /// One training example, channel-major (`[channels][height][width]`).
@@ -182,8 +219,17 @@ pub struct SampleStream {
 impl SampleStream {
     /// Samples of `part` from the recording(s) at `path`.
     pub fn open(path: &Path, spec: &GridSpec, split: &Split, part: Part) -> Result<SampleStream> {
+        SampleStream::of(Steps::open(path)?, path, spec, split, part)
+    }
+
+    /// Samples of `part` from the intact recordings of a survey.
+    pub fn open_recordings(data: &Recordings, spec: &GridSpec, split: &Split, part: Part) -> Result<SampleStream> {
+        SampleStream::of(Steps::of_files(data.files.clone()), &data.path, spec, split, part)
+    }
+
+    fn of(steps: Steps, path: &Path, spec: &GridSpec, split: &Split, part: Part) -> Result<SampleStream> {
         Ok(SampleStream {
-            steps: Steps::open(path)?,
+            steps,
             config: spec.transfer_config()?,
             spec: spec.clone(),
             split: split.clone(),

@@ -148,6 +148,10 @@ struct TrainArgs {
     /// Continue from `<out>.checkpoints/`.
     #[arg(long)]
     resume: bool,
+    /// Leave out (and list) recordings of the folder that do not read intact (`--skip-bad
+    /// false`: the first one is an error).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    skip_bad: bool,
     #[arg(long, default_value = "flex")]
     device: String,
 }
@@ -167,6 +171,7 @@ impl TrainArgs {
             validation_fraction: self.validation,
             test_fraction: self.test,
             seed: self.seed,
+            skip_bad: self.skip_bad,
             shuffle_buffer: self.shuffle_buffer,
             max_batches: self.max_batches,
             resume: self.resume,

@@ -62,6 +62,9 @@ pub struct ModelMeta {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct TrainingSummary {
     pub data: String,
+    /// Recordings left out because they did not read intact (`--skip-bad`), with why.
+    #[serde(default)]
+    pub skipped_files: Vec<String>,
     pub epochs: usize,
     pub train_samples: usize,
     pub validation_samples: usize,

@@ -2,7 +2,7 @@
 //! a schedule, validation each epoch, checkpoints with resume, loss curves as PNG, and the
 //! learning-rate finder.
 
-use crate::data::{GridSpec, Normalization, Part, Sample, SampleStream, Split};
+use crate::data::{GridSpec, Normalization, Part, Recordings, Sample, SampleStream, Split};
 use crate::model::{UNet, UNetConfig};
 use crate::modelfile::{ModelFile, ModelMeta, TrainingSummary};
 use crate::schedule::{self, Schedule};
@@ -61,6 +61,8 @@ pub struct TrainOptions {
     pub resume: bool,
     /// Show progress bars.
     pub progress: bool,
+    /// Leave out (and list) recordings that do not read intact, instead of failing.
+    pub skip_bad: bool,
     /// The command line, kept in the model file.
     pub command: String,
 }
@@ -190,14 +192,14 @@ fn optimizer(kind: OptimizerKind) -> ModuleOptimizer {
 pub fn evaluate(
     model: &UNet,
     meta: &ModelMeta,
-    data: &Path,
+    data: &Recordings,
     part: Part,
     split: &Split,
     batch: usize,
     device: &Device,
 ) -> Result<(f64, Option<f64>, usize)> {
     let model = model.valid();
-    let stream = SampleStream::open(data, &meta.grid, split, part)?;
+    let stream = SampleStream::open_recordings(data, &meta.grid, split, part)?;
     let (mut sum, mut sum_prev, mut n) = (0.0f64, 0.0f64, 0usize);
     for samples in batches_in_order(stream, batch) {
         let samples = samples?;
@@ -235,9 +237,8 @@ fn check_shapes(samples: &[Sample], meta: &ModelMeta) -> Result<()> {
 }
 
 /// Splits the data, computes the normalisation, and returns the metadata of a fresh model.
-fn prepare(opts: &TrainOptions) -> Result<(ModelMeta, usize)> {
-    let simulations = crate::data::list_simulations(&opts.data)?;
-    let split = Split::by_simulation(&simulations, opts.validation_fraction, opts.test_fraction, opts.seed);
+fn prepare(opts: &TrainOptions, data: &Recordings) -> Result<(ModelMeta, usize)> {
+    let split = Split::by_simulation(&data.simulations, opts.validation_fraction, opts.test_fraction, opts.seed);
     if split.train.is_empty() {
         return Err(UnetError::Data(format!("{}: no simulation left for training", opts.data.display())));
     }
@@ -247,7 +248,7 @@ fn prepare(opts: &TrainOptions) -> Result<(ModelMeta, usize)> {
         test = split.test.len(),
         "split by simulation"
     );
-    let stream = SampleStream::open(&opts.data, &opts.grid, &split, Part::Train)?;
+    let stream = SampleStream::open_recordings(data, &opts.grid, &split, Part::Train)?;
     let mut shape = None;
     let shaped = stream.map(|s| {
         let s = s?;
@@ -274,6 +275,7 @@ fn prepare(opts: &TrainOptions) -> Result<(ModelMeta, usize)> {
         grid_shape,
         training: TrainingSummary {
             data: opts.data.display().to_string(),
+            skipped_files: data.skipped.iter().map(|(f, why)| format!("{}: {why}", f.display())).collect(),
             train_samples,
             split,
             command: opts.command.clone(),
@@ -309,12 +311,13 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
         )));
     }
     let started = Instant::now();
+    let data = Recordings::survey(&opts.data, opts.skip_bad)?;
     let dir = checkpoint_dir(&opts.out);
     let train_device = device.clone().autodiff();
     let (mut meta, mut model, mut optim, first_epoch, mut step) = match resume_state(opts, &dir, &train_device)? {
         Some(r) => r,
         None => {
-            let (meta, _) = prepare(opts)?;
+            let (meta, _) = prepare(opts, &data)?;
             device.seed(opts.seed);
             train_device.seed(opts.seed);
             let model = meta.config.init(&train_device);
@@ -338,7 +341,7 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
         "training"
     );
     if meta.training.validation_loss_previous.is_none() && !split.validation.is_empty() {
-        let (_, prev, n) = evaluate(&model, &meta, &opts.data, Part::Validation, &split, opts.batch, device)?;
+        let (_, prev, n) = evaluate(&model, &meta, &data, Part::Validation, &split, opts.batch, device)?;
         meta.training.validation_loss_previous = prev;
         meta.training.validation_samples = n;
         if let Some(p) = prev {
@@ -348,7 +351,7 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
     std::fs::create_dir_all(&dir).map_err(|e| UnetError::Io(dir.display().to_string(), e))?;
     let mut step_losses: Vec<(f64, f64)> = Vec::new();
     for epoch in first_epoch..opts.epochs {
-        let stream = SampleStream::open(&opts.data, &meta.grid, &split, Part::Train)?;
+        let stream = SampleStream::open_recordings(&data, &meta.grid, &split, Part::Train)?;
         let mut batcher =
             Batcher::new(stream, opts.shuffle_buffer, opts.seed ^ (epoch as u64 + 1).wrapping_mul(0x9E37_79B9));
         let bar = progress_bar(batches_per_epoch as u64, opts.progress, format!("epoch {}/{}", epoch + 1, opts.epochs));
@@ -382,7 +385,7 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
         }
         bar.finish_and_clear();
         let train_loss = sum / seen.max(1) as f64;
-        let (val_loss, _, _) = evaluate(&model, &meta, &opts.data, Part::Validation, &split, opts.batch, device)?;
+        let (val_loss, _, _) = evaluate(&model, &meta, &data, Part::Validation, &split, opts.batch, device)?;
         meta.training.train_loss.push(train_loss);
         meta.training.validation_loss.push(val_loss);
         meta.training.epochs = epoch + 1;
@@ -499,7 +502,8 @@ pub type LrCurve = (Vec<(f64, f64)>, Option<f64>);
 /// exponentially from `start` to `end`, stops when the loss blows up, writes the curve as CSV and
 /// PNG beside `opts.out`, and returns the curve and the suggested rate.
 pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: &Device) -> Result<LrCurve> {
-    let (meta, _) = prepare(opts)?;
+    let data = Recordings::survey(&opts.data, opts.skip_bad)?;
+    let (meta, _) = prepare(opts, &data)?;
     let train_device = device.clone().autodiff();
     train_device.seed(opts.seed);
     let mut model = meta.config.init(&train_device);
@@ -509,7 +513,7 @@ pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: 
     let bar = progress_bar(steps as u64, opts.progress, "lr finder".into());
     let mut epoch = 0u64;
     let mut batcher = Batcher::new(
-        SampleStream::open(&opts.data, &meta.grid, &meta.training.split, Part::Train)?,
+        SampleStream::open_recordings(&data, &meta.grid, &meta.training.split, Part::Train)?,
         opts.shuffle_buffer,
         opts.seed,
     );
@@ -518,7 +522,7 @@ pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: 
         if samples.is_empty() {
             epoch += 1;
             batcher = Batcher::new(
-                SampleStream::open(&opts.data, &meta.grid, &meta.training.split, Part::Train)?,
+                SampleStream::open_recordings(&data, &meta.grid, &meta.training.split, Part::Train)?,
                 opts.shuffle_buffer,
                 opts.seed + epoch,
             );
