@@ -49,7 +49,8 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
     },
-    /// Train a U-Net warm-start model from recordings (runs `dc-unet train`; `dc train --help`).
+    /// Train a warm-start model from recordings: `--model unet` (default; runs `dc-unet train`)
+    /// or `--model gnn` (runs `dc-gnn-train`); the other arguments go to it (`--help` lists them).
     Train {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
@@ -190,7 +191,8 @@ fn real_main(cli: Cli) -> Result<()> {
         Command::Run { node, args } => exec_node(&node, &args),
         Command::Record { args } => exec_node("record", &args),
         Command::Train { args } => {
-            exec_node("unet", &std::iter::once("train".to_string()).chain(args).collect::<Vec<_>>())
+            let (node, args) = train_command(args)?;
+            exec_node(node, &args)
         }
         Command::List { file } => {
             let graph = Graph::load(&file)?;
@@ -561,6 +563,26 @@ fn unique_namespace(prefix: &str) -> String {
 }
 
 /// Replaces this process with node binary `dc-<node>` (or `<node>`) run with `args`.
+/// The trainer `dc train ARGS` runs and its arguments: `--model gnn` (or `--model=gnn`, anywhere)
+/// picks `dc-gnn-train`, `--model unet` or none `dc-unet train`.
+fn train_command(args: Vec<String>) -> Result<(&'static str, Vec<String>)> {
+    let mut model = None;
+    let mut rest = Vec::with_capacity(args.len());
+    let mut it = args.into_iter();
+    while let Some(a) = it.next() {
+        match a.strip_prefix("--model") {
+            Some("") => model = Some(it.next().context("`--model` needs a value: unet or gnn")?),
+            Some(v) if v.starts_with('=') => model = Some(v[1..].to_string()),
+            _ => rest.push(a),
+        }
+    }
+    match model.as_deref() {
+        None | Some("unet") => Ok(("unet", std::iter::once("train".to_string()).chain(rest).collect())),
+        Some("gnn") => Ok(("gnn-train", rest)),
+        Some(other) => bail!("dc train: unknown model `{other}` (unet or gnn)"),
+    }
+}
+
 fn exec_node(node: &str, args: &[String]) -> Result<()> {
     let program = [format!("dc-{node}"), node.to_string()]
         .iter()
@@ -569,4 +591,25 @@ fn exec_node(node: &str, args: &[String]) -> Result<()> {
     use std::os::unix::process::CommandExt;
     let err = std::process::Command::new(&program).args(args).exec();
     bail!("cannot run {}: {err}", program.display())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(s: &str) -> Vec<String> {
+        s.split_whitespace().map(str::to_string).collect()
+    }
+
+    #[test]
+    fn dc_train_picks_its_trainer_by_model() {
+        let (node, rest) = train_command(args("--data d --out m.dcu")).unwrap();
+        assert_eq!((node, rest), ("unet", args("train --data d --out m.dcu")));
+        let (node, rest) = train_command(args("--data d --model gnn --out m.dcg")).unwrap();
+        assert_eq!((node, rest), ("gnn-train", args("--data d --out m.dcg")));
+        let (node, rest) = train_command(args("--model=unet --epochs 2")).unwrap();
+        assert_eq!((node, rest), ("unet", args("train --epochs 2")));
+        assert!(train_command(args("--model transformer")).unwrap_err().to_string().contains("unknown model"));
+        assert!(train_command(args("--model")).is_err());
+    }
 }
