@@ -75,6 +75,7 @@ pub const MODELS: &[ModelInfo] = &[
     plain("smooth-error", "the oracle plus the smooth part of builtin's error (averaged over the contact graph)"),
     plain("rough-error", "the oracle plus the rest of builtin's error (its local, high-frequency part)"),
     plain("gnn", "the contact-graph network's correction to builtin (in the simulator, `--gnn-model FILE`)"),
+    plain("gnn-node", "the contact-graph network served over the bus by `dc-gnn serve` (warm/gnn), builtin when late or down"),
     plain("copy-grid", "oracle through the value-preserving grid transfer and back"),
     plain("copy-grid-sph", "oracle through the thesis's grid transfer and back"),
     ModelInfo {

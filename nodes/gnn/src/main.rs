@@ -1,6 +1,9 @@
-//! `dc-gnn`: the contact-graph network's tools. `bench` times a prediction for a pile of a given
-//! size on one core (target: <= 0.3 ms for 200 contacts); `info FILE` prints a model file;
-//! `init --out FILE` writes an untrained network (its warm start is builtin's, exactly).
+//! `dc-gnn`: the contact-graph network's node and tools. `dc-gnn --model FILE` is the node: each
+//! step's problem in (`problem/bodies` + `problem/contacts`, which a simulator running `gnn-node`
+//! publishes before it solves), its per-contact warm start out (`warm/gnn`). `bench` times a
+//! prediction for a pile of a given size on one core (target: <= 0.3 ms for 200 contacts);
+//! `info FILE` prints a model file; `init --out FILE` writes an untrained network (its warm start
+//! is builtin's, exactly).
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -11,10 +14,24 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(Parser, Debug)]
-#[command(name = "dc-gnn", about = "Contact-graph network warm start: bench, model files")]
+#[command(
+    name = "dc-gnn",
+    about = "Contact-graph network warm start: the node (default: serves warm starts on the bus); bench, model files",
+    args_conflicts_with_subcommands = true
+)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    serve: ServeArgs,
+}
+
+/// The node's parameters.
+#[derive(clap::Args, Debug)]
+struct ServeArgs {
+    /// The network (`dc train --model gnn` writes one).
+    #[arg(long, default_value = "models/gnn.dcg")]
+    model: PathBuf,
 }
 
 #[derive(Subcommand, Debug)]
@@ -84,8 +101,16 @@ fn main() -> std::process::ExitCode {
 }
 
 fn try_main() -> Result<()> {
-    let Some(cli) = runtime::parse_args::<Cli>() else { return Ok(()) };
-    match cli.command {
+    // A model file that cannot be read fails the launcher's parameter check, not the run.
+    let Some(cli) = runtime::parse_args_checked::<Cli, _>(|c| match &c.command {
+        None => ModelFile::load(&c.serve.model).map(|_| ()),
+        Some(_) => Ok(()),
+    }) else {
+        return Ok(());
+    };
+    runtime::init_logging();
+    let Some(command) = cli.command else { return serve(&cli.serve.model) };
+    match command {
         Command::Bench { contacts, bodies, net: config, reps } => {
             let NetConfig { hidden, rounds } = config;
             let (b, c) = synthetic_pile(bodies, contacts);
@@ -123,5 +148,74 @@ fn try_main() -> Result<()> {
             println!("wrote {}", out.display());
         }
     }
+    Ok(())
+}
+
+/// The node loop: pairs each step's problem bodies and contacts, predicts, publishes.
+fn serve(model: &std::path::Path) -> Result<()> {
+    use msgs::{topics, Contact, ProblemHeader};
+    let file = ModelFile::load(model)?;
+    let mut predictor = Predictor::new(file.net);
+    let node = runtime::Node::from_env("dc-gnn")?;
+    let mut bodies = node.subscriber(topics::PROBLEM_BODIES)?;
+    let mut contacts = node.subscriber(topics::PROBLEM_CONTACTS)?;
+    let mut control = node.subscriber(topics::CONTROL)?;
+    let mut warm = node.publisher(topics::WARM_GNN)?;
+    if !node.ready()? {
+        return Ok(());
+    }
+    tracing::info!(model = %model.display(), made_by = file.provenance, "dc-gnn serving");
+    let mut pairer: sph::StepPairer<Vec<ProblemBody>, (ProblemHeader, Vec<ProblemContact>)> = sph::StepPairer::new();
+    let (mut out, mut reply) = (Vec::new(), Vec::<Contact>::new());
+    let (mut served, mut busy) = (0u64, std::time::Duration::ZERO);
+    while !node.is_shutdown() {
+        while let Some(c) = control.try_recv()? {
+            node.observe_control(c.header());
+        }
+        // The simulator publishes a step's bodies, then its contacts, then waits for the answer.
+        match contacts.recv_timeout(std::time::Duration::from_millis(50)) {
+            Err(_) if node.is_shutdown() => break,
+            other => {
+                if let Some(r) = other? {
+                    pairer.push_b(r.header().step, (*r.header(), r.into_frame().items));
+                }
+            }
+        }
+        while let Some(r) = bodies.try_recv()? {
+            pairer.push_a(*r.header(), r.into_frame().items);
+        }
+        while let Some(r) = contacts.try_recv()? {
+            pairer.push_b(r.header().step, (*r.header(), r.into_frame().items));
+        }
+        while let Some((step, b, (_, c))) = pairer.pop() {
+            let t = Instant::now();
+            out.clear();
+            out.resize(c.len(), [0.0; 2]);
+            predictor.warm_start(&b, &c, &mut out);
+            reply.clear();
+            reply.extend(c.iter().zip(&out).map(|(c, o)| Contact {
+                body_a: c.body_a,
+                body_b: c.body_b,
+                feature: c.feature,
+                nx: c.normal[0],
+                ny: c.normal[1],
+                penetration: c.penetration,
+                friction: c.friction,
+                normal_impulse: o[0],
+                tangent_impulse: o[1],
+                ..Default::default()
+            }));
+            busy += t.elapsed();
+            warm.publish(&step, &reply)?;
+            served += 1;
+        }
+    }
+    let mean_us = if served > 0 { busy.as_secs_f64() * 1e6 / served as f64 } else { 0.0 };
+    tracing::info!(
+        served,
+        mean_us = format!("{mean_us:.1}"),
+        unpaired = pairer.dropped() + pairer.pending() as u64,
+        "dc-gnn done"
+    );
     Ok(())
 }

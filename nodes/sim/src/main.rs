@@ -5,8 +5,7 @@
 use anyhow::{bail, Context, Result};
 use msgs::{ControlMsg, StepHeader};
 use sim::run::{RunSink, RunSpec, StepOutput};
-use sim::source::{BusGridSource, GridInbox, SharedSource, SourceHandle, Waits};
-use sim::warm::GridSource;
+use sim::source::{BusSource, Inbox, SharedSource, SourceHandle, StepFrame, Waits};
 use sim::{
     bench, ModelKind, ModelSpec, SamplerKind, SceneConfig, SceneKind, SimError, SolveParams, WarmStarter, WorldParams,
 };
@@ -156,22 +155,31 @@ impl Args {
     }
 }
 
-/// The grid and control subscribers of a grid-based run, as the grid source reads them.
-struct BusInbox {
-    grids: runtime::Subscriber<msgs::GridHeader, f32>,
+/// The warm-start frames (grids, or per-contact warm starts) and control subscribers of a run whose
+/// model reads another node, as its source reads them.
+struct BusInbox<H: msgs::FrameHeader, T: msgs::FrameItem> {
+    frames: runtime::Subscriber<H, T>,
     control: runtime::Subscriber<msgs::Control, u8>,
     shutdown: runtime::ShutdownSignal,
 }
 
-impl GridInbox for BusInbox {
+impl<H: msgs::FrameHeader, T: msgs::FrameItem> BusInbox<H, T> {
+    /// `frames` with a control subscriber of its own (our own control messages arrive there too;
+    /// the step loop drains it).
+    fn open(node: &runtime::Node, frames: runtime::Subscriber<H, T>) -> Result<Self> {
+        Ok(BusInbox { frames, control: node.subscriber(msgs::topics::CONTROL)?, shutdown: node.shutdown_signal() })
+    }
+}
+
+impl<H: msgs::FrameHeader, T: msgs::FrameItem> Inbox<msgs::Frame<H, T>> for BusInbox<H, T> {
     fn topic(&self) -> &str {
-        self.grids.topic()
+        self.frames.topic()
     }
-    fn try_grid(&mut self) -> Result<Option<msgs::Grid>, String> {
-        self.grids.try_recv().map(|g| g.map(|g| g.into_frame())).map_err(|e| e.to_string())
+    fn try_frame(&mut self) -> Result<Option<msgs::Frame<H, T>>, String> {
+        self.frames.try_recv().map(|g| g.map(|g| g.into_frame())).map_err(|e| e.to_string())
     }
-    fn grid_timeout(&mut self, timeout: Duration) -> Result<Option<msgs::Grid>, String> {
-        self.grids.recv_timeout(timeout).map(|g| g.map(|g| g.into_frame())).map_err(|e| e.to_string())
+    fn frame_timeout(&mut self, timeout: Duration) -> Result<Option<msgs::Frame<H, T>>, String> {
+        self.frames.recv_timeout(timeout).map(|g| g.map(|g| g.into_frame())).map_err(|e| e.to_string())
     }
     fn try_control(&mut self) -> Result<Option<ControlMsg>, String> {
         self.control.try_recv().map(|c| c.map(|c| c.into_frame())).map_err(|e| e.to_string())
@@ -216,7 +224,7 @@ fn check(args: &Args) -> Result<()> {
     }
     let files = sim::ModelFiles { gnn: args.gnn_model.clone() };
     for m in if args.models.is_empty() { std::slice::from_ref(&args.model) } else { args.models.as_slice() } {
-        if !m.is_grid_based() {
+        if !m.is_grid_based() && m.kind != ModelKind::GnnNode {
             m.build_with(args.seed, None, &files)?;
         }
     }
@@ -244,16 +252,22 @@ fn try_main() -> Result<()> {
         contacts: node.publisher(msgs::topics::CONTACTS)?,
         stats: node.publisher(msgs::topics::SOLVE_STATS)?,
         control: node.publisher(msgs::topics::CONTROL)?,
-        problem: if args.publish_problem {
-            Some((node.publisher(msgs::topics::PROBLEM_BODIES)?, node.publisher(msgs::topics::PROBLEM_CONTACTS)?))
+        // `gnn-node` sends each step's problem to its node itself.
+        problem: if args.publish_problem || models.iter().any(|m| m.kind == ModelKind::GnnNode) {
+            let pair = (node.publisher(msgs::topics::PROBLEM_BODIES)?, node.publisher(msgs::topics::PROBLEM_CONTACTS)?);
+            Some(std::rc::Rc::new(std::cell::RefCell::new(pair)))
         } else {
             None
         },
     };
-    // Grid-based runs open their grid and control subscribers for the run only (see `run`).
+    // Runs whose model reads another node open its subscribers for the run only (see `run`).
     for model in &models {
-        if let Some(topic) = model.grid_topic() {
-            node.will_subscribe(topic.name);
+        let topic = match model.kind {
+            ModelKind::GnnNode => Some(msgs::topics::WARM_GNN.name),
+            _ => model.grid_topic().map(|t| t.name),
+        };
+        if let Some(topic) = topic {
+            node.will_subscribe(topic);
             node.will_subscribe(msgs::topics::CONTROL.name);
         }
     }
@@ -290,19 +304,39 @@ struct Publishers {
     contacts: runtime::Publisher<StepHeader, msgs::Contact>,
     stats: runtime::Publisher<msgs::SolveStatsHeader, f32>,
     control: runtime::Publisher<msgs::Control, u8>,
-    /// With --publish-problem.
-    problem: Option<(
-        runtime::Publisher<StepHeader, msgs::ProblemBody>,
-        runtime::Publisher<msgs::ProblemHeader, msgs::ProblemContact>,
-    )>,
+    /// With --publish-problem, or for `gnn-node` (which sends the problem before the solve).
+    problem: Option<std::rc::Rc<std::cell::RefCell<ProblemPublishers>>>,
+}
+
+type ProblemPublishers =
+    (runtime::Publisher<StepHeader, msgs::ProblemBody>, runtime::Publisher<msgs::ProblemHeader, msgs::ProblemContact>);
+
+/// Publishes a step's problem (bodies first: a reader pairs them by step).
+fn publish_problem(pubs: &mut ProblemPublishers, p: &sim::problem::Problem) -> Result<(), SimError> {
+    let err = |topic: &str, e: runtime::Error| SimError::Output(format!("{topic}: {e}"));
+    pubs.0.publish(&p.header.step, &p.bodies).map_err(|e| err("problem/bodies", e))?;
+    pubs.1.publish(&p.header, &p.contacts).map_err(|e| err("problem/contacts", e))
+}
+
+/// What the step loop drains between steps: the source of a model that reads another node.
+trait Drain {
+    fn between_steps(&self, run_id: u64, simulation: u32, step: u32);
+}
+
+impl<F: StepFrame, I: Inbox<F>> Drain for SharedSource<I, F> {
+    fn between_steps(&self, run_id: u64, simulation: u32, step: u32) {
+        self.borrow_mut().between_steps(run_id, simulation, step);
+    }
 }
 
 /// A run's outputs go to the bus; between steps the grid source (if any) drains its inbox.
 struct BusSink<'a> {
     pubs: &'a mut Publishers,
     node: &'a runtime::Node,
-    source: Option<SharedSource<BusInbox>>,
+    source: Option<Box<dyn Drain>>,
     run_id: u64,
+    /// Publish each step's problem after it (--publish-problem; `gnn-node` sends it itself).
+    publish_problem: bool,
 }
 
 impl RunSink for BusSink<'_> {
@@ -314,16 +348,15 @@ impl RunSink for BusSink<'_> {
             return false;
         }
         if let Some(source) = &self.source {
-            source.borrow_mut().between_steps(self.run_id, simulation, step);
+            source.between_steps(self.run_id, simulation, step);
         }
         true
     }
     fn step(&mut self, out: &StepOutput<'_>) -> Result<(), SimError> {
         let err = |topic: &str, e: runtime::Error| SimError::Output(format!("{topic}: {e}"));
         // The problem first: it is what the step started from.
-        if let (Some((bodies, contacts)), Some(p)) = (&mut self.pubs.problem, out.problem) {
-            bodies.publish(&p.header.step, &p.bodies).map_err(|e| err("problem/bodies", e))?;
-            contacts.publish(&p.header, &p.contacts).map_err(|e| err("problem/contacts", e))?;
+        if let (true, Some(pubs), Some(p)) = (self.publish_problem, &self.pubs.problem, out.problem) {
+            publish_problem(&mut pubs.borrow_mut(), p)?;
         }
         self.pubs.bodies.publish(&out.header, out.bodies).map_err(|e| err("bodies", e))?;
         self.pubs.contacts.publish(&out.header, out.contacts).map_err(|e| err("contacts", e))?;
@@ -337,29 +370,40 @@ fn run(args: &Args, node: &runtime::Node, pubs: &mut Publishers, model_kind: Mod
     // back-pressure, and a subscriber nobody reads (another model's run) would fill up and stall
     // the producer, which stalls the simulator in turn (a deadlock seen in `dc eval`). In lockstep
     // at most one grid is outstanding, so the loop cannot fill it.
-    let source: Option<SharedSource<BusInbox>> = match model_kind.grid_topic() {
-        Some(topic) => {
-            let inbox = BusInbox {
-                grids: node.subscriber(topic)?,
-                // Our own control messages arrive here too; the step loop drains it every step.
-                control: node.subscriber(msgs::topics::CONTROL)?,
-                shutdown: node.shutdown_signal(),
-            };
-            let waits = Waits {
-                deadline: args.deadline.0,
-                lockstep_timeout: args.lockstep_timeout,
-                resume_patience: args.resume_patience,
-            };
-            let simulations = spec.seeds.iter().map(|&s| s as u32);
-            Some(std::rc::Rc::new(std::cell::RefCell::new(BusGridSource::new(inbox, waits, simulations))))
-        }
-        None => None,
+    let waits = Waits {
+        deadline: args.deadline.0,
+        lockstep_timeout: args.lockstep_timeout,
+        resume_patience: args.resume_patience,
     };
-    let handle = source.clone().map(|s| Box::new(SourceHandle(s)) as Box<dyn GridSource>);
+    let simulations: Vec<u32> = spec.seeds.iter().map(|&s| s as u32).collect();
     let files = sim::ModelFiles { gnn: args.gnn_model.clone() };
-    let model = model_kind.build_with(args.seed, handle, &files)?;
+    let (model, source): (Box<dyn sim::WarmStartModel>, Option<Box<dyn Drain>>) = match model_kind.grid_topic() {
+        Some(topic) => {
+            let source = std::rc::Rc::new(std::cell::RefCell::new(BusSource::new(
+                BusInbox::open(node, node.subscriber(topic)?)?,
+                waits,
+                simulations,
+            )));
+            let model = model_kind.build_with(args.seed, Some(Box::new(SourceHandle(source.clone()))), &files)?;
+            (model, Some(Box::new(source)))
+        }
+        None if model_kind.kind == ModelKind::GnnNode => {
+            let source = std::rc::Rc::new(std::cell::RefCell::new(BusSource::new(
+                BusInbox::open(node, node.subscriber(msgs::topics::WARM_GNN)?)?,
+                waits,
+                simulations,
+            )));
+            let pubs = pubs.problem.clone().expect("opened for gnn-node");
+            let send: sim::learned::ProblemSender =
+                Box::new(move |p| publish_problem(&mut pubs.borrow_mut(), p).map_err(|e| e.to_string()));
+            let model = Box::new(sim::learned::GnnNodeModel::new(send, Box::new(SourceHandle(source.clone()))));
+            (model, Some(Box::new(source)))
+        }
+        None => (model_kind.build_with(args.seed, None, &files)?, None),
+    };
     let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
-    let mut sink = BusSink { pubs, node, source, run_id: spec.run_id };
+    let publish_problem = args.publish_problem && model_kind.kind != ModelKind::GnnNode;
+    let mut sink = BusSink { pubs, node, source, run_id: spec.run_id, publish_problem };
     let summary = sim::run::run(spec, &mut warm, &mut sink)?;
     // The run's totals on stdout (benchmarks read them).
     println!("{}", summary.line());

@@ -1,34 +1,52 @@
-//! Grids from another node (the SPH node's `grid/contacts`, the U-Net's `grid/unet`) as the warm
-//! start of grid-based models, with the fault handling a graph needs: the launcher's node-down /
-//! node-up notices on `control` say whether the producer is there; a step waits for its grid up to
-//! the deadline (lockstep: up to `lockstep_timeout`, after which the producer counts as lost), at
-//! once falls back while the producer is down, and after it came back waits at most
-//! `resume_patience` until grids flow again.
+//! Warm starts from another node — grids (the SPH node's `grid/contacts`, the U-Net's
+//! `grid/unet`) for grid-based models, per-contact impulses (`dc-gnn serve`'s `warm/gnn`) for
+//! `gnn-node` — with the fault handling a graph needs: the launcher's node-down / node-up notices
+//! on `control` say whether the producer is there; a step waits for its frame up to the deadline
+//! (lockstep: up to `lockstep_timeout`, after which the producer counts as lost), at once falls
+//! back while the producer is down, and after it came back waits at most `resume_patience` until
+//! frames flow again.
 //!
-//! [`GridInbox`] is what the state machine reads; `dc-sim` implements it with bus subscribers,
-//! the tests with scripted queues.
+//! [`Inbox`] is what the state machine reads; `dc-sim` implements it with bus subscribers, the
+//! tests with scripted queues.
 
-use crate::warm::GridSource;
-use msgs::{ControlDetails, ControlKind, ControlMsg, Grid, GridHeader};
+use crate::warm::{ContactWarmSource, GridSource};
+use msgs::{ControlDetails, ControlKind, ControlMsg, Grid, StepHeader};
 use std::cmp::Ordering;
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
-/// The messages a grid source reads.
-pub trait GridInbox {
-    /// The grid topic's name (notices name the topics a dead node published).
+/// A frame that belongs to one step.
+pub trait StepFrame {
+    fn step(&self) -> StepHeader;
+}
+
+impl StepFrame for Grid {
+    fn step(&self) -> StepHeader {
+        self.header.step
+    }
+}
+
+impl StepFrame for msgs::Contacts {
+    fn step(&self) -> StepHeader {
+        self.header
+    }
+}
+
+/// The messages a source reads: frames of one topic, and control.
+pub trait Inbox<F> {
+    /// The frames' topic (notices name the topics a dead node published).
     fn topic(&self) -> &str;
-    /// A waiting grid, if any.
-    fn try_grid(&mut self) -> Result<Option<Grid>, String>;
-    /// A grid, waiting up to `timeout`.
-    fn grid_timeout(&mut self, timeout: Duration) -> Result<Option<Grid>, String>;
+    /// A waiting frame, if any.
+    fn try_frame(&mut self) -> Result<Option<F>, String>;
+    /// A frame, waiting up to `timeout`.
+    fn frame_timeout(&mut self, timeout: Duration) -> Result<Option<F>, String>;
     /// A waiting control message, if any.
     fn try_control(&mut self) -> Result<Option<ControlMsg>, String>;
     /// Whether the node was asked to stop (a lockstep wait must not outlive it).
     fn shutdown(&self) -> bool;
 }
 
-/// Whether the node producing our grids is there, as the launcher's notices tell.
+/// Whether the node producing our frames is there, as the launcher's notices tell.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Producer {
     /// Running: wait up to the deadline (lockstep: up to `lockstep_timeout`).
@@ -40,7 +58,7 @@ pub enum Producer {
     Resuming,
 }
 
-/// How long a grid source waits.
+/// How long a source waits.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Waits {
     /// `None`: lockstep (wait for every grid).
@@ -49,26 +67,26 @@ pub struct Waits {
     pub resume_patience: Duration,
 }
 
-/// The grid of a step from an inbox, waiting as [`Waits`] and the producer's state say; later
-/// grids are kept for their step. The step loop calls [`BusGridSource::between_steps`] every step
-/// so that grids of other simulators sharing the producer, grids of steps that needed none and
+/// The frame of a step from an inbox, waiting as [`Waits`] and the producer's state say; later
+/// frames are kept for their step. The step loop calls [`BusSource::between_steps`] every step
+/// so that frames of other simulators sharing the producer, frames of steps that needed none and
 /// our own control messages never fill a queue (the producer would stall on it while another
 /// simulator waits for its reply).
-pub struct BusGridSource<I> {
+pub struct BusSource<I, F> {
     inbox: I,
     producer: Producer,
     waits: Waits,
-    /// Simulation ids of this simulator: several simulators may share one grid producer.
+    /// Simulation ids of this simulator: several simulators may share one producer.
     simulations: BTreeSet<u32>,
-    pending: Option<Grid>,
+    pending: Option<F>,
 }
 
 /// The longest single wait, so that notices and shutdown are seen while waiting.
 const POLL: Duration = Duration::from_millis(20);
 
-impl<I: GridInbox> BusGridSource<I> {
+impl<F: StepFrame, I: Inbox<F>> BusSource<I, F> {
     pub fn new(inbox: I, waits: Waits, simulations: impl IntoIterator<Item = u32>) -> Self {
-        BusGridSource {
+        BusSource {
             inbox,
             producer: Producer::Up,
             waits,
@@ -81,7 +99,7 @@ impl<I: GridInbox> BusGridSource<I> {
         self.producer
     }
 
-    /// Applies the launcher's notices about the node that publishes our grid topic.
+    /// Applies the launcher's notices about the node that publishes our topic.
     fn read_control(&mut self) {
         loop {
             let c = match self.inbox.try_control() {
@@ -109,31 +127,31 @@ impl<I: GridInbox> BusGridSource<I> {
                 continue;
             }
             if up {
-                tracing::info!(node = notice.node, topic, "grid producer back: resuming");
+                tracing::info!(node = notice.node, topic, "warm-start producer back: resuming");
                 self.producer = Producer::Resuming;
             } else {
-                tracing::warn!(node = notice.node, topic, "grid producer down: falling back until it returns");
+                tracing::warn!(node = notice.node, topic, "warm-start producer down: falling back until it returns");
                 self.producer = Producer::Down;
             }
         }
     }
 
-    /// Before step `step` of `simulation`: reads the notices, and takes every grid waiting,
+    /// Before step `step` of `simulation`: reads the notices, and takes every frame waiting,
     /// keeping only the newest of ours that this step or a later one can use.
     pub fn between_steps(&mut self, run_id: u64, simulation: u32, step: u32) {
         self.read_control();
         loop {
-            let got = match self.inbox.try_grid() {
+            let got = match self.inbox.try_frame() {
                 Ok(Some(g)) => g,
                 Ok(None) => return,
                 Err(e) => {
-                    tracing::warn!("grid subscriber: {e}");
+                    tracing::warn!(topic = self.inbox.topic(), "subscriber: {e}");
                     return;
                 }
             };
-            // Step k is warm-started from the grid made of step k - 1.
-            let h = got.header;
-            if !self.is_ours(run_id, &h) || (h.step.simulation, h.step.step) < (simulation, step.saturating_sub(1)) {
+            // Step k is warm-started from the frame of step k - 1 (grids) or k (per contact).
+            let h = got.step();
+            if !self.is_ours(run_id, &h) || (h.simulation, h.step) < (simulation, step.saturating_sub(1)) {
                 continue;
             }
             self.producer = Producer::Up;
@@ -141,8 +159,8 @@ impl<I: GridInbox> BusGridSource<I> {
         }
     }
 
-    fn is_ours(&self, run_id: u64, h: &GridHeader) -> bool {
-        (run_id == 0 || h.step.run_id == run_id) && self.simulations.contains(&h.step.simulation)
+    fn is_ours(&self, run_id: u64, h: &StepHeader) -> bool {
+        (run_id == 0 || h.run_id == run_id) && self.simulations.contains(&h.simulation)
     }
 
     /// How long a step may wait now; `None` is unbounded (lockstep with the producer up).
@@ -156,13 +174,13 @@ impl<I: GridInbox> BusGridSource<I> {
         }
     }
 
-    /// The grid made of step `step` of `simulation`, or `None` (late, producer down or lost).
-    pub fn grid(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<Grid> {
+    /// The frame made of step `step` of `simulation`, or `None` (late, producer down or lost).
+    pub fn frame(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<F> {
         // Simulations run in increasing id order, so (simulation, step) orders the stream.
         let want = (simulation, step);
-        let key = |h: &GridHeader| (h.step.simulation, h.step.step);
+        let key = |h: StepHeader| (h.simulation, h.step);
         if let Some(p) = self.pending.take() {
-            match key(&p.header).cmp(&want) {
+            match key(p.step()).cmp(&want) {
                 Ordering::Equal => return Some(p),
                 Ordering::Greater => {
                     self.pending = Some(p);
@@ -186,8 +204,8 @@ impl<I: GridInbox> BusGridSource<I> {
                     }
                     if waited >= self.waits.lockstep_timeout {
                         tracing::warn!(
-                            simulation, step, waited = ?waited,
-                            "no grid within --lockstep-timeout: its producer counts as lost; falling back"
+                            simulation, step, waited = ?waited, topic = self.inbox.topic(),
+                            "nothing within --lockstep-timeout: its producer counts as lost; falling back"
                         );
                         self.producer = Producer::Resuming;
                         return None;
@@ -195,20 +213,20 @@ impl<I: GridInbox> BusGridSource<I> {
                     POLL.min(self.waits.lockstep_timeout - waited)
                 }
             };
-            let got = match self.inbox.grid_timeout(slice) {
+            let got = match self.inbox.frame_timeout(slice) {
                 Ok(Some(g)) => g,
                 Ok(None) => continue,
                 Err(e) => {
-                    tracing::warn!("grid subscriber: {e}");
+                    tracing::warn!(topic = self.inbox.topic(), "subscriber: {e}");
                     return None;
                 }
             };
-            if !self.is_ours(run_id, &got.header) {
-                continue; // another run's leftovers, or another simulator's grid
+            if !self.is_ours(run_id, &got.step()) {
+                continue; // another run's leftovers, or another simulator's frame
             }
-            // Grids flow again: back to waiting for each one.
+            // Frames flow again: back to waiting for each one.
             self.producer = Producer::Up;
-            match key(&got.header).cmp(&want) {
+            match key(got.step()).cmp(&want) {
                 Ordering::Less => continue, // stale: its step was already solved
                 Ordering::Equal => return Some(got),
                 Ordering::Greater => {
@@ -220,16 +238,22 @@ impl<I: GridInbox> BusGridSource<I> {
     }
 }
 
-/// A grid source shared by the warm-start model (which asks for grids) and the step loop (which
+/// A source shared by the warm-start model (which asks for frames) and the step loop (which
 /// drains the inbox between steps).
-pub type SharedSource<I> = std::rc::Rc<std::cell::RefCell<BusGridSource<I>>>;
+pub type SharedSource<I, F> = std::rc::Rc<std::cell::RefCell<BusSource<I, F>>>;
 
 /// The warm-start model's handle on a shared source.
-pub struct SourceHandle<I>(pub SharedSource<I>);
+pub struct SourceHandle<I, F>(pub SharedSource<I, F>);
 
-impl<I: GridInbox> GridSource for SourceHandle<I> {
+impl<I: Inbox<Grid>> GridSource for SourceHandle<I, Grid> {
     fn grid(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<Grid> {
-        self.0.borrow_mut().grid(run_id, simulation, step)
+        self.0.borrow_mut().frame(run_id, simulation, step)
+    }
+}
+
+impl<I: Inbox<msgs::Contacts>> ContactWarmSource for SourceHandle<I, msgs::Contacts> {
+    fn warm(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Contacts> {
+        self.0.borrow_mut().frame(run_id, simulation, step)
     }
 }
 
@@ -249,14 +273,14 @@ mod tests {
         shutdown: bool,
     }
 
-    impl GridInbox for Script {
+    impl Inbox<Grid> for Script {
         fn topic(&self) -> &str {
             msgs::topics::GRID_CONTACTS.name
         }
-        fn try_grid(&mut self) -> Result<Option<Grid>, String> {
+        fn try_frame(&mut self) -> Result<Option<Grid>, String> {
             Ok(self.grids.pop_front())
         }
-        fn grid_timeout(&mut self, timeout: Duration) -> Result<Option<Grid>, String> {
+        fn frame_timeout(&mut self, timeout: Duration) -> Result<Option<Grid>, String> {
             self.waits += 1;
             match self.grids.pop_front() {
                 Some(g) => Ok(Some(g)),
@@ -288,10 +312,10 @@ mod tests {
         ControlMsg::node_notice(up, &n)
     }
 
-    fn source(deadline: Option<Duration>) -> BusGridSource<Script> {
+    fn source(deadline: Option<Duration>) -> BusSource<Script, Grid> {
         let waits =
             Waits { deadline, lockstep_timeout: Duration::from_millis(60), resume_patience: Duration::from_millis(30) };
-        BusGridSource::new(Script::default(), waits, [0, 1])
+        BusSource::new(Script::default(), waits, [0, 1])
     }
 
     fn step_of(g: &Option<Grid>) -> Option<(u32, u32)> {
@@ -302,11 +326,11 @@ mod tests {
     fn lockstep_returns_the_grid_of_the_step_and_skips_stale_and_foreign_ones() {
         let mut s = source(None);
         s.inbox.grids.extend([grid(7, 0, 2), grid(8, 0, 4), grid(7, 5, 4), grid(7, 0, 4)]);
-        assert_eq!(step_of(&s.grid(7, 0, 4)), Some((0, 4)), "stale (step 2), other run and other simulator skipped");
+        assert_eq!(step_of(&s.frame(7, 0, 4)), Some((0, 4)), "stale (step 2), other run and other simulator skipped");
         // A later grid is kept for its own step.
         s.inbox.grids.push_back(grid(7, 0, 6));
-        assert_eq!(s.grid(7, 0, 5), None);
-        assert_eq!(step_of(&s.grid(7, 0, 6)), Some((0, 6)));
+        assert_eq!(s.frame(7, 0, 5), None);
+        assert_eq!(step_of(&s.frame(7, 0, 6)), Some((0, 6)));
     }
 
     #[test]
@@ -314,18 +338,18 @@ mod tests {
         let mut s = source(None);
         s.inbox.controls.push_back(notice(false, msgs::topics::GRID_CONTACTS.name));
         let t = Instant::now();
-        assert_eq!(s.grid(7, 0, 1), None);
+        assert_eq!(s.frame(7, 0, 1), None);
         assert_eq!(s.producer(), Producer::Down);
         assert_eq!(s.inbox.waits, 0, "no wait while the producer is down");
         assert!(t.elapsed() < Duration::from_millis(30));
         // Back: a step waits at most the patience (30 ms), not the lockstep timeout.
         s.inbox.controls.push_back(notice(true, msgs::topics::GRID_CONTACTS.name));
-        assert_eq!(s.grid(7, 0, 2), None);
+        assert_eq!(s.frame(7, 0, 2), None);
         assert_eq!(s.producer(), Producer::Resuming);
         assert!(s.inbox.waits >= 1);
         // A grid arrives: unbounded (lockstep) waits again.
         s.inbox.grids.push_back(grid(7, 0, 3));
-        assert_eq!(step_of(&s.grid(7, 0, 3)), Some((0, 3)));
+        assert_eq!(step_of(&s.frame(7, 0, 3)), Some((0, 3)));
         assert_eq!(s.producer(), Producer::Up);
     }
 
@@ -337,7 +361,7 @@ mod tests {
         junk.items = b"\xffjunk".to_vec();
         s.inbox.controls.push_back(junk);
         s.inbox.controls.push_back(ControlMsg::simple(StepHeader::default(), ControlKind::RunStart, 1));
-        assert_eq!(s.grid(7, 0, 1), None);
+        assert_eq!(s.frame(7, 0, 1), None);
         assert_eq!(s.producer(), Producer::Up);
     }
 
@@ -345,7 +369,7 @@ mod tests {
     fn lockstep_timeout_counts_the_producer_as_lost() {
         let mut s = source(None);
         let t = Instant::now();
-        assert_eq!(s.grid(7, 0, 1), None);
+        assert_eq!(s.frame(7, 0, 1), None);
         assert!(t.elapsed() >= Duration::from_millis(60), "waited the lockstep timeout");
         assert_eq!(s.producer(), Producer::Resuming);
     }
@@ -353,11 +377,11 @@ mod tests {
     #[test]
     fn a_deadline_bounds_the_wait_and_shutdown_ends_a_lockstep_wait() {
         let mut s = source(Some(Duration::from_millis(5)));
-        assert_eq!(s.grid(7, 0, 1), None);
+        assert_eq!(s.frame(7, 0, 1), None);
         assert_eq!(s.producer(), Producer::Up, "a late grid is not a lost producer");
         let mut s = source(None);
         s.inbox.shutdown = true;
-        assert_eq!(s.grid(7, 0, 1), None);
+        assert_eq!(s.frame(7, 0, 1), None);
         assert_eq!(s.inbox.waits, 0);
     }
 

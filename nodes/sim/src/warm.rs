@@ -351,6 +351,12 @@ where
     }
 }
 
+/// Delivers the per-contact warm start a node computed from step `step`'s own problem, or `None`
+/// when it is late (the source owns the deadline) or will never come.
+pub trait ContactWarmSource {
+    fn warm(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Contacts>;
+}
+
 /// `grid` / `unet`: the previous step's impulse grid (channels "normal" and "tangent"), sampled
 /// bilinearly at the new contact points.
 pub struct GridModel {
@@ -434,6 +440,8 @@ pub enum ModelKind {
     RoughError,
     /// The contact-graph network.
     Gnn,
+    /// The contact-graph network over the bus.
+    GnnNode,
     /// The exact solution through the value-preserving grid transfer and back.
     CopyGrid,
     /// The exact solution through the thesis's grid transfer and back.
@@ -446,7 +454,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 22] = [
+    pub const ALL: [ModelKind; 23] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -465,6 +473,7 @@ impl ModelKind {
         ModelKind::SmoothError,
         ModelKind::RoughError,
         ModelKind::Gnn,
+        ModelKind::GnnNode,
         ModelKind::CopyGrid,
         ModelKind::CopyGridSph,
         ModelKind::Grid,
@@ -565,6 +574,7 @@ impl ModelSpec {
             ModelKind::SmoothError => ablation(Ablation::SmoothError),
             ModelKind::RoughError => ablation(Ablation::RoughError),
             ModelKind::Gnn => return Err(SimError::NoModelFile(self.name())),
+            ModelKind::GnnNode => return Err(SimError::NoGridSource(self.name())),
             ModelKind::CopyGrid => Box::new(CopyGrid::new(sph::Mode::Preserving)),
             ModelKind::CopyGridSph => Box::new(CopyGrid::new(sph::Mode::Sph)),
             ModelKind::Grid | ModelKind::Unet => return Err(SimError::NoGridSource(self.name())),
