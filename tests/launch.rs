@@ -1,7 +1,10 @@
 //! `dc launch` as users meet it: malformed launch files are refused before anything starts, with
 //! file, line and what is wrong; a node that fails stops the graph, and no process is left behind.
 
-use deep_contact::{launch, text};
+use deep_contact::{bin, launch, scratch_dir, text, unique_namespace};
+use std::io::Read;
+use std::os::unix::process::ExitStatusExt;
+use std::process::{Command, ExitStatus, Output, Stdio};
 use std::time::{Duration, Instant};
 
 fn refused(test: &str, graph: &str) -> String {
@@ -84,6 +87,50 @@ fn parameters_that_would_fail_later_are_refused_before_start() {
     }
 }
 
+/// Runs `dc launch` on `graph` like [`launch`], but fails the test (killing the launcher) if it
+/// has not ended within `limit`: a graph that never stops must not hang the suite.
+fn launch_within(test: &str, graph: &str, limit: Duration) -> Output {
+    let dir = scratch_dir(test);
+    let file = dir.join("graph.toml");
+    std::fs::write(&file, graph).unwrap();
+    let mut child = Command::new(bin("dc"))
+        .arg("launch")
+        .arg(&file)
+        .args(["--namespace", &unique_namespace(test)])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run dc");
+    let drain = |mut pipe: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut bytes = Vec::new();
+            let _ = pipe.read_to_end(&mut bytes);
+            bytes
+        })
+    };
+    let stdout = drain(Box::new(child.stdout.take().unwrap()));
+    let stderr = drain(Box::new(child.stderr.take().unwrap()));
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break Some(status);
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let out = Output {
+        status: status.unwrap_or_else(|| ExitStatus::from_raw(9)),
+        stdout: stdout.join().unwrap(),
+        stderr: stderr.join().unwrap(),
+    };
+    assert!(status.is_some(), "{test}: the graph did not end within {limit:?}:\n{}", text(&out));
+    out
+}
+
 fn pids_with(marker: &str) -> Vec<String> {
     let out = std::process::Command::new("pgrep").args(["-f", marker]).output().expect("pgrep");
     String::from_utf8_lossy(&out.stdout).lines().map(str::to_string).collect()
@@ -106,9 +153,7 @@ binary = "dc-bench-bus"
 params = {{ role = "sink", kind = "grid", timeout-s = 1 }}
 "#
     );
-    let start = Instant::now();
     let (_, out) = launch("failing", &graph, &[]);
-    let elapsed = start.elapsed();
     assert_eq!(out.status.code(), Some(1), "{}", text(&out));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("node `doomed` exited with exit status 1"), "{stderr}");
@@ -117,7 +162,56 @@ params = {{ role = "sink", kind = "grid", timeout-s = 1 }}
     let last = stderr.lines().find(|l| l.starts_with("dc: error: node `doomed` exited")).expect("final error");
     assert!(last.contains("exit status 1: error: ") && last.contains("lost frames"), "{last}");
     assert!(!stderr.contains("Caused by"), "{stderr}");
-    assert!(elapsed < Duration::from_secs(30), "the bystander was not stopped ({elapsed:?})");
+    // The bystander was stopped (it says so), not left to time out and fail a minute later.
+    assert!(stderr.contains("stopped before all frames arrived"), "the bystander was not stopped:\n{stderr}");
+    assert!(!stderr.contains("node `bystander` exited"), "{stderr}");
+    assert!(pids_with(&marker).is_empty(), "orphan processes remain: {:?}", pids_with(&marker));
+}
+
+#[test]
+fn a_node_failing_past_its_restart_bound_stops_the_graph() {
+    // `flaky` fails every time it runs (it waits 0.3 s for frames that never come) and may be
+    // restarted twice; `patient` would wait a minute.
+    let marker = format!("patient-{}", std::process::id());
+    let graph = format!(
+        r#"
+[[nodes]]
+name = "patient"
+binary = "dc-bench-bus"
+params = {{ role = "sink", timeout-s = 60, label = "{marker}" }}
+
+[[nodes]]
+name = "flaky"
+binary = "dc-bench-bus"
+on_failure = "restart"
+max_restarts = 2
+params = {{ role = "sink", kind = "grid", timeout-s = 0.3 }}
+"#
+    );
+    let out = launch_within("restarts", &graph, Duration::from_secs(120));
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    // Started once and restarted twice, then no more.
+    assert_eq!(stderr.matches("[dc] node `flaky` started (pid").count(), 3, "{stderr}");
+    for attempt in 1..=2 {
+        let line = format!("[dc] node `flaky` exited with exit status 1: restarting it ({attempt} of at most 2)");
+        assert!(stderr.contains(&line), "no restart {attempt}:\n{stderr}");
+    }
+    assert!(!stderr.contains("restarting it (3 of"), "{stderr}");
+    assert!(
+        stderr.contains("[dc] node `flaky` exited with exit status 1 after 2 restarts: stopping the graph"),
+        "{stderr}"
+    );
+    let last = stderr.lines().find(|l| l.starts_with("dc: error: ")).expect("final error");
+    assert!(
+        last.starts_with(
+            "dc: error: node `flaky` exited with exit status 1 after 2 restarts (its bound): stopping the graph"
+        ) && last.contains("lost frames"),
+        "{last}"
+    );
+    // The rest of the graph was stopped, not left to fail on its own.
+    assert!(stderr.contains("stopped before all frames arrived"), "`patient` was not stopped:\n{stderr}");
+    assert!(!stderr.contains("node `patient` exited with exit status 1"), "{stderr}");
     assert!(pids_with(&marker).is_empty(), "orphan processes remain: {:?}", pids_with(&marker));
 }
 

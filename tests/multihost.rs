@@ -106,6 +106,73 @@ params = {{ runs = 1, out = "{}" }}
     )
 }
 
+/// A child whose output is collected as it comes, so that a test can wait for one of its lines.
+struct Watched {
+    child: std::process::Child,
+    lines: std::sync::mpsc::Receiver<String>,
+    stdout: std::thread::JoinHandle<Vec<u8>>,
+    stderr: std::thread::JoinHandle<Vec<u8>>,
+}
+
+impl Watched {
+    fn spawn(mut child: std::process::Child) -> Watched {
+        let (tx, lines) = std::sync::mpsc::channel();
+        let read = |pipe: Box<dyn std::io::Read + Send>, tx: std::sync::mpsc::Sender<String>| {
+            std::thread::spawn(move || {
+                let mut all = Vec::new();
+                for line in std::io::BufRead::lines(std::io::BufReader::new(pipe)).map_while(Result::ok) {
+                    all.extend_from_slice(line.as_bytes());
+                    all.push(b'\n');
+                    let _ = tx.send(line);
+                }
+                all
+            })
+        };
+        let stdout = read(Box::new(child.stdout.take().expect("piped stdout")), tx.clone());
+        let stderr = read(Box::new(child.stderr.take().expect("piped stderr")), tx);
+        Watched { child, lines, stdout, stderr }
+    }
+
+    /// Waits until a line of its output satisfies `want`; fails the test after `limit` or when the
+    /// child ends first.
+    fn wait_for(&mut self, what: &str, limit: Duration, want: impl Fn(&str) -> bool) {
+        let deadline = Instant::now() + limit;
+        loop {
+            match self.lines.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
+                Ok(line) if want(&line) => return,
+                Ok(_) => {}
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => panic!("no line `{what}` within {limit:?}"),
+                Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                    let status = self.child.wait().expect("wait");
+                    panic!("ended ({status}) before a line `{what}`")
+                }
+            }
+        }
+    }
+
+    /// Its exit and whole output, failing the test if it has not ended within `limit`.
+    fn finish(mut self, what: &str, limit: Duration) -> std::process::Output {
+        let start = Instant::now();
+        let status = loop {
+            if let Some(status) = self.child.try_wait().expect("wait") {
+                break status;
+            }
+            if start.elapsed() > limit {
+                let _ = self.child.kill();
+                let status = self.child.wait().expect("wait");
+                let out = std::process::Output {
+                    status,
+                    stdout: self.stdout.join().unwrap(),
+                    stderr: self.stderr.join().unwrap(),
+                };
+                panic!("{what} did not finish within {limit:?}\n{}", text(&out));
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        std::process::Output { status, stdout: self.stdout.join().unwrap(), stderr: self.stderr.join().unwrap() }
+    }
+}
+
 fn wait(mut child: std::process::Child, what: &str, limit: Duration) -> std::process::Output {
     let start = Instant::now();
     while child.try_wait().expect("wait").is_none() {
@@ -268,7 +335,9 @@ params = {{ role = "sink", kind = "bodies", n = 1000, count = 100, verify = true
             .spawn()
             .unwrap()
     };
-    // The source's host first: it must wait for the sink's host before anything flows.
+    // The source's host first: it must wait for the sink's host (its launcher retries the router
+    // until it is there) before anything flows. The pause only orders the two starts; the test
+    // passes either way, nothing waits on it for a condition.
     let a = start("a");
     std::thread::sleep(Duration::from_millis(500));
     let b = start("b");
@@ -368,7 +437,13 @@ params = {{ role = "sink", kind = "bodies", n = 1000, count = 100, verify = true
             .unwrap()
     };
     let b = start("b");
-    std::thread::sleep(Duration::from_millis(300));
+    // Host b runs the router: the intruders come once it listens.
+    let listening = Instant::now() + Duration::from_secs(30);
+    let router = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+    while std::net::TcpStream::connect_timeout(&router, Duration::from_millis(200)).is_err() {
+        assert!(Instant::now() < listening, "host b's router does not listen on {router} after 30 s");
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let intruders = [
         intruder("rogue-tls", format!("tls/127.0.0.1:{port}"), Some(rogue_tls)),
         intruder("plain-tcp", format!("tcp/127.0.0.1:{port}"), None),
@@ -476,13 +551,16 @@ params = {{ runs = 1, out = "{}" }}
             .unwrap()
     };
     let mut b = start("b");
-    let a = start("a");
-    // Let the run get going (grids flowing; the whole run takes ~15 s), then take host b away.
-    std::thread::sleep(Duration::from_secs(3));
+    let mut a = Watched::spawn(start("a"));
+    // Let the run get going (its first simulation solved with host b there; the whole run takes
+    // ~15 s), then take host b away.
+    a.wait_for("[sim] ... simulation done", Duration::from_secs(60), |l| {
+        l.starts_with("[sim") && l.contains("simulation done")
+    });
     assert!(b.try_wait().unwrap().is_none(), "host b ended early: {}", text(&b.wait_with_output().unwrap()));
     b.kill().unwrap();
     let _ = b.wait();
-    let out_a = wait(a, "host a after host b vanished", Duration::from_secs(120));
+    let out_a = a.finish("host a after host b vanished", Duration::from_secs(120));
     assert!(out_a.status.success(), "host a: {}", text(&out_a));
     let stdout = String::from_utf8_lossy(&out_a.stdout);
     let summaries = msgs::RunSummary::find_in(stdout.lines()).unwrap();

@@ -7,7 +7,7 @@
 use deep_contact::{bin, scratch_dir, skip_for_missing, text, unique_namespace};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 fn python_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("python")
@@ -22,6 +22,22 @@ fn have_python(test: &str, modules: &str) -> bool {
     let ok = Command::new("python3").args(["-c", &format!("import {modules}")]).output();
     ok.is_ok_and(|o| o.status.success())
         || !skip_for_missing(test, &format!("python3 cannot import {modules} (pip install -r python/requirements.txt)"))
+}
+
+/// Whether process `pid` has a listening TCP socket (its sockets in /proc/PID/fd, matched by inode
+/// with the LISTEN entries of /proc/net/tcp and tcp6).
+fn listens(pid: u32) -> bool {
+    let Ok(fds) = std::fs::read_dir(format!("/proc/{pid}/fd")) else { return false };
+    let inodes: std::collections::HashSet<String> = fds
+        .filter_map(|e| std::fs::read_link(e.ok()?.path()).ok())
+        .filter_map(|l| Some(l.to_str()?.strip_prefix("socket:[")?.strip_suffix(']')?.to_string()))
+        .collect();
+    ["/proc/net/tcp", "/proc/net/tcp6"].iter().filter_map(|f| std::fs::read_to_string(f).ok()).any(|table| {
+        table.lines().skip(1).any(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            f.len() > 9 && f[3] == "0A" && inodes.contains(f[9])
+        })
+    })
 }
 
 /// The `total_sweeps` of the `dc-sim run` summary line in a launcher's output.
@@ -120,7 +136,12 @@ fn python_taps_the_live_statistics_of_the_python_tap_graph() {
         .stderr(Stdio::piped())
         .spawn()
         .expect("start subscribe.py");
-    std::thread::sleep(Duration::from_millis(500));
+    // Its zenoh session is open once it listens (the subscriber is declared right after).
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !listens(tap.id()) {
+        assert!(Instant::now() < deadline, "subscribe.py opened no zenoh session within 30 s");
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let launch_file = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch/python-tap.toml");
     let out = Command::new(bin("dc")).arg("launch").arg(&launch_file).output().unwrap();
     assert!(out.status.success(), "{}", text(&out));

@@ -7,6 +7,7 @@ use burn::tensor::{Device, Distribution, Tensor};
 use msgs::FrameKind;
 use msgs::{ControlKind, ControlMsg, StepHeader};
 use recorder::RecordingWriter;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use unet::data::{list_simulations, Normalization, Part, SampleStream, Split};
 use unet::schedule::Schedule;
@@ -25,9 +26,19 @@ fn values(t: Tensor<4>) -> Vec<f32> {
     t.into_data().try_into_vec::<f32>().unwrap()
 }
 
+/// What was recorded of one step: its bodies and contacts (impulses solved).
+type Recorded = BTreeMap<(u32, u32), (Vec<msgs::Body>, Vec<msgs::Contact>)>;
+
 /// A recording of real simulations (the sim library, ball-box with 20 balls in the thesis box),
 /// laid out as `dc-record` writes it.
 fn record_simulations(path: &Path, run_id: u64, seeds: &[u64], steps: u32) {
+    record_settled_simulations(path, run_id, seeds, 0, steps);
+}
+
+/// [`record_simulations`] of steps `settle..settle + steps` (the first `settle` are simulated, not
+/// recorded). Returns what it recorded per (simulation, step), kept here rather than read back, so
+/// that tests compare samples with the simulation itself.
+fn record_settled_simulations(path: &Path, run_id: u64, seeds: &[u64], settle: u32, steps: u32) -> Recorded {
     use sim::{ModelKind, SceneConfig, WarmStarter, World, WorldParams};
     let mut w = RecordingWriter::create(path).unwrap();
     let mut t = 1_000_000_000u64;
@@ -38,22 +49,66 @@ fn record_simulations(path: &Path, run_id: u64, seeds: &[u64], steps: u32) {
     let run = StepHeader { run_id, simulation: 0, step: 0 };
     put(&mut w, "control", msgs::encode(&ControlMsg::simple(run, ControlKind::RunStart, seeds.len() as u32)).unwrap());
     let (mut bodies, mut contacts) = (Vec::new(), Vec::new());
+    let mut recorded = Recorded::new();
     for &seed in seeds {
         let config = SceneConfig { n: 20, seed, side: Some(15.0), ..SceneConfig::default() };
         let mut world = World::new(&config, WorldParams::default()).unwrap();
         world.set_ids(run_id, seed as u32);
         let mut warm = WarmStarter::new(ModelKind::Builtin.build(seed).unwrap(), ModelKind::None.build(seed).unwrap());
         warm.begin_simulation(seed as u32, seed);
-        for step in 0..steps {
+        for _ in 0..settle {
+            world.step(&mut warm);
+        }
+        for step in settle..settle + steps {
             world.step(&mut warm);
             world.body_msgs(&mut bodies);
             world.contact_msgs(&mut contacts);
             let h = StepHeader { run_id, simulation: seed as u32, step };
             put(&mut w, "bodies", msgs::encode(&msgs::Frame::new(h, bodies.clone())).unwrap());
             put(&mut w, "contacts", msgs::encode(&msgs::Frame::new(h, contacts.clone())).unwrap());
+            recorded.insert((seed as u32, step), (bodies.clone(), contacts.clone()));
         }
     }
     w.finish().unwrap();
+    recorded
+}
+
+/// Every trainable float parameter of a model, in the module's order (not the batch-norm running
+/// statistics: buffers every training forward pass moves, which an optimiser step does not bound).
+fn weights(model: &unet::UNet) -> Vec<f32> {
+    #[derive(Default)]
+    struct Collect {
+        path: Vec<String>,
+        values: Vec<f32>,
+    }
+    impl burn::module::ModuleVisitor for Collect {
+        fn enter_module(&mut self, name: &str, _: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _: &str, _: &str) {
+            self.path.pop();
+        }
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+            if !self.path.last().is_some_and(|p| p.starts_with("running_")) {
+                self.values.extend(param.val().into_data().try_into_vec::<f32>().unwrap());
+            }
+        }
+    }
+    let mut c = Collect::default();
+    model.visit(&mut c);
+    c.values
+}
+
+fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+/// Equal up to float rounding (1e-6 of the largest value).
+fn assert_close(got: &[f32], expected: &[f32], what: &str) {
+    let scale = expected.iter().map(|v| v.abs()).fold(1e-6f32, f32::max);
+    let worst = max_abs_diff(got, expected);
+    assert!(worst <= 1e-6 * scale, "{what}: differs by {worst} (values up to {scale})");
 }
 
 fn small_spec() -> GridSpec {
@@ -265,9 +320,22 @@ fn a_grid_of_the_wrong_size_or_channels_is_rejected_with_both_shapes() {
     let predictor = Predictor::new(&config.init(&d), meta_for(&config, [64, 64]), &d);
     let names: Vec<String> = small_spec().input_channels();
     let names: Vec<&str> = names.iter().map(String::as_str).collect();
-    let good = msgs::Grid::zeros(StepHeader { run_id: 1, simulation: 3, step: 9 }, [0.0, 0.0], 0.25, 64, 64, &names);
+    let mut good =
+        msgs::Grid::zeros(StepHeader { run_id: 1, simulation: 3, step: 9 }, [0.0, 0.0], 0.25, 64, 64, &names);
+    // Previous impulses in the input (channels 5, 6): the change channels subtract them.
+    let plane = 64 * 64;
+    for (i, v) in good.items[5 * plane..7 * plane].iter_mut().enumerate() {
+        *v = (i % 13) as f32 * 0.1;
+    }
     let out = predictor.predict(&good).unwrap();
-    assert_eq!((out.header.width, out.header.height, out.header.channels), (64, 64, 2));
+    // A temporal model: normal, tangent, and the predicted change of each (for `unet-delta`).
+    assert_eq!((out.header.width, out.header.height, out.header.channels), (64, 64, 4));
+    let channel = |name: &str| out.channel_data(out.header.channel(name).unwrap()).to_vec();
+    for (value, change, before) in [("normal", "d_normal", 5), ("tangent", "d_tangent", 6)] {
+        let (v, d) = (channel(value), channel(change));
+        let prev = &good.items[before * plane..(before + 1) * plane];
+        assert!(v.iter().zip(&d).zip(prev).all(|((v, d), p)| (v - p - d).abs() <= 1e-6 * (1.0 + v.abs())), "{change}");
+    }
     assert_eq!(out.header.step, good.header.step);
 
     let small = msgs::Grid::zeros(StepHeader { run_id: 1, simulation: 3, step: 9 }, [0.0, 0.0], 0.25, 61, 61, &names);
@@ -309,12 +377,16 @@ fn normalisation_round_trips_and_residual_channels_share_the_target_statistics()
     assert_eq!(norm.target_std, vec![1.0, 2.0], "a constant channel gets std 1, not 0");
 }
 
+/// Steps simulated before the dataset test's recording starts (the balls have landed by then).
+const SETTLE: u32 = 150;
+
 #[test]
 fn samples_pair_consecutive_steps_of_one_simulation_and_the_split_is_by_simulation() {
     let dir = scratch("dataset");
     let file = dir.join("sims.mcap");
     let seeds: Vec<u64> = (1000..1010).collect();
-    record_simulations(&file, 5, &seeds, 6);
+    // Recorded from step SETTLE on, once the balls have landed: every step has contacts.
+    let recorded = record_settled_simulations(&file, 5, &seeds, SETTLE, 6);
     let sims = list_simulations(&file).unwrap();
     assert_eq!(sims.len(), 10);
     let split = Split::by_simulation(&sims, 0.2, 0.1, 7);
@@ -322,23 +394,47 @@ fn samples_pair_consecutive_steps_of_one_simulation_and_the_split_is_by_simulati
     assert!(split.train.is_disjoint(&split.validation) && split.train.is_disjoint(&split.test));
     assert_eq!(split, Split::by_simulation(&sims, 0.2, 0.1, 7), "same seed, same split");
     let spec = small_spec();
-    let mut total = 0;
+    // The impulse grid (normal, tangent) of the contacts recorded at step `of` of simulation `sim`,
+    // over that simulation's box, made here from what the simulation produced.
+    let impulses_grid = |sim: u32, of: u32| -> Vec<f32> {
+        let (bodies, contacts) = &recorded[&(sim, of)];
+        let mut t = sph::Transfer::new(spec.transfer_config().unwrap(), spec.geometry(bodies).unwrap()).unwrap();
+        t.contacts_grid(StepHeader { run_id: 5, simulation: sim, step: of }, contacts).unwrap().0.items
+    };
+    let nodes = 64 * 64;
+    let (mut total, mut moved, mut with_impulses) = (0, 0, 0);
     for part in [Part::Train, Part::Validation, Part::Test] {
         for s in SampleStream::open(&file, &spec, &split, part).unwrap() {
             let s = s.unwrap();
             assert!(split.of(part).contains(&(s.key.run_id, s.key.simulation)));
-            // Steps 0..4 are inputs (5 is only a target): 5 samples per simulation, none across.
-            assert!(s.key.step < 5, "{:?}", s.key);
+            // 5 of the 6 recorded steps are inputs (the last is only a target): 5 samples per
+            // simulation, none across.
+            assert!((SETTLE..SETTLE + 5).contains(&s.key.step), "{:?}", s.key);
             assert_eq!((s.height, s.width), (64, 64));
             assert_eq!(s.input.len(), 7 * 64 * 64);
             assert_eq!(s.target.len(), 2 * 64 * 64);
+            let (sim, k) = (s.key.simulation, s.key.step);
+            // The target is the next step's impulses; the input's previous impulses are step k's.
+            let next = impulses_grid(sim, k + 1);
+            let own = impulses_grid(sim, k);
+            let what = format!("simulation {sim} step {k}");
+            assert_close(&s.target, &next, &format!("{what}: target vs step {}'s impulses", k + 1));
+            assert_close(&s.input[5 * nodes..], &own, &format!("{what}: prev_normal/prev_tangent vs its own impulses"));
+            moved += usize::from(max_abs_diff(&own, &next) > 1e-6);
+            with_impulses += usize::from(next.iter().any(|v| *v != 0.0));
             total += 1;
         }
     }
     assert_eq!(total, 10 * 5);
-    // The first sample of each simulation: its "previous impulses" are that simulation's step 0.
+    // The comparison has power: a target paired with step k instead of k + 1 would differ.
+    assert!(
+        with_impulses == total && moved == total,
+        "{moved} of {total} samples change from k to k + 1, {with_impulses} have impulses"
+    );
+    // The first sample of each simulation: its "previous impulses" are that simulation's first
+    // recorded step.
     let first = SampleStream::open(&file, &spec, &split, Part::Train).unwrap().next().unwrap().unwrap();
-    assert_eq!(first.key.step, 0);
+    assert_eq!(first.key.step, SETTLE);
 }
 
 fn train_options(data: &Path, out: &Path) -> TrainOptions {
@@ -359,6 +455,7 @@ fn train_options(data: &Path, out: &Path) -> TrainOptions {
         max_batches: 3,
         resume: false,
         progress: false,
+        skip_bad: true,
         command: "test".into(),
     }
 }
@@ -367,7 +464,8 @@ fn train_options(data: &Path, out: &Path) -> TrainOptions {
 fn training_writes_a_usable_model_and_resume_continues_where_it_stopped() {
     let dir = scratch("train");
     let data = dir.join("data.mcap");
-    record_simulations(&data, 9, &[1000, 1001, 1002, 1003], 8);
+    // Landed balls: contacts, so a non-zero loss that moves the weights.
+    record_settled_simulations(&data, 9, &[1000, 1001, 1002, 1003], SETTLE, 8);
     let out = dir.join("model.dcu");
     let d = device();
     let mut opts = train_options(&data, &out);
@@ -378,13 +476,37 @@ fn training_writes_a_usable_model_and_resume_continues_where_it_stopped() {
     assert!(meta.training.validation_loss_previous.is_some());
     assert!(out.with_extension("loss.png").is_file() && out.with_extension("steps.png").is_file());
     let first_train_loss = meta.training.train_loss.clone();
+    assert!(first_train_loss[0] > 0.0, "nothing to learn: {first_train_loss:?}");
+    // The checkpoint holds the weights of epoch 1 (those of the model file written).
+    let checkpoint = dir.join("model.dcu.checkpoints").join("model.dcu");
+    let saved = ModelFile::load(&checkpoint, &d).unwrap();
+    let after_one = weights(&saved.model);
+    assert_eq!(after_one, weights(&ModelFile::load(&out, &d).unwrap().model));
+    // Plant weights no fresh start makes (the same network initialised from another seed): resume
+    // must continue from them, not from its own initialisation nor from epoch 1's weights.
+    d.seed(77);
+    let planted_model = small_net().init(&d);
+    let planted = weights(&planted_model);
+    let apart = max_abs_diff(&planted, &after_one);
+    assert!(apart > 0.1, "the planted weights differ from epoch 1's by only {apart}");
+    ModelFile::save(&saved.meta, &planted_model, &checkpoint).unwrap();
 
     opts.epochs = 2;
     opts.resume = true;
     let meta = unet::train::train(&opts, &d).unwrap();
     assert_eq!(meta.training.epochs, 2);
-    assert_eq!(meta.training.train_loss[..1], first_train_loss[..], "epoch 1 kept, epoch 2 added");
-    assert_eq!(meta.training.train_loss.len(), 2);
+    assert_eq!(meta.training.train_loss.len(), 2, "epoch 1 kept, epoch 2 added");
+    // Kept through the checkpoint's JSON (serde_json may round the last bit of an f64).
+    let kept = meta.training.train_loss[0];
+    assert!((kept - first_train_loss[0]).abs() <= 1e-12 * first_train_loss[0], "{kept} vs {first_train_loss:?}");
+    // One epoch is 3 Adam steps at lr 1e-3: no weight moves by more than ~4 lr per step, 0.012.
+    let resumed = weights(&ModelFile::load(&out, &d).unwrap().model);
+    let (from_planted, from_one) = (max_abs_diff(&resumed, &planted), max_abs_diff(&resumed, &after_one));
+    assert!(
+        from_planted > 0.0 && from_planted <= 0.012,
+        "the resumed model is {from_planted} from the checkpoint's weights and {from_one} from epoch 1's: \
+         it did not continue from the checkpoint"
+    );
 
     // The written model predicts a recorded frame's grid.
     let predictor = Predictor::load(&out, &d).unwrap();
@@ -446,4 +568,33 @@ fn libtorch_and_flex_predict_the_same_from_one_model_file() {
     let worst = a.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
     let scale = a.iter().map(|v| v.abs()).fold(0.0f32, f32::max).max(1e-6);
     assert!(worst <= 1e-4 * scale.max(1.0), "flex and libtorch differ by {worst} (outputs up to {scale})");
+}
+
+#[test]
+fn a_damaged_recording_in_the_training_folder_is_left_out_and_listed() {
+    let dir = scratch("skip-bad");
+    let data = dir.join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    record_simulations(&data.join("a.mcap"), 9, &[1000, 1001, 1002, 1003], 8);
+    // A recording cut short mid-chunk (a recorder killed by a full disk, say).
+    record_simulations(&data.join("b.mcap"), 10, &[1004, 1005], 8);
+    let b = std::fs::read(data.join("b.mcap")).unwrap();
+    std::fs::write(data.join("b.mcap"), &b[..b.len() * 2 / 3]).unwrap();
+
+    let mut opts = train_options(&data, &dir.join("m.dcu"));
+    opts.epochs = 1;
+    let meta = unet::train::train(&opts, &device()).unwrap();
+    assert_eq!(meta.training.skipped_files.len(), 1, "{:?}", meta.training.skipped_files);
+    assert!(meta.training.skipped_files[0].contains("b.mcap"), "{:?}", meta.training.skipped_files);
+    // Only a.mcap's four simulations were split.
+    let split = &meta.training.split;
+    let all: Vec<_> = split.train.iter().chain(&split.validation).chain(&split.test).collect();
+    assert_eq!(all.len(), 4);
+    assert!(all.iter().all(|(run, _)| *run == 9), "{all:?}");
+
+    // Without --skip-bad the damaged file stops training, named.
+    opts.skip_bad = false;
+    opts.out = dir.join("m2.dcu");
+    let e = unet::train::train(&opts, &device()).unwrap_err().to_string();
+    assert!(e.contains("b.mcap"), "{e}");
 }
