@@ -90,6 +90,12 @@ pub const MODELS: &[ModelInfo] = &[
         param: None,
         about: "the U-Net's predicted impulse grid",
     },
+    ModelInfo {
+        name: "unet-delta",
+        grid_topic: Some(topics::GRID_UNET.name),
+        param: None,
+        about: "builtin plus the U-Net's predicted change on persisting contacts, its value on new ones",
+    },
 ];
 
 /// The model of a name, without a parameter (`blend`, not `blend:0.5`).

@@ -358,16 +358,24 @@ pub trait ContactWarmSource {
 }
 
 /// `grid` / `unet`: the previous step's impulse grid (channels "normal" and "tangent"), sampled
-/// bilinearly at the new contact points.
+/// bilinearly at the new contact points. `unet-delta` (the U-Net's fair second chance): builtin's
+/// own impulse on persisting contacts plus the grid's predicted change there (channels
+/// "d_normal", "d_tangent"), the grid's value on new contacts.
 pub struct GridModel {
     name: &'static str,
     source: Box<dyn GridSource>,
+    delta: bool,
 }
 
 impl GridModel {
     /// A grid-based model called `name` fed by `source`.
     pub fn new(name: &'static str, source: Box<dyn GridSource>) -> GridModel {
-        GridModel { name, source }
+        GridModel { name, source, delta: false }
+    }
+
+    /// Builtin plus the grid's predicted change on persisting contacts.
+    pub fn delta(name: &'static str, source: Box<dyn GridSource>) -> GridModel {
+        GridModel { name, source, delta: true }
     }
 }
 
@@ -393,9 +401,21 @@ impl WarmStartModel for GridModel {
             return Err(Unavailable("grid holds fewer values than its header announces".into()));
         }
         let (normal, tangent) = (grid.channel_data(cn), grid.channel_data(ct));
+        let change = match (self.delta, grid.header.channel("d_normal"), grid.header.channel("d_tangent")) {
+            (false, _, _) => None,
+            (true, Some(dn), Some(dt)) => Some((grid.channel_data(dn), grid.channel_data(dt))),
+            (true, _, _) => {
+                return Err(Unavailable("grid lacks `d_normal` / `d_tangent` (a temporal U-Net makes them)".into()))
+            }
+        };
         for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
-            o.normal = sample_bilinear(&grid.header, normal, c.point.x, c.point.y);
-            o.tangent = sample_bilinear(&grid.header, tangent, c.point.x, c.point.y);
+            let sample = |field: &[f32]| sample_bilinear(&grid.header, field, c.point.x, c.point.y);
+            *o = match (change, input.history.previous(&c.key)) {
+                (Some((dn, dt)), Some(before)) => {
+                    Impulse { normal: before.normal + sample(dn), tangent: before.tangent + sample(dt) }
+                }
+                _ => Impulse { normal: sample(normal), tangent: sample(tangent) },
+            };
         }
         Ok(())
     }
@@ -450,11 +470,13 @@ pub enum ModelKind {
     Grid,
     /// Impulse grid predicted by the U-Net.
     Unet,
+    /// Builtin plus the U-Net's predicted change on persisting contacts.
+    UnetDelta,
 }
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 23] = [
+    pub const ALL: [ModelKind; 24] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -478,6 +500,7 @@ impl ModelKind {
         ModelKind::CopyGridSph,
         ModelKind::Grid,
         ModelKind::Unet,
+        ModelKind::UnetDelta,
     ];
 
     /// The model's row in the contract's model table (`msgs::models::MODELS`, same order).
@@ -577,7 +600,9 @@ impl ModelSpec {
             ModelKind::GnnNode => return Err(SimError::NoGridSource(self.name())),
             ModelKind::CopyGrid => Box::new(CopyGrid::new(sph::Mode::Preserving)),
             ModelKind::CopyGridSph => Box::new(CopyGrid::new(sph::Mode::Sph)),
-            ModelKind::Grid | ModelKind::Unet => return Err(SimError::NoGridSource(self.name())),
+            ModelKind::Grid | ModelKind::Unet | ModelKind::UnetDelta => {
+                return Err(SimError::NoGridSource(self.name()))
+            }
         })
     }
 
@@ -588,6 +613,7 @@ impl ModelSpec {
         source: Option<Box<dyn GridSource>>,
     ) -> Result<Box<dyn WarmStartModel>, SimError> {
         match (self.is_grid_based(), source) {
+            (true, Some(s)) if self.kind == ModelKind::UnetDelta => Ok(Box::new(GridModel::delta(self.kind.name(), s))),
             (true, Some(s)) => Ok(Box::new(GridModel::new(self.kind.name(), s))),
             _ => self.build(seed),
         }
@@ -761,6 +787,36 @@ mod tests {
         // A solve at its cap converges at a rate near 1: the factor stays bounded.
         assert!(Continue::factor(1.0, 1.0).is_finite() && Continue::factor(1.0, 1.0) <= 200.0);
         assert_eq!(Continue::factor(1.0, 0.0), 0.0);
+    }
+
+    #[test]
+    fn unet_delta_adds_the_predicted_change_to_builtin_on_persisting_contacts_only() {
+        let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
+        let mut history = ImpulseHistory::default();
+        history.push([point(1).key].into_iter(), &[imp(1.0, 0.1)], ImpulseHistory::no_trail());
+        // A uniform grid: value (2, 0.2), change (0.5, -0.05), over the contacts at the origin.
+        let source = |_: u64, _: u32, step: u32| {
+            let mut g = msgs::Grid::zeros(
+                msgs::StepHeader { run_id: 0, simulation: 0, step },
+                [-1.0, -1.0],
+                1.0,
+                3,
+                3,
+                &["normal", "tangent", "d_normal", "d_tangent"],
+            );
+            for (c, v) in [2.0, 0.2, 0.5, -0.05].into_iter().enumerate() {
+                g.items[c * 9..(c + 1) * 9].fill(v);
+            }
+            Some(g)
+        };
+        let contacts = [point(1), point(2)];
+        let mut delta = GridModel::delta("unet-delta", Box::new(source));
+        let g = guess(&mut delta, &contacts, &history);
+        assert!((g[0].normal - 1.5).abs() < 1e-6 && (g[0].tangent - 0.05).abs() < 1e-6, "builtin + change: {g:?}");
+        assert!((g[1].normal - 2.0).abs() < 1e-6 && (g[1].tangent - 0.2).abs() < 1e-6, "a new contact: the value");
+        // The plain model overwrites every contact with the grid's value.
+        let g = guess(&mut GridModel::new("unet", Box::new(source)), &contacts, &history);
+        assert!((g[0].normal - 2.0).abs() < 1e-6, "{g:?}");
     }
 
     #[test]

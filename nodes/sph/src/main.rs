@@ -78,12 +78,26 @@ fn run_node(args: NodeArgs) -> Result<()> {
     let mut transfer: Option<Transfer> = None;
     let mut simulation: Option<(u64, u32)> = None;
     let (mut steps, mut outside_total, mut failed) = (0u64, 0u64, 0u64);
+    // The node ends once every run it saw start has ended (and the last frames are drained):
+    // several simulators may share it (`dc eval --jobs N`), each with several runs, so one run's
+    // end is not the end of the work.
     let mut run_ended: Option<Instant> = None;
+    let mut open_runs = std::collections::BTreeSet::new();
     while !node.is_shutdown() {
         while let Some(c) = control.try_recv()? {
             node.observe_control(c.header());
-            if c.header().kind() == Some(ControlKind::RunEnd) {
-                run_ended = Some(Instant::now());
+            match c.header().kind() {
+                Some(ControlKind::RunStart) => {
+                    open_runs.insert(c.header().step.run_id);
+                    run_ended = None;
+                }
+                Some(ControlKind::RunEnd) => {
+                    open_runs.remove(&c.header().step.run_id);
+                    if open_runs.is_empty() {
+                        run_ended = Some(Instant::now());
+                    }
+                }
+                _ => {}
             }
         }
         // Wait on the stream that is behind, so a step goes out as soon as its second half lands.

@@ -1,5 +1,7 @@
 //! Inference: a received bodies grid in, the predicted impulse grid out (de-normalised, with the
-//! input's geometry so the simulator samples it where the nodes really are).
+//! input's geometry so the simulator samples it where the nodes really are). A temporal model's
+//! output also carries the predicted *change*, `d_normal` / `d_tangent` (prediction minus the
+//! input's previous impulses), which the `unet-delta` warm start adds to builtin's impulses.
 
 use crate::model::UNet;
 use crate::modelfile::{ModelFile, ModelMeta};
@@ -8,6 +10,9 @@ use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use msgs::Grid;
 use std::path::Path;
+
+/// The change channels a temporal model's output carries after `normal` and `tangent`.
+pub const DELTA_CHANNELS: [&str; 2] = ["d_normal", "d_tangent"];
 
 /// A loaded model ready to predict.
 pub struct Predictor {
@@ -95,13 +100,33 @@ impl Predictor {
             .try_into_vec::<f32>()
             .map_err(|e| UnetError::Input(format!("reading the prediction: {e:?}")))?;
         let per = c_out * h * w;
-        let names: Vec<&str> = self.meta.output_channels.iter().map(String::as_str).collect();
+        let mut names: Vec<&str> = self.meta.output_channels.iter().map(String::as_str).collect();
+        // The input channels of the previous impulses, matching the outputs (normal, tangent).
+        let previous: Option<Vec<usize>> = sph::TEMPORAL_CHANNELS
+            .iter()
+            .map(|p| self.meta.input_channels.iter().position(|c| c == p))
+            .collect::<Option<Vec<usize>>>()
+            .filter(|p| p.len() == c_out);
+        if previous.is_some() {
+            names.extend(DELTA_CHANNELS);
+        }
         grids
             .iter()
             .zip(y.chunks_exact(per))
             .map(|(g, chunk)| {
                 let mut values = chunk.to_vec();
                 self.meta.normalization.denormalize_target(&mut values);
+                if let Some(previous) = &previous {
+                    let plane = h * w;
+                    for (c, &p) in previous.iter().enumerate() {
+                        let delta: Vec<f32> = values[c * plane..(c + 1) * plane]
+                            .iter()
+                            .zip(&g.items[p * plane..(p + 1) * plane])
+                            .map(|(predicted, before)| predicted - before)
+                            .collect();
+                        values.extend(delta);
+                    }
+                }
                 let geometry = sph::GridGeometry::from_header(&g.header);
                 let header = geometry.header(g.header.step, &names).map_err(|e| UnetError::Input(e.to_string()))?;
                 Ok(Grid::new(header, values))
