@@ -269,3 +269,18 @@ fn eval_feeds_the_unet_the_grids_its_model_file_asks_for_and_refuses_a_non_model
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("README.md") && stderr.contains("not a Deep Contact U-Net model"), "{stderr}");
 }
+
+#[test]
+fn eval_starts_the_gnn_node_for_gnn_node_and_asks_for_its_model() {
+    let dc = |args: &[&str]| Command::new(bin("dc")).args(args).output().unwrap();
+    let out = dc(&["eval", "--models", "gnn-node", "--seeds", "0..1", "--dry-run"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("needs --gnn-model"), "{}", text(&out));
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/models/gnn.dcg");
+    let out = dc(&["eval", "--models", "gnn-node", "--seeds", "0..1", "--gnn-model", model, "--dry-run"]);
+    let listed = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", text(&out));
+    // The node serves the simulator's problems; the simulator reads its answers.
+    assert!(listed.contains("publishes warm/gnn; subscribes control, problem/bodies, problem/contacts"), "{listed}");
+    assert!(listed.contains("warm/gnn") && listed.contains("sim-0 -> "), "{listed}");
+}

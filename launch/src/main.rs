@@ -520,6 +520,12 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
     if uses_unet {
         nodes.push(NodeSpec::new("unet", "dc-unet", true, vec![format!("--model={}", args.unet_model.display())]));
     }
+    // `gnn-node` reads the network from a `dc-gnn` node, the same model file as `gnn`.
+    if args.models.iter().any(|m| m == "gnn-node") {
+        let model =
+            args.gnn_model.as_ref().context("the gnn-node model needs --gnn-model FILE (e.g. models/gnn.dcg)")?;
+        nodes.push(NodeSpec::new("gnn", "dc-gnn", true, vec![format!("--model={}", model.display())]));
+    }
     for j in 0..jobs {
         let models: Vec<&str> = args.models.iter().skip(j).step_by(jobs).map(String::as_str).collect();
         let mut sim_args = vec![
