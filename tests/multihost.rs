@@ -173,6 +173,29 @@ impl Watched {
     }
 }
 
+/// `dc launch FILE --host a` and `--host b`, each in its network namespace (b first), and both
+/// must succeed.
+fn run_on_two_hosts(hosts: &TwoHosts, file: &std::path::Path, namespace: &str, label: &str) {
+    let start = |netns: &str, host: &str| {
+        Command::new("ip")
+            .args(["netns", "exec", netns])
+            .arg(bin("dc"))
+            .arg("launch")
+            .arg(file)
+            .args(["--host", host, "--namespace", namespace])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start dc launch in a namespace")
+    };
+    let b = start(&hosts.b, "b");
+    let a = start(&hosts.a, "a");
+    let out_a = wait(a, &format!("host a{label}"), Duration::from_secs(300));
+    let out_b = wait(b, &format!("host b{label}"), Duration::from_secs(60));
+    assert!(out_a.status.success(), "host a{label}: {}", text(&out_a));
+    assert!(out_b.status.success(), "host b{label}: {}", text(&out_b));
+}
+
 fn wait(mut child: std::process::Child, what: &str, limit: Duration) -> std::process::Output {
     let start = Instant::now();
     while child.try_wait().expect("wait").is_none() {
@@ -225,24 +248,7 @@ fn a_two_host_graph_over_zenoh_matches_the_one_host_run_step_for_step() {
     assert!(dry_text.contains("zenoh a -> b") && dry_text.contains("zenoh b -> a"), "{dry_text}");
     assert!(dry_text.contains("iceoryx2 on b"), "grid/bodies stays on host b: {dry_text}");
 
-    let start = |netns: &str, host: &str| {
-        Command::new("ip")
-            .args(["netns", "exec", netns])
-            .arg(&dc)
-            .arg("launch")
-            .arg(&file)
-            .args(["--host", host, "--namespace", &namespace])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start dc launch in a namespace")
-    };
-    let b = start(&hosts.b, "b");
-    let a = start(&hosts.a, "a");
-    let out_a = wait(a, "host a", Duration::from_secs(300));
-    let out_b = wait(b, "host b", Duration::from_secs(60));
-    assert!(out_a.status.success(), "host a: {}", text(&out_a));
-    assert!(out_b.status.success(), "host b: {}", text(&out_b));
+    run_on_two_hosts(&hosts, &file, &namespace, "");
 
     let (one_steps, two_steps) = (report_steps(&one), report_steps(&two));
     assert_eq!(one_steps.len(), 120, "2 simulations x 60 steps");
@@ -263,25 +269,7 @@ fn a_two_host_graph_over_zenoh_matches_the_one_host_run_step_for_step() {
     let file = dir.join("two-hosts-tls.toml");
     let security = "[security]\nca = \"certs/ca.pem\"\ncert = \"certs/{host}.pem\"\nkey = \"certs/{host}.key\"\n";
     std::fs::write(&file, graph(&format!("{security}{host_table}"), "host = \"a\"", "host = \"b\"", &tls)).unwrap();
-    let namespace = unique_namespace("two-hosts-tls");
-    let start = |netns: &str, host: &str| {
-        Command::new("ip")
-            .args(["netns", "exec", netns])
-            .arg(&dc)
-            .arg("launch")
-            .arg(&file)
-            .args(["--host", host, "--namespace", &namespace])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start dc launch in a namespace")
-    };
-    let b = start(&hosts.b, "b");
-    let a = start(&hosts.a, "a");
-    let out_a = wait(a, "host a (TLS)", Duration::from_secs(300));
-    let out_b = wait(b, "host b (TLS)", Duration::from_secs(60));
-    assert!(out_a.status.success(), "host a (TLS): {}", text(&out_a));
-    assert!(out_b.status.success(), "host b (TLS): {}", text(&out_b));
+    run_on_two_hosts(&hosts, &file, &unique_namespace("two-hosts-tls"), " (TLS)");
     assert_eq!(report_steps(&tls), one_steps, "over TLS: the same sweeps, step for step");
 }
 
