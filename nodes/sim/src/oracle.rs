@@ -229,20 +229,7 @@ mod tests {
         model.begin_simulation(0, 0);
         let mut history = ImpulseHistory::default();
         let mut step = |contacts: &[ContactPoint], exact: &[Impulse], history: &ImpulseHistory| {
-            let mut oracle = |out: &mut [Impulse]| out.copy_from_slice(exact);
-            let mut input = WarmStartInput {
-                run_id: 0,
-                simulation: 0,
-                step: 0,
-                contacts,
-                history,
-                fixed: &[true, false, false, false],
-                problem: None,
-                oracle: &mut oracle,
-            };
-            let mut out = vec![Impulse::default(); contacts.len()];
-            model.warm_start(&mut input, &mut out).unwrap();
-            out
+            crate::warm::tests::guess_with_oracle(&mut model, contacts, history, exact)
         };
         let first = [contact(0, 1), contact(0, 2)];
         assert_eq!(step(&first, &[imp(1.0), imp(2.0)], &history), [imp(0.0), imp(0.0)], "no past: zero");

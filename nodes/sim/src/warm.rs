@@ -713,7 +713,7 @@ impl WarmStarter {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::contact::ContactKey;
 
@@ -729,7 +729,21 @@ mod tests {
 
     /// Runs `model` on `contacts` after two steps of history.
     fn guess(model: &mut dyn WarmStartModel, contacts: &[ContactPoint], history: &ImpulseHistory) -> Vec<Impulse> {
-        let mut oracle = |_: &mut [Impulse]| {};
+        guess_with_oracle(model, contacts, history, &[])
+    }
+
+    /// Runs `model` on `contacts` (step 2, body 0 fixed); the oracle answers `exact`.
+    pub(crate) fn guess_with_oracle(
+        model: &mut dyn WarmStartModel,
+        contacts: &[ContactPoint],
+        history: &ImpulseHistory,
+        exact: &[Impulse],
+    ) -> Vec<Impulse> {
+        let mut oracle = |out: &mut [Impulse]| {
+            if !exact.is_empty() {
+                out.copy_from_slice(exact)
+            }
+        };
         let mut input = WarmStartInput {
             run_id: 0,
             simulation: 0,
