@@ -497,9 +497,7 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
     // warm-start grid); it serves every simulator of the graph. With `unet` it makes the model's
     // input grids (e.g. temporal, padded to 128); padding leaves the `grid` model's samples
     // unchanged (the extra nodes lie outside the box).
-    let reads = |topic: &str| {
-        args.models.iter().any(|m| msgs::models::parse(m).ok().and_then(|(i, _)| i.grid_topic) == Some(topic))
-    };
+    let reads = |topic: &str| args.models.iter().any(|m| msgs::models::served_on(m) == Some(topic));
     let uses_unet = reads(msgs::topics::GRID_UNET.name);
     let grid_based = uses_unet || reads(msgs::topics::GRID_CONTACTS.name);
     let mut sph_args = vec!["--mode=preserving".to_string()];
@@ -521,7 +519,7 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
         nodes.push(NodeSpec::new("unet", "dc-unet", true, vec![format!("--model={}", args.unet_model.display())]));
     }
     // `gnn-node` reads the network from a `dc-gnn` node, the same model file as `gnn`.
-    if args.models.iter().any(|m| m == "gnn-node") {
+    if reads(msgs::topics::WARM_GNN.name) {
         let model =
             args.gnn_model.as_ref().context("the gnn-node model needs --gnn-model FILE (e.g. models/gnn.dcg)")?;
         nodes.push(NodeSpec::new("gnn", "dc-gnn", true, vec![format!("--model={}", model.display())]));

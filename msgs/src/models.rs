@@ -7,8 +7,9 @@ use crate::topics;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ModelInfo {
     pub name: &'static str,
-    /// The grid topic a grid-based model reads its warm start from (None: computed in the simulator).
-    pub grid_topic: Option<&'static str>,
+    /// The topic another node answers this model's warm starts on: a grid topic for the
+    /// grid-based models, `warm/gnn` for `gnn-node`; None: computed in the simulator.
+    pub served_on: Option<&'static str>,
     /// The model's one numeric parameter, written `name:value` (`blend:0.75`), if it has one.
     pub param: Option<Param>,
     pub about: &'static str,
@@ -25,13 +26,24 @@ pub struct Param {
 }
 
 impl ModelInfo {
+    /// The grid topic of a grid-based model.
+    pub fn grid_topic(&self) -> Option<&'static str> {
+        self.served_on.filter(|t| topics::FrameKind::of_topic(t) == Some(topics::FrameKind::Grid))
+    }
+
     pub fn is_grid_based(&self) -> bool {
-        self.grid_topic.is_some()
+        self.grid_topic().is_some()
     }
 }
 
+/// The topic a node serves model `spec` on (`unet` and `unet-delta`: `grid/unet`), None for a
+/// model computed in the simulator or an unknown name.
+pub fn served_on(spec: &str) -> Option<&'static str> {
+    parse(spec).ok().and_then(|(m, _)| m.served_on)
+}
+
 const fn plain(name: &'static str, about: &'static str) -> ModelInfo {
-    ModelInfo { name, grid_topic: None, param: None, about }
+    ModelInfo { name, served_on: None, param: None, about }
 }
 
 /// Every model: the thesis's table, then the oracle ablations and baselines of the accuracy ->
@@ -46,13 +58,13 @@ pub const MODELS: &[ModelInfo] = &[
     plain("random", "random impulses of the solution's scale"),
     ModelInfo {
         name: "extrapolate",
-        grid_topic: None,
+        served_on: None,
         param: Some(Param { what: "beta: l1 + beta (l1 - l2)", default: 1.0, min: 0.0, max: 2.0 }),
         about: "damped extrapolation of the last two steps (beta 1: linear)",
     },
     ModelInfo {
         name: "continue",
-        grid_topic: None,
+        served_on: None,
         param: Some(Param { what: "G: builtin + G x the last solve's remaining distance", default: 1.0, min: 0.0, max: 4.0 }),
         about: "builtin plus G times where the previous solve was still going: its last sweep's change times rate / (1 - rate)",
     },
@@ -62,37 +74,42 @@ pub const MODELS: &[ModelInfo] = &[
     plain("copy-previous", "the previous step's oracle on persisting contacts, 0 on new: builtin if every solve were finished"),
     ModelInfo {
         name: "blend",
-        grid_topic: None,
+        served_on: None,
         param: Some(Param { what: "F: builtin + F (oracle - builtin)", default: 0.5, min: 0.0, max: 1.0 }),
         about: "a fraction F of builtin's error removed",
     },
     ModelInfo {
         name: "noise",
-        grid_topic: None,
+        served_on: None,
         param: Some(Param { what: "S: noise of S x builtin's RMS error", default: 1.0, min: 0.0, max: 100.0 }),
         about: "the oracle plus Gaussian noise of S times builtin's RMS error (per step)",
     },
     plain("smooth-error", "the oracle plus the smooth part of builtin's error (averaged over the contact graph)"),
     plain("rough-error", "the oracle plus the rest of builtin's error (its local, high-frequency part)"),
     plain("gnn", "the contact-graph network's correction to builtin (in the simulator, `--gnn-model FILE`)"),
-    plain("gnn-node", "the contact-graph network served over the bus by `dc-gnn serve` (warm/gnn), builtin when late or down"),
+    ModelInfo {
+        name: "gnn-node",
+        served_on: Some(topics::WARM_GNN.name),
+        param: None,
+        about: "the contact-graph network served over the bus by a `dc-gnn` node, builtin when late or down",
+    },
     plain("copy-grid", "oracle through the value-preserving grid transfer and back"),
     plain("copy-grid-sph", "oracle through the thesis's grid transfer and back"),
     ModelInfo {
         name: "grid",
-        grid_topic: Some(topics::GRID_CONTACTS.name),
+        served_on: Some(topics::GRID_CONTACTS.name),
         param: None,
         about: "the previous step's impulses through the SPH node's grid",
     },
     ModelInfo {
         name: "unet",
-        grid_topic: Some(topics::GRID_UNET.name),
+        served_on: Some(topics::GRID_UNET.name),
         param: None,
         about: "the U-Net's predicted impulse grid",
     },
     ModelInfo {
         name: "unet-delta",
-        grid_topic: Some(topics::GRID_UNET.name),
+        served_on: Some(topics::GRID_UNET.name),
         param: None,
         about: "builtin plus the U-Net's predicted change on persisting contacts, its value on new ones",
     },
@@ -142,16 +159,19 @@ mod tests {
     use super::*;
 
     #[test]
-    fn names_are_unique_and_grid_topics_are_in_the_table() {
+    fn names_are_unique_and_served_topics_are_in_the_table() {
         let mut seen = std::collections::BTreeSet::new();
         for m in MODELS {
             assert!(seen.insert(m.name), "{} twice", m.name);
             assert!(m.name.len() <= 16, "{} does not fit a Name16", m.name);
-            if let Some(t) = m.grid_topic {
-                assert_eq!(topics::FrameKind::of_topic(t), Some(topics::FrameKind::Grid));
+            if let Some(t) = m.served_on {
+                assert!(topics::FrameKind::of_topic(t).is_some(), "{t} is not in the topic table");
             }
         }
         assert!(model("unet").unwrap().is_grid_based());
+        assert_eq!(served_on("unet-delta"), Some(topics::GRID_UNET.name));
+        let gnn_node = model("gnn-node").unwrap();
+        assert!(!gnn_node.is_grid_based() && gnn_node.served_on == Some(topics::WARM_GNN.name));
         assert!(model("nope").is_none());
     }
 

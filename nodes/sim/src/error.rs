@@ -28,8 +28,8 @@ pub enum SimError {
     /// The bodies do not fit: more bodies than the box can hold, or rejection sampling gave up.
     #[error("scene too dense: {0}")]
     SceneTooDense(String),
-    /// A grid-based model was asked for without a grid source to feed it.
-    #[error("model `{0}` needs a grid source (run it inside a graph with the sph or unet node)")]
+    /// A model that another node serves was asked for without the bus to reach it.
+    #[error("model `{0}` is served by another node (run it inside a graph with its sph, unet or gnn node)")]
     NoGridSource(String),
     /// A learned model was asked for without its file.
     #[error("model `{0}` needs its model file (dc-sim --gnn-model FILE)")]

@@ -224,7 +224,7 @@ fn check(args: &Args) -> Result<()> {
     }
     let files = sim::ModelFiles { gnn: args.gnn_model.clone() };
     for m in if args.models.is_empty() { std::slice::from_ref(&args.model) } else { args.models.as_slice() } {
-        if !m.is_grid_based() && m.kind != ModelKind::GnnNode {
+        if m.served_on().is_none() {
             m.build_with(args.seed, None, &files)?;
         }
     }
@@ -262,11 +262,7 @@ fn try_main() -> Result<()> {
     };
     // Runs whose model reads another node open its subscribers for the run only (see `run`).
     for model in &models {
-        let topic = match model.kind {
-            ModelKind::GnnNode => Some(msgs::topics::WARM_GNN.name),
-            _ => model.grid_topic().map(|t| t.name),
-        };
-        if let Some(topic) = topic {
+        if let Some(topic) = model.served_on() {
             node.will_subscribe(topic);
             node.will_subscribe(msgs::topics::CONTROL.name);
         }

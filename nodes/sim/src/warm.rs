@@ -520,7 +520,12 @@ impl ModelKind {
 
     /// The topic a grid-based model reads its warm starts from.
     pub fn grid_topic(self) -> Option<msgs::topics::Topic<msgs::GridHeader, f32>> {
-        self.info().grid_topic.map(msgs::topics::Topic::new)
+        self.info().grid_topic().map(msgs::topics::Topic::new)
+    }
+
+    /// The topic another node serves the model on (grids, or `warm/gnn`): it needs the bus.
+    pub fn served_on(self) -> Option<&'static str> {
+        self.info().served_on
     }
 
     /// Builds a local model with its default parameter; grid-based ones need
@@ -571,6 +576,10 @@ impl ModelSpec {
 
     pub fn grid_topic(&self) -> Option<msgs::topics::Topic<msgs::GridHeader, f32>> {
         self.kind.grid_topic()
+    }
+
+    pub fn served_on(&self) -> Option<&'static str> {
+        self.kind.served_on()
     }
 
     /// Builds a local model; grid-based ones need [`ModelSpec::build_with_source`].

@@ -314,8 +314,8 @@ fn run_node(args: NodeArgs) -> Result<()> {
                 match msgs::control::details_of(c.header(), c.items()) {
                     Ok(msgs::ControlDetails::RunStart(p)) => {
                         // `unet`, `unet-delta`: every model that reads our topic.
-                        let reads = msgs::models::parse(&p.model).ok().and_then(|(m, _)| m.grid_topic);
-                        run_uses_unet.insert(c.header().step.run_id, reads == Some(topics::GRID_UNET.name));
+                        let served = msgs::models::served_on(&p.model);
+                        run_uses_unet.insert(c.header().step.run_id, served == Some(topics::GRID_UNET.name));
                     }
                     // Unknown runs are served (see below).
                     other => tracing::warn!("control: a run start whose details do not decode: {other:?}"),
