@@ -173,23 +173,31 @@ impl Watched {
     }
 }
 
+/// Starts `dc launch FILE --host HOST --namespace NAMESPACE` (inside network namespace `netns`
+/// when given), its output piped.
+fn start_host(file: &std::path::Path, host: &str, namespace: &str, netns: Option<&str>) -> std::process::Child {
+    let mut cmd = match netns {
+        Some(netns) => {
+            let mut c = Command::new("ip");
+            c.args(["netns", "exec", netns]).arg(bin("dc"));
+            c
+        }
+        None => Command::new(bin("dc")),
+    };
+    cmd.arg("launch")
+        .arg(file)
+        .args(["--host", host, "--namespace", namespace])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start dc launch")
+}
+
 /// `dc launch FILE --host a` and `--host b`, each in its network namespace (b first), and both
 /// must succeed.
 fn run_on_two_hosts(hosts: &TwoHosts, file: &std::path::Path, namespace: &str, label: &str) {
-    let start = |netns: &str, host: &str| {
-        Command::new("ip")
-            .args(["netns", "exec", netns])
-            .arg(bin("dc"))
-            .arg("launch")
-            .arg(file)
-            .args(["--host", host, "--namespace", namespace])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start dc launch in a namespace")
-    };
-    let b = start(&hosts.b, "b");
-    let a = start(&hosts.a, "a");
+    let b = start_host(file, "b", namespace, Some(&hosts.b));
+    let a = start_host(file, "a", namespace, Some(&hosts.a));
     let out_a = wait(a, &format!("host a{label}"), Duration::from_secs(300));
     let out_b = wait(b, &format!("host b{label}"), Duration::from_secs(60));
     assert!(out_a.status.success(), "host a{label}: {}", text(&out_a));
@@ -313,16 +321,7 @@ params = {{ role = "sink", kind = "bodies", n = 1000, count = 100, verify = true
     let dry = Command::new(bin("dc")).arg("list").arg(&file).output().unwrap();
     let dry_text = String::from_utf8_lossy(&dry.stdout);
     assert!(dry_text.contains("zenoh router: tcp/127.0.0.1:") && dry_text.contains("[zenoh a -> b]"), "{}", text(&dry));
-    let start = |host: &str| {
-        Command::new(bin("dc"))
-            .arg("launch")
-            .arg(&file)
-            .args(["--host", host, "--namespace", &namespace])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap()
-    };
+    let start = |host: &str| start_host(&file, host, &namespace, None);
     // The source's host first: it must wait for the sink's host (its launcher retries the router
     // until it is there) before anything flows. The pause only orders the two starts; the test
     // passes either way, nothing waits on it for a condition.
@@ -414,16 +413,7 @@ params = {{ role = "sink", kind = "bodies", n = 1000, count = 100, verify = true
     let graph_ca = dir.join("certs/ca.pem").display().to_string();
     let rogue_tls =
         serde_json::json!({ "ca": graph_ca, "cert": path("rogue.pem"), "key": path("rogue.key"), "mutual": true });
-    let start = |host: &str| {
-        Command::new(bin("dc"))
-            .arg("launch")
-            .arg(&file)
-            .args(["--host", host, "--namespace", &namespace])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap()
-    };
+    let start = |host: &str| start_host(&file, host, &namespace, None);
     let b = start("b");
     // Host b runs the router: the intruders come once it listens.
     let listening = Instant::now() + Duration::from_secs(30);
@@ -528,16 +518,7 @@ params = {{ runs = 1, out = "{}" }}
     );
     std::fs::write(&file, graph).unwrap();
     let namespace = unique_namespace("vanish");
-    let start = |host: &str| {
-        Command::new(bin("dc"))
-            .arg("launch")
-            .arg(&file)
-            .args(["--host", host, "--namespace", &namespace])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap()
-    };
+    let start = |host: &str| start_host(&file, host, &namespace, None);
     let mut b = start("b");
     let mut a = Watched::spawn(start("a"));
     // Let the run get going (its first simulation solved with host b there; the whole run takes
