@@ -9,7 +9,7 @@ use crate::{Control, ControlKind, ControlMsg, Frame, StepHeader};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 /// What a run start announces: the simulator's parameters, the same for every simulation.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct RunParams {
     pub scene: String,
     /// Dynamic bodies asked for.

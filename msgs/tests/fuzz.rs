@@ -49,18 +49,7 @@ fn corpus() -> Vec<Vec<u8>> {
         SolveStatsHeader { step, model: name16("builtin"), sweeps: 300, contacts: 30, ..Default::default() },
         vec![1e-3; 50],
     );
-    let params = RunParams {
-        scene: "ball-box".into(),
-        n: 100,
-        seeds: vec![0, 1],
-        steps: 250,
-        model: "builtin".into(),
-        fallback: "none".into(),
-        tolerance: 1e-4,
-        max_sweeps: 1000,
-        sampler: "native".into(),
-        dt: 0.016,
-    };
+    let params = RunParams { seeds: vec![0, 1], steps: 250, model: "builtin".into(), dt: 0.016, ..Default::default() };
     let control = ControlMsg::run_start(step, &params);
     let problem: problem::ProblemContacts =
         Frame::new(problem::ProblemHeader { bodies: 21, ..Default::default() }, vec![Default::default(); 10]);

@@ -175,18 +175,7 @@ mod tests {
     use super::*;
 
     fn params(seeds: Vec<u64>, steps: u32, dt: f32) -> RunParams {
-        RunParams {
-            scene: "ball-box".into(),
-            n: 10,
-            seeds,
-            steps,
-            model: "builtin".into(),
-            fallback: "builtin".into(),
-            tolerance: 1e-4,
-            max_sweeps: 100,
-            sampler: "native".into(),
-            dt,
-        }
+        RunParams { seeds, steps, dt, model: "builtin".into(), ..Default::default() }
     }
 
     fn at(run_id: u64, simulation: u32, step: u32) -> StepHeader {

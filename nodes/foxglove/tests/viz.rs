@@ -241,18 +241,7 @@ fn frames(h: StepHeader, impulse: f32) -> (msgs::Frame<StepHeader, Body>, msgs::
 }
 
 fn run_params(dt: f32, seeds: Vec<u64>, steps: u32) -> RunParams {
-    RunParams {
-        scene: "ball-box".into(),
-        n: 1,
-        seeds,
-        steps,
-        model: "builtin".into(),
-        fallback: "builtin".into(),
-        tolerance: 1e-4,
-        max_sweeps: 100,
-        sampler: "native".into(),
-        dt,
-    }
+    RunParams { seeds, steps, dt, model: "builtin".into(), ..Default::default() }
 }
 
 #[test]

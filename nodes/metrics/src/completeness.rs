@@ -181,18 +181,8 @@ mod tests {
 
     /// The details of a run start of `model`.
     fn started(model: &str) -> Vec<u8> {
-        let p = msgs::RunParams {
-            scene: "ball-box".into(),
-            n: 100,
-            seeds: vec![0],
-            steps: 2,
-            model: model.into(),
-            fallback: "builtin".into(),
-            tolerance: 1e-4,
-            max_sweeps: 1000,
-            sampler: "native".into(),
-            dt: 0.01,
-        };
+        let p =
+            msgs::RunParams { seeds: vec![0], steps: 2, model: model.into(), max_sweeps: 1000, ..Default::default() };
         msgs::ControlMsg::run_start(StepHeader::default(), &p).items
     }
 

@@ -83,16 +83,11 @@ pub fn write_run_flushing(
     };
     let run = StepHeader { run_id, simulation: 0, step: 0 };
     let params = msgs::RunParams {
-        scene: "ball-box".into(),
-        n: 4,
         seeds: (0..simulations as u64).collect(),
         steps,
         model: "builtin".into(),
-        fallback: "builtin".into(),
-        tolerance: 1e-4,
-        max_sweeps: 1000,
-        sampler: "native".into(),
         dt: 0.01,
+        ..Default::default()
     };
     put(writer, "control", msgs::encode(&ControlMsg::run_start(run, &params)).unwrap());
     for sim in 0..simulations {
