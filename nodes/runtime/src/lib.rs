@@ -543,13 +543,7 @@ pub fn init_logging() {
 /// `A::parse` does). Under `DC_VALIDATE=1` (the launcher checking a launch file) it only checks
 /// them: `None` when they parse, so the node's `main` returns at once with success.
 pub fn parse_args<A: clap::Parser>() -> Option<A> {
-    if std::env::var("DC_VALIDATE").is_ok_and(|v| v == "1") {
-        return match A::try_parse() {
-            Ok(_) => None,
-            Err(e) => e.exit(),
-        };
-    }
-    Some(A::parse())
+    parse_args_checked::<A, std::convert::Infallible>(|_| Ok(()))
 }
 
 /// An error and its causes on one line, `outer: cause: root`, each cause said once: a cause whose
