@@ -209,7 +209,7 @@ pub const PROBLEM_BODIES: Topic<StepHeader, ProblemBody> = Topic::new("problem/b
 /// The step's velocity problem: contact rows with builtin's warm start and the reference solution.
 pub const PROBLEM_CONTACTS: Topic<ProblemHeader, ProblemContact> = Topic::new("problem/contacts");
 /// The contact-graph network's warm start of a step: its contacts (keys, in the problem's order)
-/// with the predicted impulses (`dc-gnn serve`, for the `gnn-node` model).
+/// with the predicted impulses (the `dc-gnn` node, for the `gnn-node` model).
 pub const WARM_GNN: Topic<StepHeader, Contact> = Topic::new("warm/gnn");
 /// Per-step summary for live plots (metrics).
 pub const METRICS_STEP: Topic<SolveStatsHeader, f32> = Topic::new("metrics/step");
@@ -230,7 +230,7 @@ pub const TABLE: &[TopicInfo] = &[
     CONTROL.row("sim, launcher: run/simulation start and end, shutdown, node down/up"),
     PROBLEM_BODIES.row("sim (--publish-problem): bodies of the step's velocity problem"),
     PROBLEM_CONTACTS.row("sim (--publish-problem): contact rows, builtin's warm start, the reference solution"),
-    WARM_GNN.row("gnn (dc-gnn serve): per-contact warm start of the step whose problem it read"),
+    WARM_GNN.row("gnn (the dc-gnn node): per-contact warm start of the step whose problem it read"),
     METRICS_STEP.row("metrics: per-step summary [cumulative sweeps, sweeps] for live plots"),
     BENCH_BODIES.row("dc-bench-bus: body frames"),
     BENCH_GRID.row("dc-bench-bus: grid frames"),

@@ -42,7 +42,7 @@ impl WarmStartModel for GnnModel {
 /// Sends a step's problem to the node that serves warm starts.
 pub type ProblemSender = Box<dyn FnMut(&crate::problem::Problem) -> Result<(), String>>;
 
-/// `gnn-node`: the same network served by a `dc-gnn serve` node: the step's problem goes out on
+/// `gnn-node`: the same network served by a `dc-gnn` node: the step's problem goes out on
 /// `problem/*`, the per-contact warm start comes back on `warm/gnn` (matched by contact key); late,
 /// missing or from a node that is down, the step falls back (counted) like the grid models.
 pub struct GnnNodeModel {

@@ -1,5 +1,5 @@
 //! Warm starts from another node — grids (the SPH node's `grid/contacts`, the U-Net's
-//! `grid/unet`) for grid-based models, per-contact impulses (`dc-gnn serve`'s `warm/gnn`) for
+//! `grid/unet`) for grid-based models, per-contact impulses (the `dc-gnn` node's `warm/gnn`) for
 //! `gnn-node` — with the fault handling a graph needs: the launcher's node-down / node-up notices
 //! on `control` say whether the producer is there; a step waits for its frame up to the deadline
 //! (lockstep: up to `lockstep_timeout`, after which the producer counts as lost), at once falls
