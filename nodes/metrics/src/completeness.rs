@@ -77,9 +77,15 @@ impl Completeness {
     /// caller logs and drops it, so a forged or corrupt frame cannot move a report's totals).
     pub fn implausible(&self, h: &msgs::SolveStatsHeader) -> Option<String> {
         let id = (h.step.run_id, h.step.simulation);
-        let cap = self.runs.get(&h.step.run_id).and_then(|r| r.max_sweeps).unwrap_or(UNKNOWN_CAP_BOUND);
-        if h.sweeps > cap {
-            return Some(format!("{} sweeps, above the run's cap {cap}", h.sweeps));
+        match self.runs.get(&h.step.run_id).and_then(|r| r.max_sweeps) {
+            Some(cap) if h.sweeps > cap => return Some(format!("{} sweeps, above the run's cap {cap}", h.sweeps)),
+            None if h.sweeps > UNKNOWN_CAP_BOUND => {
+                return Some(format!(
+                    "{} sweeps in run {}, whose start was not seen, above {UNKNOWN_CAP_BOUND}",
+                    h.sweeps, h.step.run_id
+                ))
+            }
+            _ => {}
         }
         let measured = [
             ("final_residual", h.final_residual),
