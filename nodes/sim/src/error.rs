@@ -29,7 +29,7 @@ pub enum SimError {
     #[error("scene too dense: {0}")]
     SceneTooDense(String),
     /// A model that another node serves was asked for without the bus to reach it.
-    #[error("model `{0}` is served by another node (run it inside a graph with its sph, unet or gnn node)")]
+    #[error("model `{0}` needs a grid source or warm starts from another node (run it inside a graph with its sph, unet or gnn node)")]
     NoGridSource(String),
     /// A learned model was asked for without its file.
     #[error("model `{0}` needs its model file (dc-sim --gnn-model FILE)")]
