@@ -468,9 +468,35 @@ impl GridGeometry {
     /// Bilinear interpolation of one channel (row-major, `width * height` values) at `(x, y)`;
     /// see [`sample_bilinear`].
     pub fn sample(&self, channel: &[f32], x: f32, y: f32) -> f32 {
-        let (w, h) = (self.width, self.height);
-        if w == 0 || h == 0 || channel.len() < w * h || !x.is_finite() || !y.is_finite() {
+        if channel.len() < self.width * self.height {
             return 0.0;
+        }
+        let Some(cell) = self.bilinear_cell(x, y) else { return 0.0 };
+        let w = self.width;
+        let at = |r: usize, c: usize| channel[r * w + c];
+        let low = at(cell.r0, cell.c0) * (1.0 - cell.tx) + at(cell.r0, cell.c1) * cell.tx;
+        let high = at(cell.r1, cell.c0) * (1.0 - cell.tx) + at(cell.r1, cell.c1) * cell.tx;
+        low * (1.0 - cell.ty) + high * cell.ty
+    }
+
+    /// The four nodes (indices within a channel) a bilinear sample at `(x, y)` reads, with their
+    /// weights (they sum to 1): what a loss taken at contact points gathers from a predicted grid.
+    /// `None` for an empty grid or a non-finite point (where [`GridGeometry::sample`] gives 0).
+    pub fn bilinear_stencil(&self, x: f32, y: f32) -> Option<[(usize, f32); 4]> {
+        let BilinearCell { r0, c0, r1, c1, tx, ty } = self.bilinear_cell(x, y)?;
+        let w = self.width;
+        Some([
+            (r0 * w + c0, (1.0 - tx) * (1.0 - ty)),
+            (r0 * w + c1, tx * (1.0 - ty)),
+            (r1 * w + c0, (1.0 - tx) * ty),
+            (r1 * w + c1, tx * ty),
+        ])
+    }
+
+    fn bilinear_cell(&self, x: f32, y: f32) -> Option<BilinearCell> {
+        let (w, h) = (self.width, self.height);
+        if w == 0 || h == 0 || !x.is_finite() || !y.is_finite() {
+            return None;
         }
         let [gc, gr] = self.grid_coords(x, y);
         // Clamp to the edge: a contact on a wall, just outside the node rectangle, takes the
@@ -479,15 +505,25 @@ impl GridGeometry {
         let gr = gr.clamp(0.0, (h - 1) as f32);
         let c0 = (gc as usize).min(w.saturating_sub(2));
         let r0 = (gr as usize).min(h.saturating_sub(2));
-        let c1 = (c0 + 1).min(w - 1);
-        let r1 = (r0 + 1).min(h - 1);
-        let tx = gc - c0 as f32;
-        let ty = gr - r0 as f32;
-        let at = |r: usize, c: usize| channel[r * w + c];
-        let low = at(r0, c0) * (1.0 - tx) + at(r0, c1) * tx;
-        let high = at(r1, c0) * (1.0 - tx) + at(r1, c1) * tx;
-        low * (1.0 - ty) + high * ty
+        Some(BilinearCell {
+            r0,
+            c0,
+            r1: (r0 + 1).min(h - 1),
+            c1: (c0 + 1).min(w - 1),
+            tx: gc - c0 as f32,
+            ty: gr - r0 as f32,
+        })
     }
+}
+
+/// The grid cell around a point and the point's place in it.
+struct BilinearCell {
+    r0: usize,
+    c0: usize,
+    r1: usize,
+    c1: usize,
+    tx: f32,
+    ty: f32,
 }
 
 /// Grid -> particle: bilinear interpolation of one channel of a grid at world point `(x, y)`.
@@ -568,6 +604,20 @@ mod tests {
         assert!((g.sample(&field, -5.0, 100.0) - (10.0 + 3.0)).abs() < 1e-5);
         assert!((g.sample(&field, 9.0, 2.25) - (25.0 + 2.25)).abs() < 1e-4);
         assert_eq!(g.sample(&field, f32::NAN, 2.25), 0.0);
+    }
+
+    #[test]
+    fn the_bilinear_stencil_is_the_sample() {
+        let g = geometry([0.0, 0.0], [4.0, 3.0], 0.25);
+        let field: Vec<f32> = (0..g.nodes()).map(|i| ((i * 37) % 101) as f32 * 0.1 - 3.0).collect();
+        for &(x, y) in &[(0.0, 0.0), (1.3, 2.7), (3.99, 0.01), (-1.0, 5.0), (4.0, 3.0), (2.125, 1.5)] {
+            let stencil = g.bilinear_stencil(x, y).unwrap();
+            let total: f32 = stencil.iter().map(|&(_, w)| w).sum();
+            let value: f32 = stencil.iter().map(|&(n, w)| field[n] * w).sum();
+            assert!((total - 1.0).abs() < 1e-6, "weights at ({x}, {y}) sum to {total}");
+            assert!((value - g.sample(&field, x, y)).abs() < 1e-5, "({x}, {y}): {value} vs {}", g.sample(&field, x, y));
+        }
+        assert!(g.bilinear_stencil(f32::NAN, 1.0).is_none());
     }
 
     #[test]

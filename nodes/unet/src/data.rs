@@ -202,6 +202,53 @@ pub struct Sample {
     pub target: Vec<f32>,
     pub height: usize,
     pub width: usize,
+    /// The target step's contacts as the simulator reads a grid at them: the loss taken at
+    /// contact points (`--loss points`).
+    pub points: Vec<PointTarget>,
+    /// The sweeps the recorded solver spent on the target step (1 when the recording has no
+    /// statistics): steps that cost sweeps weigh more in the points loss.
+    pub sweeps: f32,
+}
+
+/// One contact of the target step, for the loss at contact points.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointTarget {
+    /// The grid nodes (indices within a channel) the simulator's bilinear sample reads, and their
+    /// weights.
+    pub stencil: [(u32, f32); 4],
+    /// The contact existed in the input step: `unet-delta` adds the predicted change to builtin's
+    /// impulse there, so the target is the change; on a new contact it is the impulse itself.
+    pub persisting: bool,
+    /// Target normal and tangent: the change on persisting contacts, the impulse on new ones.
+    pub normal: f32,
+    pub tangent: f32,
+}
+
+/// Contacts of `next` as point targets against the impulses of `previous` (the same contact is
+/// the same bodies and feature).
+pub fn point_targets(geometry: &GridGeometry, previous: &[Contact], next: &[Contact]) -> Vec<PointTarget> {
+    let key = |c: &Contact| (c.body_a, c.body_b, c.feature);
+    let before: std::collections::HashMap<_, _> = previous.iter().map(|c| (key(c), c)).collect();
+    next.iter()
+        .filter_map(|c| {
+            let stencil = geometry.bilinear_stencil(c.x, c.y)?;
+            let [a, b, cc, d] = stencil.map(|(n, w)| (n as u32, w));
+            Some(match before.get(&key(c)) {
+                Some(p) => PointTarget {
+                    stencil: [a, b, cc, d],
+                    persisting: true,
+                    normal: c.normal_impulse - p.normal_impulse,
+                    tangent: c.tangent_impulse - p.tangent_impulse,
+                },
+                None => PointTarget {
+                    stencil: [a, b, cc, d],
+                    persisting: false,
+                    normal: c.normal_impulse,
+                    tangent: c.tangent_impulse,
+                },
+            })
+        })
+        .collect()
 }
 
 /// The samples of one part of a split, streamed from recordings in recorded order.
@@ -214,6 +261,11 @@ pub struct SampleStream {
     transfer: Option<(SimKey, Transfer)>,
     previous: Option<(StepHeader, Vec<Body>, Vec<Contact>)>,
     path: PathBuf,
+}
+
+/// A recorded step's sweeps, 1 when unknown.
+fn sweeps_of(stats: Option<&msgs::SolveStats>) -> f32 {
+    stats.map(|s| s.header.sweeps.max(1) as f32).unwrap_or(1.0)
 }
 
 impl SampleStream {
@@ -240,7 +292,12 @@ impl SampleStream {
         })
     }
 
-    fn make(&mut self, prev: &(StepHeader, Vec<Body>, Vec<Contact>), next_contacts: &[Contact]) -> Result<Sample> {
+    fn make(
+        &mut self,
+        prev: &(StepHeader, Vec<Body>, Vec<Contact>),
+        next_contacts: &[Contact],
+        next_sweeps: f32,
+    ) -> Result<Sample> {
         let (key, bodies, contacts) = prev;
         let sim = (key.run_id, key.simulation);
         if self.transfer.as_ref().map(|(k, _)| *k) != Some(sim) {
@@ -256,7 +313,15 @@ impl SampleStream {
         let (input, _) = transfer.bodies_grid(*key, bodies, temporal).map_err(context)?;
         let (target, _) = transfer.contacts_grid(*key, next_contacts).map_err(context)?;
         let g = transfer.geometry();
-        Ok(Sample { key: *key, input: input.items, target: target.items, height: g.height, width: g.width })
+        Ok(Sample {
+            key: *key,
+            input: input.items,
+            target: target.items,
+            height: g.height,
+            width: g.width,
+            points: point_targets(g, contacts, next_contacts),
+            sweeps: next_sweeps,
+        })
     }
 }
 
@@ -273,13 +338,14 @@ impl Iterator for SampleStream {
             if self.split.part((key.run_id, key.simulation)) != Some(self.part) {
                 continue;
             }
+            let sweeps = sweeps_of(step.stats.as_ref());
             let current = (key, step.bodies.items, step.contacts.items);
             // Only a direct predecessor of the same run and simulation pairs with this step.
             let pair = self
                 .previous
                 .take()
                 .filter(|(p, _, _)| p.run_id == key.run_id && p.simulation == key.simulation && p.step + 1 == key.step);
-            let out = pair.map(|p| self.make(&p, &current.2));
+            let out = pair.map(|p| self.make(&p, &current.2, sweeps));
             self.previous = Some(current);
             if let Some(sample) = out {
                 return Some(sample);

@@ -8,7 +8,7 @@ use msgs::{topics, ControlKind, Grid, GridHeader};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 use unet::schedule::Schedule;
-use unet::train::{OptimizerKind, TrainOptions};
+use unet::train::{LossKind, OptimizerKind, TrainOptions};
 use unet::{GridSpec, ModelFile, Predictor, UNetConfig};
 
 #[derive(Parser, Debug)]
@@ -132,6 +132,11 @@ struct TrainArgs {
     /// Extra loss weight where the target impulse is non-zero (0 = plain MSE).
     #[arg(long, default_value_t = 0.0)]
     contact_weight: f32,
+    /// grid: MSE over every grid node (the thesis's); points: at the next step's contact points
+    /// as `unet-delta` reads them (the change on persisting contacts), weighted by the step's
+    /// sweeps.
+    #[arg(long, default_value = "grid")]
+    loss: LossKind,
     /// Share of simulations held out for validation / test.
     #[arg(long, default_value_t = 0.1)]
     validation: f64,
@@ -168,6 +173,7 @@ impl TrainArgs {
             optimizer: self.optimizer,
             schedule: self.schedule.clone(),
             contact_weight: self.contact_weight,
+            loss: self.loss,
             validation_fraction: self.validation,
             test_fraction: self.test,
             seed: self.seed,

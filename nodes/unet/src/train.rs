@@ -9,7 +9,7 @@ use crate::schedule::{self, Schedule};
 use crate::{Result, UnetError};
 use burn::module::Module;
 use burn::optim::{momentum::MomentumConfig, AdamConfig, GradientsParams, ModuleOptimizer, SgdConfig};
-use burn::tensor::{Bytes, Device, Tensor, TensorData};
+use burn::tensor::{Bytes, Device, Int, Tensor, TensorData};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 use sph::SplitMix64;
@@ -36,6 +36,30 @@ impl std::str::FromStr for OptimizerKind {
     }
 }
 
+/// What training minimises.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LossKind {
+    /// The thesis's: MSE over every grid node (`--contact-weight` weighs nodes under contacts).
+    Grid,
+    /// At the target step's contact points, read from the grid as `unet-delta` reads it: on a
+    /// persisting contact the predicted *change* against the recorded change, on a new one the
+    /// predicted impulse against the recorded impulse; each step weighted by the sweeps the
+    /// solver spent on it. Needs a residual temporal model (its previous-impulse channels).
+    Points,
+}
+
+impl std::str::FromStr for LossKind {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "grid" => Ok(LossKind::Grid),
+            "points" => Ok(LossKind::Points),
+            _ => Err(format!("unknown loss `{s}` (grid, points)")),
+        }
+    }
+}
+
 /// Everything a training run is given.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TrainOptions {
@@ -51,6 +75,7 @@ pub struct TrainOptions {
     pub schedule: Schedule,
     /// Extra loss weight on nodes where the target impulse is non-zero (0 = plain MSE).
     pub contact_weight: f32,
+    pub loss: LossKind,
     pub validation_fraction: f64,
     pub test_fraction: f64,
     pub seed: u64,
@@ -86,10 +111,26 @@ struct Batch {
     input: Tensor<4>,
     target: Tensor<4>,
     weight: Option<Tensor<4>>,
+    points: Option<PointBatch>,
     len: usize,
 }
 
-fn make_batch(samples: &[Sample], meta: &ModelMeta, contact_weight: f32, device: &Device) -> Batch {
+/// The batch's contact points, one row per (contact, channel): the four grid values the
+/// simulator's bilinear sample reads, gathered from `cat([output, output - previous], 1)` (the
+/// impulse planes for new contacts, the change planes for persisting ones).
+struct PointBatch {
+    /// `[rows * 4]` flat indices into the `[batch, 4, height, width]` planes.
+    index: Tensor<1, Int>,
+    /// `[rows, 4]` bilinear weights.
+    stencil: Tensor<2>,
+    /// `[rows]` normalised targets.
+    target: Tensor<1>,
+    /// `[rows]` the step's sweeps over the batch's mean.
+    weight: Tensor<1>,
+    rows: usize,
+}
+
+fn make_batch(samples: &[Sample], meta: &ModelMeta, objective: Objective, device: &Device) -> Batch {
     let [h, w] = meta.grid_shape;
     let (c_in, c_out) = (meta.config.in_channels, meta.config.out_channels);
     let b = samples.len();
@@ -100,8 +141,8 @@ fn make_batch(samples: &[Sample], meta: &ModelMeta, contact_weight: f32, device:
         let start = input.len();
         input.extend_from_slice(&s.input);
         meta.normalization.normalize_input(&mut input[start..]);
-        if contact_weight > 0.0 {
-            weight.extend(s.target.iter().map(|&t| if t != 0.0 { 1.0 + contact_weight } else { 1.0 }));
+        if objective.contact_weight > 0.0 {
+            weight.extend(s.target.iter().map(|&t| if t != 0.0 { 1.0 + objective.contact_weight } else { 1.0 }));
         }
         let start = target.len();
         target.extend_from_slice(&s.target);
@@ -111,15 +152,86 @@ fn make_batch(samples: &[Sample], meta: &ModelMeta, contact_weight: f32, device:
         input: Tensor::from_data(TensorData::new(input, [b, c_in, h, w]), device),
         target: Tensor::from_data(TensorData::new(target, [b, c_out, h, w]), device),
         weight: (!weight.is_empty()).then(|| Tensor::from_data(TensorData::new(weight, [b, c_out, h, w]), device)),
+        points: (objective.loss == LossKind::Points).then(|| point_batch(samples, meta, device)).flatten(),
         len: b,
     }
 }
 
-fn loss(prediction: Tensor<4>, batch: &Batch) -> Tensor<1> {
-    let sq = (prediction - batch.target.clone()).square();
-    match &batch.weight {
-        Some(w) => (sq * w.clone()).mean(),
-        None => sq.mean(),
+fn point_batch(samples: &[Sample], meta: &ModelMeta, device: &Device) -> Option<PointBatch> {
+    let nodes = meta.grid_shape[0] * meta.grid_shape[1];
+    let norm = &meta.normalization;
+    let mean_sweeps = samples.iter().map(|s| s.sweeps as f64).sum::<f64>() / samples.len().max(1) as f64;
+    let (mut index, mut stencil, mut target, mut weight) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (b, s) in samples.iter().enumerate() {
+        let step_weight = (s.sweeps as f64 / mean_sweeps) as f32;
+        for p in &s.points {
+            for (channel, value) in [(0, p.normal), (1, p.tangent)] {
+                let plane = b * 4 + channel + if p.persisting { 2 } else { 0 };
+                for &(node, w) in &p.stencil {
+                    index.push((plane * nodes + node as usize) as i64);
+                    stencil.push(w);
+                }
+                let (mean, std) = (norm.target_mean[channel], norm.target_std[channel]);
+                // A change is a difference of two values with the same statistics: no mean.
+                target.push(if p.persisting { value / std } else { (value - mean) / std });
+                weight.push(step_weight);
+            }
+        }
+    }
+    let rows = target.len();
+    (rows > 0).then(|| PointBatch {
+        index: Tensor::<1, Int>::from_data(TensorData::new(index, [rows * 4]), device),
+        stencil: Tensor::from_data(TensorData::new(stencil, [rows, 4]), device),
+        target: Tensor::from_data(TensorData::new(target, [rows]), device),
+        weight: Tensor::from_data(TensorData::new(weight, [rows]), device),
+        rows,
+    })
+}
+
+/// The loss and what it needs beyond the batch.
+#[derive(Debug, Clone, Copy)]
+struct Objective {
+    loss: LossKind,
+    contact_weight: f32,
+    /// The residual model's previous-impulse input channels (the points loss needs them).
+    residual: Option<[usize; 2]>,
+}
+
+impl Objective {
+    fn of(opts: &TrainOptions) -> Result<Objective> {
+        if opts.loss == LossKind::Points && opts.net.residual.is_none() {
+            return Err(UnetError::Config(
+                "--loss points compares predicted changes: it needs a residual temporal model".into(),
+            ));
+        }
+        Ok(Objective { loss: opts.loss, contact_weight: opts.contact_weight, residual: opts.net.residual })
+    }
+
+    /// The plain objective validation reports (no contact weight).
+    fn unweighted(self) -> Objective {
+        Objective { contact_weight: 0.0, ..self }
+    }
+
+    fn loss(&self, prediction: Tensor<4>, batch: &Batch) -> Tensor<1> {
+        match (self.loss, &batch.points, self.residual) {
+            (LossKind::Points, Some(points), Some(residual)) => {
+                let previous = crate::model::select_channels(&batch.input, &residual);
+                let planes = Tensor::cat(vec![prediction.clone(), prediction - previous], 1);
+                let len = planes.dims().iter().product::<usize>();
+                let gathered = planes.reshape([len]).select(0, points.index.clone()).reshape([points.rows, 4]);
+                let at_points = (gathered * points.stencil.clone()).sum_dim(1).reshape([points.rows]);
+                ((at_points - points.target.clone()).square() * points.weight.clone()).mean()
+            }
+            // A batch without a single contact: nothing to fit at points; zero that keeps the graph.
+            (LossKind::Points, _, _) => (prediction * 0.0).mean(),
+            (LossKind::Grid, _, _) => {
+                let sq = (prediction - batch.target.clone()).square();
+                match &batch.weight {
+                    Some(w) => (sq * w.clone()).mean(),
+                    None => sq.mean(),
+                }
+            }
+        }
     }
 }
 
@@ -187,28 +299,29 @@ fn optimizer(kind: OptimizerKind) -> ModuleOptimizer {
     }
 }
 
-/// Validation losses: the model's (normalised MSE, unweighted) and, for residual models, the
-/// loss of answering "the previous impulses".
-pub fn evaluate(
+/// Validation losses: the model's (the training objective, unweighted by contact nodes) and, for
+/// residual models, the loss of answering "the previous impulses".
+fn evaluate(
     model: &UNet,
     meta: &ModelMeta,
     data: &Recordings,
-    part: Part,
-    split: &Split,
+    (part, split): (Part, &Split),
     batch: usize,
+    objective: Objective,
     device: &Device,
 ) -> Result<(f64, Option<f64>, usize)> {
+    let objective = objective.unweighted();
     let model = model.valid();
     let stream = SampleStream::open_recordings(data, &meta.grid, split, part)?;
     let (mut sum, mut sum_prev, mut n) = (0.0f64, 0.0f64, 0usize);
     for samples in batches_in_order(stream, batch) {
         let samples = samples?;
         check_shapes(&samples, meta)?;
-        let b = make_batch(&samples, meta, 0.0, device);
-        let l: f32 = (model.forward(b.input.clone()) - b.target.clone()).square().mean().into_scalar();
+        let b = make_batch(&samples, meta, objective, device);
+        let l: f32 = objective.loss(model.forward(b.input.clone()), &b).into_scalar();
         sum += l as f64 * b.len as f64;
         if let Some(prev) = previous_impulses(&b.input, meta.config.residual) {
-            let lp: f32 = (prev - b.target.clone()).square().mean().into_scalar();
+            let lp: f32 = objective.loss(prev, &b).into_scalar();
             sum_prev += lp as f64 * b.len as f64;
         }
         n += b.len;
@@ -302,6 +415,7 @@ fn progress_bar(len: u64, enabled: bool, prefix: String) -> ProgressBar {
 /// Trains a model as `opts` says and writes the model file; returns its metadata.
 pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
     opts.net.validate().map_err(UnetError::Config)?;
+    let objective = Objective::of(opts)?;
     if opts.net.in_channels != opts.grid.input_channels().len() {
         return Err(UnetError::Config(format!(
             "the network takes {} input channels, the grid spec makes {} ({:?})",
@@ -341,7 +455,7 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
         "training"
     );
     if meta.training.validation_loss_previous.is_none() && !split.validation.is_empty() {
-        let (_, prev, n) = evaluate(&model, &meta, &data, Part::Validation, &split, opts.batch, device)?;
+        let (_, prev, n) = evaluate(&model, &meta, &data, (Part::Validation, &split), opts.batch, objective, device)?;
         meta.training.validation_loss_previous = prev;
         meta.training.validation_samples = n;
         if let Some(p) = prev {
@@ -363,8 +477,8 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
                 break;
             }
             check_shapes(&samples, &meta)?;
-            let batch = make_batch(&samples, &meta, opts.contact_weight, &train_device);
-            let l = loss(model.forward(batch.input.clone()), &batch);
+            let batch = make_batch(&samples, &meta, objective, &train_device);
+            let l = objective.loss(model.forward(batch.input.clone()), &batch);
             let value: f32 = l.clone().into_scalar();
             if !value.is_finite() {
                 return Err(UnetError::Diverged { epoch: epoch + 1, step, lr: opts.schedule.lr(step) });
@@ -385,7 +499,8 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
         }
         bar.finish_and_clear();
         let train_loss = sum / seen.max(1) as f64;
-        let (val_loss, _, _) = evaluate(&model, &meta, &data, Part::Validation, &split, opts.batch, device)?;
+        let (val_loss, _, _) =
+            evaluate(&model, &meta, &data, (Part::Validation, &split), opts.batch, objective, device)?;
         meta.training.train_loss.push(train_loss);
         meta.training.validation_loss.push(val_loss);
         meta.training.epochs = epoch + 1;
@@ -401,7 +516,7 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
         save_checkpoint(&dir, epoch, step, &meta, &model, &optim)?;
     }
     ModelFile::save(&meta, &model.valid(), &opts.out)?;
-    write_loss_plot(&opts.out, &meta, &step_losses)?;
+    write_loss_plot(&opts.out, &meta, opts.loss, &step_losses)?;
     tracing::info!(out = %opts.out.display(), secs = started.elapsed().as_secs_f32(), "model written");
     Ok(meta)
 }
@@ -459,7 +574,7 @@ fn resume_state(opts: &TrainOptions, dir: &Path, device: &Device) -> Result<Opti
     Ok(Some((state.meta, file.model.train(), optim, state.epoch + 1, state.optimizer_step)))
 }
 
-fn write_loss_plot(out: &Path, meta: &ModelMeta, step_losses: &[(f64, f64)]) -> Result<()> {
+fn write_loss_plot(out: &Path, meta: &ModelMeta, loss: LossKind, step_losses: &[(f64, f64)]) -> Result<()> {
     use metrics::plot::{line_chart, Series, YScale};
     let per_epoch = |v: &[f64]| v.iter().enumerate().map(|(i, &l)| ((i + 1) as f64, l)).collect::<Vec<_>>();
     let mut series = vec![
@@ -474,8 +589,11 @@ fn write_loss_plot(out: &Path, meta: &ModelMeta, step_losses: &[(f64, f64)]) -> 
         });
     }
     let path = out.with_extension("loss.png");
-    line_chart(&path, "U-Net loss per epoch (normalised MSE)", "epoch", "loss", &series, YScale::Log)
-        .map_err(|e| UnetError::Data(e.to_string()))?;
+    let title = match loss {
+        LossKind::Points => "U-Net loss per epoch (at contact points, sweeps-weighted)",
+        LossKind::Grid => "U-Net loss per epoch (normalised MSE)",
+    };
+    line_chart(&path, title, "epoch", "loss", &series, YScale::Log).map_err(|e| UnetError::Data(e.to_string()))?;
     if !step_losses.is_empty() {
         let smooth = schedule::smoothed(step_losses, 0.98);
         let path = out.with_extension("steps.png");
@@ -502,6 +620,7 @@ pub type LrCurve = (Vec<(f64, f64)>, Option<f64>);
 /// exponentially from `start` to `end`, stops when the loss blows up, writes the curve as CSV and
 /// PNG beside `opts.out`, and returns the curve and the suggested rate.
 pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: &Device) -> Result<LrCurve> {
+    let objective = Objective::of(opts)?;
     let data = Recordings::survey(&opts.data, opts.skip_bad)?;
     let (meta, _) = prepare(opts, &data)?;
     let train_device = device.clone().autodiff();
@@ -529,8 +648,8 @@ pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: 
             samples = batcher.next_batch(opts.batch)?;
         }
         let lr = schedule::sweep_lr(start, end, steps, i);
-        let batch = make_batch(&samples, &meta, opts.contact_weight, &train_device);
-        let l = loss(model.forward(batch.input.clone()), &batch);
+        let batch = make_batch(&samples, &meta, objective, &train_device);
+        let l = objective.loss(model.forward(batch.input.clone()), &batch);
         let value: f32 = l.clone().into_scalar();
         curve.push((lr, value as f64));
         bar.inc(1);

@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use unet::data::{list_simulations, Normalization, Part, SampleStream, Split};
 use unet::schedule::Schedule;
-use unet::train::{OptimizerKind, TrainOptions};
+use unet::train::{LossKind, OptimizerKind, TrainOptions};
 use unet::{GridSpec, ModelFile, Predictor, UNetConfig, UnetError};
 
 fn device() -> Device {
@@ -368,6 +368,8 @@ fn normalisation_round_trips_and_residual_channels_share_the_target_statistics()
         target: vec![10.0, 10.0, 0.0, 4.0],
         height: 1,
         width: 2,
+        points: Vec::new(),
+        sweeps: 1.0,
     };
     let (norm, count) = Normalization::compute((0..4).map(|k| Ok(sample(k))), 3, 2, Some([1, 2])).unwrap();
     assert_eq!(count, 4);
@@ -448,6 +450,7 @@ fn train_options(data: &Path, out: &Path) -> TrainOptions {
         optimizer: OptimizerKind::Adam,
         schedule: Schedule::Constant { lr: 1e-3 },
         contact_weight: 0.0,
+        loss: LossKind::Grid,
         validation_fraction: 0.25,
         test_fraction: 0.0,
         seed: 3,
@@ -526,6 +529,56 @@ fn training_writes_a_usable_model_and_resume_continues_where_it_stopped() {
     opts.net.base_width = 8;
     let e = unet::train::train(&opts, &d).unwrap_err();
     assert!(matches!(e, UnetError::Config(_)) && e.to_string().contains("checkpoints"), "{e}");
+}
+
+#[test]
+fn point_targets_are_the_change_on_persisting_contacts_and_the_impulse_on_new_ones() {
+    let geometry = sph::GridGeometry::from_bounds(sph::Bounds::new([0.0, 0.0], [4.0, 4.0]).unwrap(), 0.5, 1).unwrap();
+    let contact = |a: u32, feature: u32, x: f32, normal: f32, tangent: f32| msgs::Contact {
+        body_a: a,
+        body_b: 9,
+        feature,
+        x,
+        y: 1.2,
+        normal_impulse: normal,
+        tangent_impulse: tangent,
+        ..Default::default()
+    };
+    let before = [contact(1, 0, 1.0, 2.0, 0.5), contact(2, 0, 2.0, 7.0, 0.0)];
+    // Contact (1, 9, 0) persists (it moved a little); (1, 9, 1) is another feature of that pair: new.
+    let after = [contact(1, 0, 1.1, 3.0, 0.25), contact(1, 1, 3.3, 1.5, -0.5), contact(3, 0, f32::NAN, 1.0, 0.0)];
+    let points = unet::data::point_targets(&geometry, &before, &after);
+    assert_eq!(points.len(), 2, "a contact at a non-finite point has no grid sample and no target");
+    assert!(points[0].persisting && (points[0].normal, points[0].tangent) == (1.0, -0.25));
+    assert!(!points[1].persisting && (points[1].normal, points[1].tangent) == (1.5, -0.5));
+    // The stencil is the simulator's sample: a linear field read through it gives the field at the point.
+    let field: Vec<f32> = geometry.node_positions().iter().map(|p| 3.0 * p[0] - p[1]).collect();
+    let read: f32 = points[1].stencil.iter().map(|&(n, w)| field[n as usize] * w).sum();
+    assert!((read - (3.0 * 3.3 - 1.2)).abs() < 1e-4, "{read}");
+}
+
+#[test]
+fn the_points_loss_fits_the_change_at_contact_points() {
+    let dir = scratch("points-loss");
+    let data = dir.join("data.mcap");
+    record_settled_simulations(&data, 11, &[1000, 1001, 1002, 1003], SETTLE, 8);
+    let d = device();
+    let mut opts = train_options(&data, &dir.join("model.dcu"));
+    opts.loss = LossKind::Points;
+    opts.epochs = 12;
+    opts.max_batches = 0;
+    opts.schedule = Schedule::Constant { lr: 1e-2 };
+    let meta = unet::train::train(&opts, &d).unwrap();
+    let losses = &meta.training.train_loss;
+    let baseline = meta.training.validation_loss_previous.expect("a residual model has the previous-impulses bar");
+    assert!(baseline.is_finite() && baseline > 0.0, "{baseline}");
+    // The untrained residual model answers the previous impulses (change 0); fitting the training
+    // steps' changes at their contact points must lower that loss well below where it started.
+    assert!(losses.iter().all(|l| l.is_finite()) && losses[11] < 0.7 * losses[0], "{losses:?}");
+    // A model without the previous impulses has no change to predict.
+    opts.net.residual = None;
+    let e = unet::train::train(&opts, &d).unwrap_err();
+    assert!(matches!(e, UnetError::Config(_)) && e.to_string().contains("residual"), "{e}");
 }
 
 #[test]
