@@ -104,6 +104,11 @@ struct EvalArgs {
     /// Print the graph instead of running it.
     #[arg(long)]
     dry_run: bool,
+    /// Also solve each step of the other models from builtin's warm start (`dc-sim
+    /// --shadow-builtin`): the report's "same states vs builtin", a warm start's own saving apart
+    /// from its run's trajectory. One more solve per step; `--same-states false` skips it.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    same_states: bool,
     /// More simulator parameters, passed through (after `--`).
     #[arg(last = true)]
     sim_args: Vec<String>,
@@ -536,6 +541,9 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
         ];
         if let Some(gnn) = &args.gnn_model {
             sim_args.push(format!("--gnn-model={}", gnn.display()));
+        }
+        if args.same_states {
+            sim_args.push("--shadow-builtin".into());
         }
         sim_args.extend(args.sim_args.iter().cloned());
         nodes.push(NodeSpec::new(format!("sim-{j}"), "dc-sim", false, sim_args));

@@ -258,6 +258,11 @@ pub struct SolveStatsHeader {
     pub warm_start_us: f32,
     pub kinetic_energy: f32,
     pub max_speed: f32,
+    /// Absent in recordings made before it existed: read as "not measured".
+    #[serde(default)]
+    pub builtin_sweeps: u32,
+    #[serde(default)]
+    pub builtin_measured: u32,
 }
 
 /// Most residuals a [`SolveStatsHeader`] frame carries (one per sweep; longer solves keep the first ones).

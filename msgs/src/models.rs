@@ -68,6 +68,12 @@ pub const MODELS: &[ModelInfo] = &[
         param: Some(Param { what: "G: builtin + G x the last solve's remaining distance", default: 1.0, min: 0.0, max: 4.0 }),
         about: "builtin plus G times where the previous solve was still going: its last sweep's change times rate / (1 - rate)",
     },
+    ModelInfo {
+        name: "subspace",
+        served_on: None,
+        param: Some(Param { what: "K: the previous solve's last K sweeps span the correction", default: 2.0, min: 1.0, max: 4.0 }),
+        about: "builtin corrected, by the step's own K x K Galerkin system, along the previous solve's last K sweep changes (its slowest modes)",
+    },
     plain("builtin-reappear", "builtin, and a contact new this step that existed two steps ago gets that impulse"),
     plain("copy-persisting", "oracle on persisting contacts, 0 on new ones"),
     plain("copy-new", "builtin on persisting contacts, the oracle on new ones"),

@@ -45,6 +45,13 @@ pub struct StepStats {
     pub kinetic_energy: f32,
     /// Largest speed of a dynamic body after the step, m/s.
     pub max_speed: f32,
+    /// Sweeps builtin's warm start needs on this same step's problem (`dc-sim --shadow-builtin`:
+    /// solved on scratch velocities; the step's own sweeps when builtin was the model used).
+    /// Paired with `sweeps`, it separates what a warm start saves on the states it meets from
+    /// how its run's trajectory differs from builtin's.
+    pub builtin_sweeps: u32,
+    /// Whether `builtin_sweeps` was measured.
+    pub builtin_measured: bool,
 }
 
 impl StepStats {
@@ -72,6 +79,8 @@ impl StepStats {
             warm_start_us: h.warm_start_us,
             kinetic_energy: h.kinetic_energy,
             max_speed: h.max_speed,
+            builtin_sweeps: h.builtin_sweeps,
+            builtin_measured: h.builtin_measured != 0,
         }
     }
 
@@ -97,6 +106,8 @@ impl StepStats {
             warm_start_us: self.warm_start_us,
             kinetic_energy: self.kinetic_energy,
             max_speed: self.max_speed,
+            builtin_sweeps: self.builtin_sweeps,
+            builtin_measured: self.builtin_measured as u32,
         }
     }
 
@@ -127,6 +138,8 @@ mod tests {
             warm_error_normal_mse: 0.5,
             solve_us: 1234.5,
             max_speed: 3.0,
+            builtin_sweeps: 870,
+            builtin_measured: true,
             ..StepStats::default()
         };
         assert_eq!(StepStats::from_header(&s.to_header()), s);

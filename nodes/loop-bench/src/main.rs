@@ -131,6 +131,7 @@ fn try_main() -> Result<()> {
         run_id: 1,
         problems: false,
         label: None,
+        shadow_builtin: false,
     };
     let summary = sim::run::run(&spec, &mut warm, &mut sink)?;
     sink.writer.finish()?;

@@ -94,11 +94,54 @@ pub struct ModelSummary {
     pub settled: Totals,
     /// Total sweeps relative to the `builtin` model's (None without a builtin run).
     pub ratio_to_builtin: Option<f64>,
+    /// Sweeps against builtin's on the very same step problems (None unless every step measured
+    /// builtin alongside: `dc-sim --shadow-builtin`).
+    pub same_states: Option<Paired>,
     /// Share of contacts that persisted from the previous step.
     pub persisting_share: f64,
     /// Median over steps of the warm start's normal / tangent MSE against the solution.
     pub median_warm_error_normal_mse: f64,
     pub median_warm_error_tangent_mse: f64,
+}
+
+/// A model's sweeps against builtin's warm start on the same step problems: what the warm start
+/// itself saves, apart from how its run's trajectory differs from builtin's run.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Paired {
+    /// Total sweeps over total builtin sweeps on the same problems.
+    pub ratio: f64,
+    /// The simulation where that ratio is highest, and its ratio.
+    pub worst_simulation: u32,
+    pub worst_ratio: f64,
+}
+
+impl Paired {
+    /// Over `simulations` (simulation -> step -> record); None when a step did not measure
+    /// builtin or builtin took no sweeps at all.
+    pub fn of(simulations: &BTreeMap<u32, BTreeMap<u32, StepRecord>>) -> Option<Paired> {
+        let (mut own, mut builtin) = (0u64, 0u64);
+        let mut worst: Option<(u32, f64)> = None;
+        for (&simulation, steps) in simulations {
+            let (mut o, mut b) = (0u64, 0u64);
+            for r in steps.values() {
+                if !r.builtin_measured {
+                    return None;
+                }
+                o += r.sweeps as u64;
+                b += r.builtin_sweeps as u64;
+            }
+            own += o;
+            builtin += b;
+            if b > 0 {
+                let ratio = o as f64 / b as f64;
+                if worst.is_none_or(|(_, w)| ratio > w) {
+                    worst = Some((simulation, ratio));
+                }
+            }
+        }
+        let (worst_simulation, worst_ratio) = worst?;
+        Some(Paired { ratio: own as f64 / builtin as f64, worst_simulation, worst_ratio })
+    }
 }
 
 /// Per-step statistic across simulations: median and the 10-90% band.
@@ -205,6 +248,7 @@ impl Aggregate {
                     falling: Totals::of(in_phase(Phase::Falling)),
                     settled: Totals::of(in_phase(Phase::Settled)),
                     ratio_to_builtin: None,
+                    same_states: Paired::of(sims),
                     persisting_share: if contacts == 0 { f64::NAN } else { persisting as f64 / contacts as f64 },
                     median_warm_error_normal_mse: median(
                         &with_contacts().map(|r| r.warm_error_normal_mse as f64).collect::<Vec<_>>(),
@@ -293,8 +337,26 @@ mod tests {
             warm_start_us: 1.0,
             kinetic_energy: 0.0,
             max_speed: 0.0,
+            builtin_sweeps: 0,
+            builtin_measured: false,
         };
         StepRecord { stats, residuals: (0..sweeps).map(|i| 1.0 / (i + 1) as f32).collect() }
+    }
+
+    #[test]
+    fn same_states_pair_each_step_with_builtin_on_it() {
+        let mut a = Aggregate::new();
+        // Simulation 0: 100 sweeps where builtin needs 200; simulation 1: 300 where it needs 200.
+        for (simulation, own, builtin) in [(0, 40, 120), (0, 60, 80), (1, 300, 200)] {
+            let mut r = record("m", simulation, a.records("m").count() as u32, 10, own);
+            (r.stats.builtin_sweeps, r.stats.builtin_measured) = (builtin, true);
+            a.add(r);
+        }
+        let paired = a.summaries()[0].same_states.unwrap();
+        assert_eq!(paired, Paired { ratio: 1.0, worst_simulation: 1, worst_ratio: 1.5 });
+        // One step that did not measure builtin: no figure rather than a partial one.
+        a.add(record("m", 1, 7, 10, 5));
+        assert_eq!(a.summaries()[0].same_states, None);
     }
 
     #[test]

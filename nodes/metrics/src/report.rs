@@ -47,12 +47,14 @@ fn fmt(v: f64, digits: usize) -> String {
 }
 
 /// Columns of the summary table (markdown and HTML).
-pub const SUMMARY_COLUMNS: [&str; 14] = [
+pub const SUMMARY_COLUMNS: [&str; 16] = [
     "model",
     "sims",
     "steps",
     "total sweeps",
     "vs builtin",
+    "same states vs builtin",
+    "worst sim, same states",
     "median sweeps",
     "falling: median",
     "settled: median",
@@ -83,6 +85,10 @@ impl SummaryTable {
                     m.all.steps.to_string(),
                     m.all.total_sweeps.to_string(),
                     m.ratio_to_builtin.map(|r| format!("{r:.3}x")).unwrap_or_else(|| "-".into()),
+                    m.same_states.map(|p| format!("{:.3}x", p.ratio)).unwrap_or_else(|| "-".into()),
+                    m.same_states
+                        .map(|p| format!("{:.3}x (sim {})", p.worst_ratio, p.worst_simulation))
+                        .unwrap_or_else(|| "-".into()),
                     fmt(m.all.median_sweeps, 1),
                     fmt(m.falling.median_sweeps, 1),
                     fmt(m.settled.median_sweeps, 1),
@@ -280,6 +286,12 @@ pub fn accuracy_markdown(rows: &[AccuracyRow]) -> String {
     )
 }
 
+const SUMMARY_NOTE: &str = "*vs builtin* compares whole runs: once a warm start differs from builtin's, \
+the solver stops elsewhere within its tolerance and the run's trajectory (a chaotic pile) parts from builtin's run, \
+so that ratio mixes what the warm start saves with how hard the states it meets are. *same states vs builtin*: \
+the model's sweeps over the sweeps builtin's warm start needs on the very same step problems (`dc-sim \
+--shadow-builtin`, which `dc eval` turns on), over every step, and the simulation where that ratio is worst.";
+
 const PHASES_NOTE: &str = "Phases are step ranges of every simulation (`--phases`). *share of model*: the \
 phase's sweeps as a share of the model's total; *vs builtin total*: the phase's sweeps relative to builtin's \
 sweeps over the whole run; *capped*: steps that hit the sweep cap (not converged) and their sweeps as a \
@@ -354,6 +366,9 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
             "steps",
             "total_sweeps",
             "ratio_to_builtin",
+            "same_states_ratio_to_builtin",
+            "same_states_worst_simulation",
+            "same_states_worst_ratio",
             "median_sweeps",
             "mean_sweeps",
             "falling_steps",
@@ -378,6 +393,9 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
                 m.all.steps.to_string(),
                 m.all.total_sweeps.to_string(),
                 opt(m.ratio_to_builtin),
+                opt(m.same_states.map(|p| p.ratio)),
+                m.same_states.map(|p| p.worst_simulation.to_string()).unwrap_or_default(),
+                opt(m.same_states.map(|p| p.worst_ratio)),
                 m.all.median_sweeps.to_string(),
                 m.all.mean_sweeps.to_string(),
                 m.falling.steps.to_string(),
@@ -484,7 +502,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
 
     let table = SummaryTable::new(&summaries);
     let summary_md = dir.join("summary.md");
-    let mut md = format!("# {title}\n\n{}\n", table.to_markdown());
+    let mut md = format!("# {title}\n\n{}\n{SUMMARY_NOTE}\n", table.to_markdown());
     if !aggregate.is_empty() {
         let _ = write!(md, "\n{}\n{}", phases_markdown(&phases), accuracy_markdown(&accuracy));
     }
@@ -709,6 +727,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
     }
     html.push_str("<h2>Summary</h2>");
     html.push_str(&table.to_html());
+    let _ = write!(html, "<p>{}</p>", escape(&SUMMARY_NOTE.replace(['*', '`'], "")));
     html.push_str("<p>Phases: a step is <i>settled</i> once every body of its simulation stays slower than the settle speed (default 0.1 m/s) for the rest of the simulation; earlier steps are <i>falling</i> (a dash: no step settled). Times are wall-clock on the machine that ran the simulator.</p>");
     let img = |html: &mut String, plots: &[(String, PathBuf)]| {
         for (caption, path) in plots {
@@ -766,6 +785,11 @@ mod tests {
             falling: Totals { median_sweeps: f64::NAN, ..all.clone() },
             settled: all,
             ratio_to_builtin: ratio,
+            same_states: ratio.map(|r| crate::aggregate::Paired {
+                ratio: r - 0.5,
+                worst_simulation: 1,
+                worst_ratio: r - 0.25,
+            }),
             persisting_share: 0.25,
             median_warm_error_normal_mse: 0.012345,
             median_warm_error_tangent_mse: 0.1,
@@ -777,13 +801,16 @@ mod tests {
         let table = SummaryTable::new(&[summary("none", Some(3.0)), summary("a<b", None)]);
         let md = table.to_markdown();
         let lines: Vec<&str> = md.lines().collect();
-        assert_eq!(lines[0], "| model | sims | steps | total sweeps | vs builtin | median sweeps | falling: median | settled: median | cap hits | fallbacks | persisting | warm err n (median MSE) | median solve us | median step us |");
-        assert_eq!(lines[1], "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+        assert_eq!(lines[0], "| model | sims | steps | total sweeps | vs builtin | same states vs builtin | worst sim, same states | median sweeps | falling: median | settled: median | cap hits | fallbacks | persisting | warm err n (median MSE) | median solve us | median step us |");
+        assert_eq!(lines[1], "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
         assert_eq!(
             lines[2],
-            "| none | 3 | 60 | 900 | 3.000x | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 |"
+            "| none | 3 | 60 | 900 | 3.000x | 2.500x | 2.750x (sim 1) | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 |"
         );
-        assert_eq!(lines[3], "| a<b | 3 | 60 | 900 | - | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 |");
+        assert_eq!(
+            lines[3],
+            "| a<b | 3 | 60 | 900 | - | - | - | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 |"
+        );
         assert_eq!(lines.len(), 4);
         let html = table.to_html();
         assert!(
@@ -791,7 +818,7 @@ mod tests {
             "{html}"
         );
         assert!(
-            html.contains("<tr><td>none</td><td>3</td><td>60</td><td>900</td><td>3.000x</td><td>15.0</td><td>-</td>"),
+            html.contains("<tr><td>none</td><td>3</td><td>60</td><td>900</td><td>3.000x</td><td>2.500x</td>"),
             "{html}"
         );
         assert!(

@@ -3,7 +3,7 @@
 //! impulses of the last two steps). Shared by the world, which makes them, and the warm-start
 //! models, which read them.
 
-use crate::solver::Impulse;
+use crate::solver::{Impulse, TRAIL_SWEEPS};
 use rapier2d::math::Vec2;
 use rapier2d::parry::shape::PackedFeatureId;
 
@@ -36,16 +36,17 @@ struct Entry {
     impulse: Impulse,
     /// Age in that step: 0 when it was new then.
     age: u32,
-    /// The impulse change of that solve's last sweep.
-    last_change: Impulse,
+    /// The impulse changes of that solve's last sweeps, most recent first.
+    trail: [Impulse; TRAIL_SWEEPS],
 }
 
 /// How a solve ended, per contact row and overall: what [`ImpulseHistory::push`] keeps beside the
 /// impulses.
 #[derive(Debug, Clone, Copy)]
 pub struct SolveTrail<'a> {
-    /// Each row's impulse change in the last sweep.
-    pub last_change: &'a [Impulse],
+    /// Each row's impulse changes in the last sweeps, most recent first
+    /// ([`crate::solver::ContactSolver::trail`]).
+    pub changes: &'a [[Impulse; TRAIL_SWEEPS]],
     /// The solve's convergence rate.
     pub rate: f32,
 }
@@ -58,7 +59,13 @@ impl ImpulseHistory {
 
     /// The impulse change of the previous solve's last sweep for contact `key`, if it existed then.
     pub fn previous_last_change(&self, key: &ContactKey) -> Option<Impulse> {
-        lookup(&self.previous, key).map(|e| e.last_change)
+        lookup(&self.previous, key).map(|e| e.trail[0])
+    }
+
+    /// The impulse changes of the previous solve's last sweeps for contact `key` (most recent
+    /// first), if it existed then.
+    pub fn previous_trail(&self, key: &ContactKey) -> Option<&[Impulse; TRAIL_SWEEPS]> {
+        lookup(&self.previous, key).map(|e| &e.trail)
     }
 
     /// The previous solve's convergence rate (0 before the first step).
@@ -91,11 +98,11 @@ impl ImpulseHistory {
         // Both lists are sorted by key: one merge walk finds each contact's age (every step, for
         // every model, so no search per contact).
         let mut old = self.previous.iter().peekable();
-        let changes = trail.last_change.iter().copied().chain(std::iter::repeat(Impulse::default()));
-        for ((key, impulse), last_change) in keys.zip(impulses.iter().copied()).zip(changes) {
+        let changes = trail.changes.iter().copied().chain(std::iter::repeat([Impulse::default(); TRAIL_SWEEPS]));
+        for ((key, impulse), trail) in keys.zip(impulses.iter().copied()).zip(changes) {
             while old.next_if(|o| o.key < key).is_some() {}
             let age = old.next_if(|o| o.key == key).map_or(0, |o| o.age + 1);
-            next.push(Entry { key, impulse, age, last_change });
+            next.push(Entry { key, impulse, age, trail });
         }
         debug_assert!(next.windows(2).all(|w| w[0].key <= w[1].key), "keys must be sorted");
         self.before_previous = std::mem::replace(&mut self.previous, next);
@@ -111,7 +118,7 @@ impl ImpulseHistory {
 
     /// A trail of a solve that said nothing about how it ended (tests, recorded impulses).
     pub fn no_trail() -> SolveTrail<'static> {
-        SolveTrail { last_change: &[], rate: 0.0 }
+        SolveTrail { changes: &[], rate: 0.0 }
     }
 }
 

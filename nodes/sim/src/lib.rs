@@ -32,6 +32,7 @@ pub mod run;
 pub mod scene;
 pub mod solver;
 pub mod source;
+pub mod subspace;
 pub mod warm;
 pub mod world;
 

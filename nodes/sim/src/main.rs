@@ -81,6 +81,10 @@ struct Args {
     /// recordings.
     #[arg(long, value_parser = positive_f32, requires = "publish_problem")]
     label_tolerance: Option<f32>,
+    /// Also solve every step from builtin's warm start on scratch velocities and log, per
+    /// simulation, what builtin would have cost on this model's states (`shadow_builtin_sweeps`).
+    #[arg(long)]
+    shadow_builtin: bool,
     /// How long to wait for a grid: `none` (lockstep) or a duration (20ms, 0.5s).
     #[arg(long, default_value = "none", value_parser = |s: &str| sim::parse_deadline(s).map(Deadline))]
     deadline: Deadline,
@@ -288,6 +292,7 @@ fn try_main() -> Result<()> {
             run_id: first_run_id + i as u64,
             problems: args.publish_problem,
             label: args.label_tolerance.map(|tolerance| SolveParams { tolerance, max_sweeps: args.oracle_max_sweeps }),
+            shadow_builtin: args.shadow_builtin,
         };
         run(&args, &node, &mut pubs, model, &spec)?;
     }

@@ -23,6 +23,10 @@ pub struct RunSpec {
     /// reference solution solved with `label` when given (`--label-tolerance`).
     pub problems: bool,
     pub label: Option<crate::solver::SolveParams>,
+    /// Also solve every step from builtin's warm start, on scratch velocities (`--shadow-builtin`):
+    /// what builtin would cost on the states this model leads to, logged per simulation beside
+    /// the model's own sweeps. Separates a warm start's own effect from the trajectory's.
+    pub shadow_builtin: bool,
 }
 
 /// One step's outputs, borrowed from the world.
@@ -91,6 +95,7 @@ pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Re
         if spec.problems {
             world.capture_problems(spec.label);
         }
+        world.shadow_builtin(spec.shadow_builtin);
         warm.begin_simulation(simulation, seed);
         let sim_header = StepHeader { run_id, simulation, step: 0 };
         let scene = SceneInfo {
@@ -101,7 +106,7 @@ pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Re
             omega: world.scene().omega,
         };
         sink.control(&ControlMsg::simulation_start(sim_header, spec.steps, &scene))?;
-        let (mut sweeps, mut unconverged) = (0u64, 0u32);
+        let (mut sweeps, mut unconverged, mut shadow) = (0u64, 0u32, 0u64);
         let started = Instant::now();
         let mut stopped = false;
         for step in 0..spec.steps {
@@ -114,6 +119,7 @@ pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Re
             world.contact_msgs(&mut contacts);
             let stats = world.stats();
             sweeps += stats.sweeps as u64;
+            shadow += world.shadow_sweeps().unwrap_or(0) as u64;
             unconverged += (!stats.converged) as u32;
             let residuals = &world.residuals()[..world.residuals().len().min(msgs::MAX_RESIDUALS)];
             let header = StepHeader { run_id, simulation, step };
@@ -127,6 +133,7 @@ pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Re
             seed,
             steps,
             total_sweeps = sweeps,
+            shadow_builtin_sweeps = spec.shadow_builtin.then_some(shadow),
             unconverged,
             fallbacks = warm.fallbacks_total(),
             secs,
@@ -183,6 +190,7 @@ mod tests {
             run_id: 42,
             problems: false,
             label: None,
+            shadow_builtin: false,
         }
     }
 

@@ -149,9 +149,13 @@ pub struct ContactSolver {
     prepared: Vec<Prepared>,
     impulses: Vec<Impulse>,
     residuals: Vec<f32>,
-    /// Each row's impulse change in the last sweep (the direction the iteration was still moving).
-    last_change: Vec<Impulse>,
+    /// Each row's impulse changes in the last [`TRAIL_SWEEPS`] sweeps (the directions the
+    /// iteration was still moving in: its slowest modes), most recent first once a solve ends.
+    trail: Vec<[Impulse; TRAIL_SWEEPS]>,
 }
+
+/// How many of a solve's last sweeps [`ContactSolver::trail`] keeps per row.
+pub const TRAIL_SWEEPS: usize = 4;
 
 impl ContactSolver {
     /// An empty solver (buffers grow on first use).
@@ -196,8 +200,8 @@ impl ContactSolver {
             Impulse { normal, tangent }
         }));
         self.residuals.clear();
-        self.last_change.clear();
-        self.last_change.resize(self.impulses.len(), Impulse::default());
+        self.trail.clear();
+        self.trail.resize(self.impulses.len(), [Impulse::default(); TRAIL_SWEEPS]);
 
         // Box2D's WarmStart: the (projected) guess is applied as it is.
         for (c, l) in self.prepared.iter().zip(&self.impulses) {
@@ -211,7 +215,7 @@ impl ContactSolver {
 
         let mut report = SolveReport::default();
         while report.sweeps < params.max_sweeps {
-            let residual = self.sweep(bodies);
+            let residual = self.sweep(bodies, report.sweeps as usize % TRAIL_SWEEPS);
             report.sweeps += 1;
             report.final_residual = residual;
             self.residuals.push(residual);
@@ -220,13 +224,20 @@ impl ContactSolver {
                 break;
             }
         }
+        // The sweeps wrote a ring; put the last sweep first.
+        let newest = (report.sweeps as usize + TRAIL_SWEEPS - 1) % TRAIL_SWEEPS;
+        for t in &mut self.trail {
+            let ring = *t;
+            *t = std::array::from_fn(|j| ring[(newest + TRAIL_SWEEPS - j) % TRAIL_SWEEPS]);
+        }
         report
     }
 
-    /// One projected Gauss-Seidel sweep; returns the largest absolute impulse change.
-    fn sweep(&mut self, bodies: &mut [SolverBody]) -> f32 {
+    /// One projected Gauss-Seidel sweep, its changes written to slot `slot` of the trail; returns
+    /// the largest absolute impulse change.
+    fn sweep(&mut self, bodies: &mut [SolverBody], slot: usize) -> f32 {
         let mut residual = 0.0f32;
-        for ((c, l), change) in self.prepared.iter().zip(self.impulses.iter_mut()).zip(self.last_change.iter_mut()) {
+        for ((c, l), trail) in self.prepared.iter().zip(self.impulses.iter_mut()).zip(self.trail.iter_mut()) {
             // Tangent first, bounded by the current normal impulse (Box2D's order).
             let dv = relative(bodies, c);
             let vt = dv.dot(c.t);
@@ -243,7 +254,7 @@ impl ContactSolver {
             l.normal = new_n;
             apply(bodies, c, c.n * dn);
 
-            *change = Impulse { normal: dn, tangent: dt };
+            trail[slot] = Impulse { normal: dn, tangent: dt };
             residual = residual.max(dt.abs()).max(dn.abs());
         }
         residual
@@ -259,9 +270,15 @@ impl ContactSolver {
         &self.residuals
     }
 
-    /// Each row's impulse change in the last sweep of the last solve (zero without sweeps).
-    pub fn last_change(&self) -> &[Impulse] {
-        &self.last_change
+    /// Each row's impulse changes in the last [`TRAIL_SWEEPS`] sweeps of the last solve, most
+    /// recent first (zero where it made fewer sweeps).
+    pub fn trail(&self) -> &[[Impulse; TRAIL_SWEEPS]] {
+        &self.trail
+    }
+
+    /// Row `i`'s impulse change in the last sweep of the last solve (zero without sweeps).
+    pub fn last_change(&self, i: usize) -> Impulse {
+        self.trail[i][0]
     }
 
     /// The last solve's rate of convergence: the geometric mean of the residual's ratio over (at
@@ -502,9 +519,15 @@ mod tests {
         assert!((l.normal - 1.0).abs() < 1e-3, "{l:?}");
         // Still sliding: friction at the cone boundary.
         assert!((l.tangent.abs() - 0.5 * l.normal).abs() < 1e-4, "{l:?}");
-        // The last sweep's change is what the residual measured.
-        let d = s.last_change()[0];
+        // The last sweep's change is what the residual measured, and the trail holds the sweeps
+        // before it in order.
+        let d = s.last_change(0);
         assert_eq!(d.normal.abs().max(d.tangent.abs()), rep.final_residual);
+        let n = s.residuals().len();
+        for (k, change) in s.trail()[0].iter().enumerate() {
+            let measured = if k < n { s.residuals()[n - 1 - k] } else { 0.0 };
+            assert_eq!(change.normal.abs().max(change.tangent.abs()), measured, "sweep -{k} of {n}");
+        }
     }
 
     #[test]

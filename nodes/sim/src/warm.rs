@@ -29,6 +29,10 @@ pub struct WarmStartInput<'a> {
     pub fixed: &'a [bool],
     /// The step's velocity problem, for models that want it ([`WarmStartModel::wants_problem`]).
     pub problem: Option<&'a crate::problem::Problem>,
+    /// The step's solver rows, one per contact (empty where a caller has none).
+    pub rows: &'a [crate::solver::ContactRow],
+    /// The solver's bodies: velocities after external forces, inverse masses.
+    pub bodies: &'a [crate::solver::SolverBody],
     /// Solves the step's contact problem from builtin's warm start to the oracle's tolerance on
     /// scratch velocities and writes the solution (the oracle behind `copy` and the ablations);
     /// the world's velocities are untouched.
@@ -442,6 +446,8 @@ pub enum ModelKind {
     Extrapolate,
     /// Builtin plus where the previous solve was still going.
     Continue,
+    /// Builtin corrected along the previous solve's last sweeps.
+    Subspace,
     /// Builtin, reappearing contacts from two steps back.
     BuiltinReappear,
     /// Oracle ablation: exact on persisting contacts.
@@ -476,7 +482,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 24] = [
+    pub const ALL: [ModelKind; 25] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -486,6 +492,7 @@ impl ModelKind {
         ModelKind::Random,
         ModelKind::Extrapolate,
         ModelKind::Continue,
+        ModelKind::Subspace,
         ModelKind::BuiltinReappear,
         ModelKind::CopyPersisting,
         ModelKind::CopyNew,
@@ -597,6 +604,7 @@ impl ModelSpec {
             ModelKind::Random => Box::new(Random::new(seed)),
             ModelKind::Extrapolate => Box::new(Extrapolate::new(self.name(), param)),
             ModelKind::Continue => Box::new(Continue::new(self.name(), param)),
+            ModelKind::Subspace => Box::new(crate::subspace::Subspace::new(self.name(), param.round() as usize)),
             ModelKind::BuiltinReappear => Box::new(BuiltinReappear),
             ModelKind::CopyPersisting => ablation(Ablation::CopyPersisting),
             ModelKind::CopyNew => ablation(Ablation::CopyNew),
@@ -761,6 +769,8 @@ pub(crate) mod tests {
             history,
             fixed: &[true, false, false, false],
             problem: None,
+            rows: &[],
+            bodies: &[],
             oracle: &mut oracle,
         };
         let mut out = vec![Impulse::default(); contacts.len()];
@@ -797,8 +807,9 @@ pub(crate) mod tests {
     fn continue_follows_the_last_sweep_by_the_geometric_series() {
         let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
         let mut history = ImpulseHistory::default();
-        let changes = [imp(0.01, -0.002), imp(-0.5, 0.0)];
-        let trail = crate::contact::SolveTrail { last_change: &changes, rate: 0.9 };
+        let zero = imp(0.0, 0.0);
+        let changes = [[imp(0.01, -0.002), zero, zero, zero], [imp(-0.5, 0.0), zero, zero, zero]];
+        let trail = crate::contact::SolveTrail { changes: &changes, rate: 0.9 };
         history.push([point(1).key, point(2).key].into_iter(), &[imp(1.0, 0.1), imp(0.2, 0.0)], trail);
         let contacts = [point(1), point(2), point(3)];
         // rate 0.9: the rest of the way is 9 times the last change; gain 0.5 takes half of it.

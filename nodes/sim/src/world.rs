@@ -22,7 +22,7 @@ use crate::solver::{
     correct_positions, rotate, ContactRow, ContactSolver, Impulse, PoseBody, PositionGeometry, PositionParams,
     PositionRow, SolveParams, SolveReport, SolverBody,
 };
-use crate::warm::{WarmStartInput, WarmStarter};
+use crate::warm::{ModelKind, WarmStartInput, WarmStarter};
 use msgs::{ProblemBody, ProblemContact, ProblemHeader, StepStats};
 use rapier2d::math::{Pose, Vec2};
 use rapier2d::prelude::{ColliderBuilder, PhysicsWorld, RigidBodyBuilder, RigidBodyHandle};
@@ -166,6 +166,10 @@ pub struct World {
     oracle_report: Option<SolveReport>,
     /// Capture each step's velocity problem (and solve a reference with these parameters).
     capture: Option<Capture>,
+    /// Sweeps of the step solved from builtin's warm start on scratch velocities, when asked.
+    shadow: Option<u32>,
+    shadow_on: bool,
+    shadow_warm: Vec<Impulse>,
     problem: Problem,
 }
 
@@ -257,11 +261,26 @@ impl World {
             min_separation: 0.0,
             oracle_report: None,
             capture: None,
+            shadow: None,
+            shadow_on: false,
+            shadow_warm: Vec::new(),
             problem: Problem::default(),
         };
         world.set_kinematic_state(0.0);
         world.sync_rapier();
         world
+    }
+
+    /// From the next step on, also solve each step from builtin's warm start on scratch
+    /// velocities (not part of the step's time): [`World::shadow_sweeps`].
+    pub fn shadow_builtin(&mut self, on: bool) {
+        self.shadow_on = on;
+    }
+
+    /// The sweeps builtin's warm start needed on the last step's problem, with
+    /// [`World::shadow_builtin`].
+    pub fn shadow_sweeps(&self) -> Option<u32> {
+        self.shadow
     }
 
     /// From the next step on, capture each step's velocity problem before solving it
@@ -600,16 +619,32 @@ impl World {
                 history: &self.history,
                 fixed: &self.fixed,
                 problem: model_reads_problem.then_some(&self.problem),
+                rows,
+                bodies,
                 oracle: &mut oracle,
             };
             warm.warm_start(&mut input, &mut self.warm)
         };
         let warm_start_us = t_warm.elapsed().as_secs_f32() * 1e6;
+        let used = if fallback { warm.fallback.name() } else { warm.model.name() };
+        // builtin on this same problem, when asked (a builtin step is its own answer); not part
+        // of the step's time.
+        let t_shadow = Instant::now();
+        let shadow = (self.shadow_on && used != ModelKind::Builtin.name()).then(|| {
+            self.shadow_warm.clear();
+            self.shadow_warm.resize(self.contacts.len(), Impulse::default());
+            self.history.fill_previous(&self.contacts, &mut self.shadow_warm);
+            self.scratch_bodies.clear();
+            self.scratch_bodies.extend_from_slice(&self.solver_bodies);
+            self.oracle_solver.solve(&self.rows, &mut self.scratch_bodies, &self.shadow_warm, &self.params.solve).sweeps
+        });
+        let shadow_time = t_shadow.elapsed();
 
         // Velocity solve.
         let t_solve = Instant::now();
         let report = self.solver.solve(&self.rows, &mut self.solver_bodies, &self.warm, &self.params.solve);
         let solve_us = t_solve.elapsed().as_secs_f32() * 1e6;
+        self.shadow = self.shadow_on.then(|| shadow.unwrap_or(report.sweeps));
 
         // Integrate positions (dynamic bodies; kinematic ones follow their prescribed motion).
         self.poses.clear();
@@ -666,9 +701,8 @@ impl World {
             t_max = t_max.max(dtn.abs());
         }
         let count = self.contacts.len().max(1) as f64;
-        let trail = SolveTrail { last_change: self.solver.last_change(), rate: self.solver.convergence_rate() };
+        let trail = SolveTrail { changes: self.solver.trail(), rate: self.solver.convergence_rate() };
         self.history.push(self.contacts.iter().map(|c| c.key), final_impulses, trail);
-        let used = if fallback { warm.fallback.name() } else { warm.model.name() };
         // The names' strings are reused from step to step (no allocation on the step path).
         let (mut model, mut used_model) =
             (std::mem::take(&mut self.stats.model), std::mem::take(&mut self.stats.used_model));
@@ -695,9 +729,11 @@ impl World {
             warm_error_tangent_max: t_max,
             solve_us,
             warm_start_us,
-            step_us: t_step.elapsed().saturating_sub(capture_time).as_secs_f32() * 1e6,
+            step_us: t_step.elapsed().saturating_sub(capture_time + shadow_time).as_secs_f32() * 1e6,
             kinetic_energy: 0.0,
             max_speed: 0.0,
+            builtin_sweeps: self.shadow.unwrap_or(0),
+            builtin_measured: self.shadow.is_some(),
         };
         self.min_separation = min_separation;
         // Measured after the step's timer stopped: bookkeeping, not simulation.

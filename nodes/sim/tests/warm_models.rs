@@ -189,3 +189,54 @@ fn an_untrained_contact_graph_network_is_builtin_exactly() {
     assert_eq!(sweeps, sweeps_per_step("builtin"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Per step: the step's own sweeps, and builtin's on the same problem when measured.
+type PairedSweeps = Vec<(u32, Option<u32>)>;
+
+/// One ball-box simulation (seed 0, 150 steps) with `spec`, builtin measured alongside when
+/// `shadow`: per step sweeps, and the final body positions.
+fn with_shadow(spec: &str, shadow: bool) -> (PairedSweeps, Vec<[f32; 2]>) {
+    let spec: ModelSpec = spec.parse().unwrap();
+    let mut warm = WarmStarter::new(spec.build(0).unwrap(), ModelKind::Builtin.build(0).unwrap());
+    warm.begin_simulation(0, 0);
+    let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
+    world.shadow_builtin(shadow);
+    let per_step = (0..150)
+        .map(|_| {
+            let s = world.step(&mut warm);
+            assert_eq!(s.builtin_measured, shadow);
+            (s.sweeps, s.builtin_measured.then_some(s.builtin_sweeps))
+        })
+        .collect();
+    (per_step, world.bodies().iter().map(|b| [b.x.x, b.x.y]).collect())
+}
+
+#[test]
+fn builtin_alongside_measures_the_same_problems_without_touching_the_run() {
+    // Measuring builtin beside a model leaves the model's run bit for bit as it was.
+    let (plain, plain_bodies) = with_shadow("none", false);
+    let (shadowed, shadowed_bodies) = with_shadow("none", true);
+    assert_eq!(plain.iter().map(|s| s.0).collect::<Vec<_>>(), shadowed.iter().map(|s| s.0).collect::<Vec<_>>());
+    assert_eq!(plain_bodies, shadowed_bodies);
+    // From zero, the jammed late steps cost more than builtin's warm start on the same problems.
+    let late = |v: &[(u32, Option<u32>)]| {
+        v[100..].iter().fold((0u64, 0u64), |(a, b), s| (a + s.0 as u64, b + s.1.unwrap() as u64))
+    };
+    let (own, builtin) = late(&shadowed);
+    assert!(own > builtin && builtin > 0, "none {own} vs builtin on its states {builtin}");
+    // On a builtin run, builtin on the same problems is the run itself.
+    let (builtin_run, _) = with_shadow("builtin", true);
+    assert!(builtin_run.iter().all(|&(own, shadow)| shadow == Some(own)), "{builtin_run:?}");
+}
+
+#[test]
+fn the_subspace_correction_runs_in_the_world_and_stays_near_builtin() {
+    // subspace:K corrects builtin inside the span of the previous solve's last sweeps: on a real
+    // pile it changes the warm start (so the run differs) and converges like builtin does.
+    let builtin = sweeps_per_step("builtin");
+    let subspace = sweeps_per_step("subspace:2");
+    assert_ne!(subspace, builtin, "the correction never moved the warm start");
+    let (b, s) = (builtin.iter().sum::<u32>() as f64, subspace.iter().sum::<u32>() as f64);
+    assert!(s < 1.25 * b && s > 0.75 * b, "subspace:2 {s} vs builtin {b}");
+    assert_eq!(ModelSpec::of(ModelKind::Subspace).name(), "subspace:2");
+}

@@ -1,0 +1,324 @@
+//! `subspace:K` — builtin's warm start corrected in the few directions where the previous solve
+//! was still moving.
+//!
+//! PGS removes rough error in a few sweeps and stalls on its slowest modes: impulse patterns that
+//! barely change any velocity (near self-stress in a jammed pile). That is where builtin's error
+//! costs sweeps (README "Headroom": the error that survives no smoothing is the expensive part).
+//! The last sweeps of the previous solve point along exactly those modes, and a pile's slow modes
+//! change little from one step to the next. So the model takes builtin's warm start and, within
+//! the span of the previous solve's last K sweep changes (matched by contact key), adds the
+//! correction that best solves the step's own linearised problem — closed contacts' normal
+//! velocity and sticking contacts' tangent velocity to zero — in the energy norm of the step's
+//! `J M^-1 J^T`: a K x K Galerkin system. It costs K + 1 passes over the rows, about as much
+//! work as K + 1 sweeps. Not learned: the solver's own history is the basis.
+
+use crate::contact::ContactPoint;
+use crate::solver::{tangent_of, ContactRow, Impulse, SolverBody, TRAIL_SWEEPS};
+use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
+
+/// The largest K (the solver keeps this many sweeps per row).
+pub const MAX_DIMENSIONS: usize = TRAIL_SWEEPS;
+
+/// See the module documentation.
+#[derive(Debug)]
+pub struct Subspace {
+    name: String,
+    dimensions: usize,
+    /// Scratch: per row `[normal, tangent]` values of each basis vector, the residual, W z.
+    basis: Vec<Vec<[f64; 2]>>,
+    residual: Vec<[f64; 2]>,
+    product: Vec<[f64; 2]>,
+    velocities: Vec<[f64; 3]>,
+}
+
+impl Subspace {
+    /// `dimensions` of the previous solve's last sweeps (1..=[`MAX_DIMENSIONS`]).
+    pub fn new(name: String, dimensions: usize) -> Subspace {
+        Subspace {
+            name,
+            dimensions: dimensions.clamp(1, MAX_DIMENSIONS),
+            basis: Vec::new(),
+            residual: Vec::new(),
+            product: Vec::new(),
+            velocities: Vec::new(),
+        }
+    }
+}
+
+impl WarmStartModel for Subspace {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        input.history.fill_previous(input.contacts, out);
+        let (rows, bodies) = (input.rows, input.bodies);
+        if rows.len() != out.len() || rows.is_empty() {
+            // Nothing to correct against (no rows given): builtin as it is.
+            return Ok(());
+        }
+        // The solver projects the guess onto the friction cone; the correction starts from there.
+        for (row, o) in rows.iter().zip(out.iter_mut()) {
+            o.normal = o.normal.max(0.0);
+            let t_max = row.friction * o.normal;
+            o.tangent = o.tangent.clamp(-t_max, t_max);
+        }
+        let active: Vec<[bool; 2]> = rows
+            .iter()
+            .zip(out.iter())
+            .map(|(row, o)| {
+                let closed = o.normal > 0.0;
+                [closed, closed && o.tangent.abs() < 0.999 * row.friction * o.normal]
+            })
+            .collect();
+
+        // What the step's problem still asks after builtin's guess: minus the relative velocity
+        // of the active rows.
+        self.velocities.clear();
+        self.velocities.extend(bodies.iter().map(|b| [b.v.x as f64, b.v.y as f64, b.w as f64]));
+        for (row, o) in rows.iter().zip(out.iter()) {
+            apply(&mut self.velocities, bodies, row, [o.normal as f64, o.tangent as f64]);
+        }
+        self.residual.clear();
+        self.residual.extend(rows.iter().zip(&active).map(|(row, act)| {
+            let [vn, vt] = relative(&self.velocities, row);
+            [if act[0] { -vn } else { 0.0 }, if act[1] { -vt } else { 0.0 }]
+        }));
+
+        // The basis: the previous solve's last sweeps, on the active rows, orthonormalised.
+        self.basis.resize_with(self.dimensions, Vec::new);
+        let mut kept = 0;
+        for j in 0..self.dimensions {
+            let mut z = std::mem::take(&mut self.basis[kept]);
+            fill_trail(&mut z, input.contacts, input.history, j, &active);
+            for q in &self.basis[..kept] {
+                let d = dot(&z, q);
+                axpy(&mut z, -d, q);
+            }
+            let norm = dot(&z, &z).sqrt();
+            if norm > 1e-12 {
+                z.iter_mut().for_each(|v| v.iter_mut().for_each(|x| *x /= norm));
+                self.basis[kept] = z;
+                kept += 1;
+            } else {
+                self.basis[kept] = z;
+            }
+        }
+        if kept == 0 {
+            return Ok(());
+        }
+
+        // Galerkin: (Z^T W Z) y = Z^T r, W = J M^-1 J^T on the active rows.
+        let mut system = [[0.0f64; MAX_DIMENSIONS]; MAX_DIMENSIONS];
+        let mut rhs = [0.0f64; MAX_DIMENSIONS];
+        for j in 0..kept {
+            self.velocities.clear();
+            self.velocities.resize(bodies.len(), [0.0; 3]);
+            for (row, z) in rows.iter().zip(&self.basis[j]) {
+                apply(&mut self.velocities, bodies, row, *z);
+            }
+            self.product.clear();
+            self.product.extend(rows.iter().zip(&active).map(|(row, act)| {
+                let [vn, vt] = relative(&self.velocities, row);
+                [if act[0] { vn } else { 0.0 }, if act[1] { vt } else { 0.0 }]
+            }));
+            for (row, z) in system.iter_mut().zip(&self.basis[..kept]) {
+                row[j] = dot(z, &self.product);
+            }
+            rhs[j] = dot(&self.basis[j], &self.residual);
+        }
+        let Some(y) = solve_spd(&system, &rhs, kept) else { return Ok(()) };
+        for (i, o) in out.iter_mut().enumerate() {
+            let (mut dn, mut dt) = (0.0, 0.0);
+            for (j, yj) in y.iter().enumerate().take(kept) {
+                dn += yj * self.basis[j][i][0];
+                dt += yj * self.basis[j][i][1];
+            }
+            o.normal += dn as f32;
+            o.tangent += dt as f32;
+        }
+        Ok(())
+    }
+}
+
+/// Sweep `-j` of the previous solve's trail per contact, `[normal, tangent]`, zero on inactive
+/// rows and new contacts.
+fn fill_trail(
+    z: &mut Vec<[f64; 2]>,
+    contacts: &[ContactPoint],
+    history: &crate::contact::ImpulseHistory,
+    j: usize,
+    active: &[[bool; 2]],
+) {
+    z.clear();
+    z.extend(contacts.iter().zip(active).map(|(c, act)| match history.previous_trail(&c.key) {
+        Some(trail) => {
+            [if act[0] { trail[j].normal as f64 } else { 0.0 }, if act[1] { trail[j].tangent as f64 } else { 0.0 }]
+        }
+        None => [0.0, 0.0],
+    }));
+}
+
+/// Adds the velocity change of impulse `[normal, tangent]` at `row` to `v` (per body vx, vy, w).
+fn apply(v: &mut [[f64; 3]], bodies: &[SolverBody], row: &ContactRow, [n, t]: [f64; 2]) {
+    let (normal, tangent) = (row.normal, tangent_of(row.normal));
+    let p = [normal.x as f64 * n + tangent.x as f64 * t, normal.y as f64 * n + tangent.y as f64 * t];
+    for (body, r, sign) in [(row.body_a as usize, row.ra, -1.0), (row.body_b as usize, row.rb, 1.0)] {
+        let (im, ii) = (bodies[body].inv_mass as f64, bodies[body].inv_inertia as f64);
+        let torque = r.x as f64 * p[1] - r.y as f64 * p[0];
+        v[body][0] += sign * im * p[0];
+        v[body][1] += sign * im * p[1];
+        v[body][2] += sign * ii * torque;
+    }
+}
+
+/// Relative velocity of b with respect to a at the row's point: `[normal, tangent]`.
+fn relative(v: &[[f64; 3]], row: &ContactRow) -> [f64; 2] {
+    let at = |body: usize, r: rapier2d::math::Vec2| {
+        let [vx, vy, w] = v[body];
+        [vx - w * r.y as f64, vy + w * r.x as f64]
+    };
+    let (a, b) = (at(row.body_a as usize, row.ra), at(row.body_b as usize, row.rb));
+    let d = [b[0] - a[0], b[1] - a[1]];
+    let (n, t) = (row.normal, tangent_of(row.normal));
+    [d[0] * n.x as f64 + d[1] * n.y as f64, d[0] * t.x as f64 + d[1] * t.y as f64]
+}
+
+fn dot(a: &[[f64; 2]], b: &[[f64; 2]]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1]).sum()
+}
+
+fn axpy(z: &mut [[f64; 2]], a: f64, x: &[[f64; 2]]) {
+    for (zi, xi) in z.iter_mut().zip(x) {
+        zi[0] += a * xi[0];
+        zi[1] += a * xi[1];
+    }
+}
+
+/// Solves the symmetric positive semi-definite `n x n` system by Cholesky, with a ridge of 1e-10
+/// of its trace (a direction the step's problem cannot see gets no correction). `None` when the
+/// system is empty or not finite.
+fn solve_spd(
+    a: &[[f64; MAX_DIMENSIONS]; MAX_DIMENSIONS],
+    b: &[f64; MAX_DIMENSIONS],
+    n: usize,
+) -> Option<[f64; MAX_DIMENSIONS]> {
+    let trace: f64 = (0..n).map(|i| a[i][i]).sum();
+    if !(trace.is_finite() && trace > 0.0) {
+        return None;
+    }
+    let ridge = 1e-10 * trace;
+    let mut l = [[0.0f64; MAX_DIMENSIONS]; MAX_DIMENSIONS];
+    for i in 0..n {
+        for j in 0..=i {
+            let s = a[i][j] + if i == j { ridge } else { 0.0 };
+            let s = s - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
+            if i == j {
+                if s <= 0.0 {
+                    return None;
+                }
+                l[i][i] = s.sqrt();
+            } else {
+                l[i][j] = s / l[j][j];
+            }
+        }
+    }
+    let mut y = [0.0f64; MAX_DIMENSIONS];
+    for i in 0..n {
+        let s: f64 = b[i] - (0..i).map(|k| l[i][k] * y[k]).sum::<f64>();
+        y[i] = s / l[i][i];
+    }
+    let mut x = [0.0f64; MAX_DIMENSIONS];
+    for i in (0..n).rev() {
+        let s: f64 = y[i] - (i + 1..n).map(|k| l[k][i] * x[k]).sum::<f64>();
+        x[i] = s / l[i][i];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cholesky_solves_a_small_system() {
+        let mut a = [[0.0; MAX_DIMENSIONS]; MAX_DIMENSIONS];
+        a[0][0] = 4.0;
+        a[0][1] = 2.0;
+        a[1][0] = 2.0;
+        a[1][1] = 3.0;
+        let mut b = [0.0; MAX_DIMENSIONS];
+        b[0] = 2.0;
+        b[1] = 1.0;
+        let x = solve_spd(&a, &b, 2).unwrap();
+        // 4x + 2y = 2, 2x + 3y = 1 -> x = 0.5, y = 0.
+        assert!((x[0] - 0.5).abs() < 1e-8 && x[1].abs() < 1e-8, "{x:?}");
+        let zero = [[0.0; MAX_DIMENSIONS]; MAX_DIMENSIONS];
+        assert!(solve_spd(&zero, &b, 2).is_none());
+    }
+
+    use crate::contact::{ContactKey, ImpulseHistory, SolveTrail};
+    use rapier2d::math::Vec2;
+
+    fn point(body: u32) -> ContactPoint {
+        ContactPoint {
+            key: ContactKey { body_a: 0, body_b: body, feature: 0 },
+            point: Vec2::ZERO,
+            normal: Vec2::Y,
+            penetration: 0.0,
+            friction: 0.5,
+        }
+    }
+
+    fn row(body: u32) -> ContactRow {
+        ContactRow { body_a: 0, body_b: body, ra: Vec2::ZERO, rb: Vec2::new(0.0, -0.5), normal: Vec2::Y, friction: 0.5 }
+    }
+
+    /// Ground (fixed) and two balls falling at 1 and 2 (velocity after gravity), each on one
+    /// contact: the impulse that stops a ball is its speed times its mass (1).
+    fn guess(model: &mut Subspace, trail: [Impulse; TRAIL_SWEEPS]) -> Vec<Impulse> {
+        let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
+        let bodies = [
+            SolverBody::default(),
+            SolverBody { v: Vec2::new(0.0, -1.0), w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
+            SolverBody { v: Vec2::new(0.0, -2.0), w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
+        ];
+        let mut history = ImpulseHistory::default();
+        // Ball 1's contact persists with builtin's 0.4 (the ball still falls); ball 2's is new.
+        history.push([point(1).key].into_iter(), &[imp(0.4, 0.0)], SolveTrail { changes: &[trail], rate: 0.9 });
+        let contacts = [point(1), point(2)];
+        let rows = [row(1), row(2)];
+        let mut oracle = |_: &mut [Impulse]| {};
+        let mut input = WarmStartInput {
+            run_id: 0,
+            simulation: 0,
+            step: 2,
+            contacts: &contacts,
+            history: &history,
+            fixed: &[true, false, false],
+            problem: None,
+            rows: &rows,
+            bodies: &bodies,
+            oracle: &mut oracle,
+        };
+        let mut out = vec![Impulse::default(); 2];
+        model.warm_start(&mut input, &mut out).unwrap();
+        out
+    }
+
+    #[test]
+    fn the_correction_solves_the_step_along_the_trail() {
+        let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
+        let zero = imp(0.0, 0.0);
+        // The last sweep moved the normal: along that direction the step's own problem says 1.
+        let g = guess(&mut Subspace::new("subspace:2".into(), 2), [imp(0.01, 0.0), imp(0.02, 0.0), zero, zero]);
+        assert!((g[0].normal - 1.0).abs() < 1e-6 && g[0].tangent == 0.0, "{g:?}");
+        assert_eq!(g[1], zero, "a new contact keeps builtin's 0: no trail there");
+        // A trail only along the tangent (which the ball does not need) changes nothing.
+        let g = guess(&mut Subspace::new("subspace:1".into(), 1), [imp(0.0, 0.3), zero, zero, zero]);
+        assert!((g[0].normal - 0.4).abs() < 1e-7 && g[0].tangent.abs() < 1e-7, "{g:?}");
+        // No trail (a solve that made no sweeps): builtin as it is.
+        let g = guess(&mut Subspace::new("subspace:4".into(), 4), [zero; TRAIL_SWEEPS]);
+        assert_eq!(g, vec![imp(0.4, 0.0), zero]);
+    }
+}
