@@ -85,6 +85,9 @@ pub struct PhaseRow {
     /// `total_sweeps / builtin's total sweeps over all phases` (None without a builtin run, or
     /// when builtin spent no sweeps).
     pub ratio_to_builtin_total: Option<f64>,
+    /// The phase's sweeps over builtin's on the same step problems (None unless every step of
+    /// the phase measured builtin alongside, or builtin needed none there).
+    pub same_states_ratio: Option<f64>,
     /// Steps that hit the sweep cap (not converged).
     pub cap_hits: usize,
     /// Sweeps of those steps.
@@ -221,6 +224,10 @@ impl Aggregate {
                     model_total_sweeps: model_total,
                     share_of_model: share(total, model_total),
                     ratio_to_builtin_total: ratio(total as f64, builtin),
+                    same_states_ratio: match steps.iter().all(|r| r.builtin_measured) {
+                        true => ratio(total as f64, Some(steps.iter().map(|r| r.builtin_sweeps as f64).sum())),
+                        false => None,
+                    },
                     cap_hits: capped().count(),
                     cap_sweeps,
                     cap_sweeps_share: share(cap_sweeps, model_total),

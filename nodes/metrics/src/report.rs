@@ -166,13 +166,14 @@ fn fmt_small(v: f64) -> String {
 }
 
 /// Columns of the per-phase table (markdown and HTML).
-pub const PHASE_COLUMNS: [&str; 10] = [
+pub const PHASE_COLUMNS: [&str; 11] = [
     "model",
     "phase",
     "steps",
     "sweeps",
     "share of model",
     "vs builtin total",
+    "same states vs builtin",
     "capped steps",
     "capped sweeps (% of model)",
     "median sweeps",
@@ -199,6 +200,7 @@ impl PhaseTable {
                     r.total_sweeps.to_string(),
                     fmt(r.share_of_model * 100.0, 1) + "%",
                     fmt_ratio(r.ratio_to_builtin_total),
+                    fmt_ratio(r.same_states_ratio),
                     r.cap_hits.to_string(),
                     fmt(r.cap_sweeps_share * 100.0, 1) + "%",
                     fmt(r.median_sweeps, 1),
@@ -294,7 +296,8 @@ the model's sweeps over the sweeps builtin's warm start needs on the very same s
 
 const PHASES_NOTE: &str = "Phases are step ranges of every simulation (`--phases`). *share of model*: the \
 phase's sweeps as a share of the model's total; *vs builtin total*: the phase's sweeps relative to builtin's \
-sweeps over the whole run; *capped*: steps that hit the sweep cap (not converged) and their sweeps as a \
+sweeps over the whole run; *same states vs builtin*: the phase's sweeps over builtin's on the very same step \
+problems; *capped*: steps that hit the sweep cap (not converged) and their sweeps as a \
 share of the model's total; the warm-start error is the median over the phase's steps with contacts.";
 
 const ACCURACY_NOTE: &str = "Per model: the median (and mean) warm-start MSE of the normal impulse over the \
@@ -431,6 +434,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
             "model_total_sweeps",
             "share_of_model",
             "ratio_to_builtin_total",
+            "same_states_ratio",
             "cap_hits",
             "cap_sweeps",
             "cap_sweeps_share",
@@ -448,6 +452,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
                 r.model_total_sweeps.to_string(),
                 r.share_of_model.to_string(),
                 opt(r.ratio_to_builtin_total),
+                opt(r.same_states_ratio),
                 r.cap_hits.to_string(),
                 r.cap_sweeps.to_string(),
                 r.cap_sweeps_share.to_string(),

@@ -113,9 +113,29 @@ fn phase_totals_add_up_and_compare_with_builtins_whole_run() {
     let table = PhaseTable::new(&rows);
     assert_eq!(
         table.rows[2].to_vec(),
-        ["builtin", "150-end", "100", "1000", "55.6%", "0.556x", "0", "0.0%", "10.0", "0.2000"]
+        ["builtin", "150-end", "100", "1000", "55.6%", "0.556x", "-", "0", "0.0%", "10.0", "0.2000"]
     );
-    assert_eq!(table.rows[5][6..8], ["20".to_string(), format!("{:.1}%", 2e6 / capped_total as f64)]);
+    assert_eq!(table.rows[5][7..9], ["20".to_string(), format!("{:.1}%", 2e6 / capped_total as f64)]);
+}
+
+#[test]
+fn same_states_per_phase_pair_each_step_with_builtin_on_it() {
+    let mut a = Aggregate::new();
+    for s in 0..200 {
+        // Early steps: 3 sweeps where builtin needs 4; late ones: 9 where it needs 6.
+        let (own, builtin) = if s < 150 { (3, 4) } else { (9, 6) };
+        let mut r = step("m", 0, s, own, true, 0.1, 5);
+        (r.stats.builtin_sweeps, r.stats.builtin_measured) = (builtin, true);
+        a.add(r);
+    }
+    let rows = a.phase_rows();
+    let ratios: Vec<Option<f64>> = rows.iter().map(|r| r.same_states_ratio).collect();
+    assert_eq!(ratios, [Some(0.75), Some(0.75), Some(1.5)]);
+    assert_eq!(PhaseTable::new(&rows).rows[2][6], "1.500x");
+    // One late step without builtin measured: that phase has no figure, the others keep theirs.
+    a.add(step("m", 0, 200, 9, true, 0.1, 5));
+    let ratios: Vec<Option<f64>> = a.phase_rows().iter().map(|r| r.same_states_ratio).collect();
+    assert_eq!(ratios, [Some(0.75), Some(0.75), None]);
 }
 
 #[test]
@@ -132,7 +152,7 @@ fn without_builtin_there_is_no_builtin_column() {
     assert_eq!(rows[1].steps, 0);
     assert_eq!(rows[1].total_sweeps, 0);
     assert!(rows[1].median_sweeps.is_nan());
-    assert_eq!(PhaseTable::new(&rows).rows[1][8], "-");
+    assert_eq!(PhaseTable::new(&rows).rows[1][9], "-");
 }
 
 #[test]
@@ -235,7 +255,7 @@ fn phase_table_markdown_and_html_show_the_same_cells() {
     let md = table.to_markdown();
     let lines: Vec<&str> = md.lines().collect();
     assert_eq!(lines[0], format!("| {} |", PHASE_COLUMNS.join(" | ")));
-    assert_eq!(lines[1], "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    assert_eq!(lines[1], "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     assert_eq!(lines.len(), 2 + 9);
     let html = table.to_html();
     for row in &table.rows {
