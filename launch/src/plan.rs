@@ -225,11 +225,35 @@ impl Plan {
             namespace: self.namespace.clone(),
             default_transport: Transport::Iceoryx2,
             topics,
+            zenoh_readers: self.zenoh_readers(member),
             zenoh,
             queue_depth: self.queue_depth,
             best_effort: self.best_effort.clone(),
             host: if self.multi_host { host.to_string() } else { String::new() },
         }
+    }
+
+    /// Per topic `member` publishes over zenoh: how many other members subscribe to it over zenoh
+    /// (each announces itself; the publisher waits for all before its first frame).
+    fn zenoh_readers(&self, member: &str) -> BTreeMap<String, usize> {
+        let over_zenoh = |m: &str, topic: &str| {
+            self.transports.get(&(m.to_string(), topic.to_string())).is_some_and(|t| t.uses_zenoh())
+        };
+        let Some(me) = self.members.iter().find(|m| m.name == member) else { return BTreeMap::new() };
+        me.ports
+            .publishes
+            .iter()
+            .filter(|topic| over_zenoh(member, topic))
+            .map(|topic| {
+                let readers = self
+                    .members
+                    .iter()
+                    .filter(|o| o.name != member && o.ports.subscribes.contains(topic) && over_zenoh(&o.name, topic))
+                    .count();
+                (topic.clone(), readers)
+            })
+            .filter(|&(_, readers)| readers > 0)
+            .collect()
     }
 
     /// Every topic with its writers and readers (`member@host`) and how each link travels.
@@ -336,6 +360,17 @@ mod tests {
         let routes = plan.routes();
         let bodies = routes.iter().find(|r| r.topic == "bodies").unwrap();
         assert_eq!(bodies.links, ["iceoryx2 on a", "zenoh a -> b"]);
+    }
+
+    #[test]
+    fn publishers_know_how_many_subscribers_read_them_over_zenoh() {
+        let plan = Plan::new(&two_hosts(""), &node_ports());
+        let readers = |m: &str, host: &str| plan.bus(m, host).zenoh_readers.into_iter().collect::<Vec<_>>();
+        // bodies: sph reads it over zenoh (rec over iceoryx2); control: rec (both) and sph.
+        assert_eq!(readers("sim", "a"), [("bodies".to_string(), 1), ("control".to_string(), 2)]);
+        // grid/contacts: sim and rec, both on the other host.
+        assert_eq!(readers("sph", "b"), [("grid/contacts".to_string(), 2)]);
+        assert!(readers("rec", "a").is_empty(), "rec publishes nothing");
     }
 
     #[test]

@@ -142,6 +142,11 @@ pub struct BusConfig {
     /// Every other topic is reliable: nothing is lost, a full queue waits.
     #[serde(default)]
     pub best_effort: std::collections::BTreeSet<String>,
+    /// Per topic this node publishes over zenoh: how many subscribers the launcher planned for it
+    /// over zenoh. The publisher holds its first frame until that many have announced themselves
+    /// (liveliness tokens), so none misses the start; 0 or absent: until any one matches.
+    #[serde(default)]
+    pub zenoh_readers: BTreeMap<String, usize>,
     #[serde(default)]
     pub zenoh: ZenohConfig,
     /// Queue depth per subscriber; a full queue holds the publisher back (no loss).
@@ -352,6 +357,7 @@ impl Node {
                 &self.bus.key(topic),
                 topic,
                 self.bus.is_best_effort(topic),
+                self.bus.zenoh_readers.get(topic).copied().unwrap_or(0),
             )?)
         } else {
             None

@@ -12,9 +12,19 @@ use zenoh::qos::CongestionControl;
 use zenoh::sample::Sample;
 use zenoh::Wait;
 
-/// How long a publisher waits for a first matching subscriber before its first message. The
-/// launcher's ready barrier guarantees the subscriber exists; this covers the declaration's trip.
-const MATCH_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long a publisher waits for its subscribers before its first message. The launcher's ready
+/// barrier guarantees the subscribers exist; this covers their declarations' trip (and a planned
+/// subscriber that never comes, which is then said in a warning).
+const MATCH_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Where a subscriber of `key` announces itself: a liveliness token per subscriber, declared after
+/// the subscriber itself, so a publisher that sees the token already routes to the subscriber.
+fn readers_key(key: &str) -> String {
+    format!("{key}/_readers")
+}
+
+/// Tells subscribers of one session apart.
+static SUBSCRIBER_COUNT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 /// How long a client session waits for the graph's zenoh router before failing.
 const CLIENT_CONNECT_TIMEOUT: Duration = Duration::from_secs(120);
@@ -68,12 +78,22 @@ fn err(topic: &str, what: impl std::fmt::Display) -> Error {
 pub(crate) struct ZenPublisher {
     topic: String,
     publisher: zenoh::pubsub::Publisher<'static>,
+    session: zenoh::Session,
+    key: String,
+    /// Subscribers the launcher planned over zenoh (0: unknown, wait for any match).
+    readers: usize,
     matched: bool,
     buffer: Vec<u8>,
 }
 
 impl ZenPublisher {
-    pub(crate) fn new(session: &zenoh::Session, key: &str, topic: &str, best_effort: bool) -> Result<ZenPublisher> {
+    pub(crate) fn new(
+        session: &zenoh::Session,
+        key: &str,
+        topic: &str,
+        best_effort: bool,
+        readers: usize,
+    ) -> Result<ZenPublisher> {
         let congestion = if best_effort { CongestionControl::Drop } else { CongestionControl::Block };
         let publisher = session
             .declare_publisher(key.to_string())
@@ -81,7 +101,15 @@ impl ZenPublisher {
             .encoding(zenoh::bytes::Encoding::APPLICATION_CBOR)
             .wait()
             .map_err(|e| err(topic, format!("declare publisher on `{key}`: {e}")))?;
-        Ok(ZenPublisher { topic: topic.to_string(), publisher, matched: false, buffer: Vec::new() })
+        Ok(ZenPublisher {
+            topic: topic.to_string(),
+            publisher,
+            session: session.clone(),
+            key: key.to_string(),
+            readers,
+            matched: false,
+            buffer: Vec::new(),
+        })
     }
 
     pub(crate) fn send<H: msgs::FrameHeader, T: msgs::FrameItem>(&mut self, header: &H, items: &[T]) -> Result<()> {
@@ -101,26 +129,71 @@ impl ZenPublisher {
         self.publisher.put(bytes).wait().map_err(|e| err(&self.topic, format!("put: {e}")))
     }
 
-    /// Waits (bounded) until some subscriber matches, so the first frames are not routed nowhere.
+    /// Waits (bounded) until every planned subscriber has announced itself — or, with none
+    /// planned, until some subscriber matches — so the first frames reach every reader (a
+    /// subscriber whose declaration arrives after them would miss them for good).
     fn wait_for_match(&mut self) {
         let start = Instant::now();
+        let mut seen = 0;
         while start.elapsed() < MATCH_TIMEOUT {
-            match self.publisher.matching_status().wait() {
-                Ok(s) if s.matching() => break,
-                Ok(_) => std::thread::sleep(Duration::from_millis(5)),
-                Err(e) => {
-                    tracing::warn!(topic = %self.topic, "zenoh matching status: {e}");
-                    break;
+            let ready = if self.readers > 0 {
+                seen = self.announced_readers();
+                seen >= self.readers
+            } else {
+                match self.publisher.matching_status().wait() {
+                    Ok(s) => s.matching(),
+                    Err(e) => {
+                        tracing::warn!(topic = %self.topic, "zenoh matching status: {e}");
+                        true
+                    }
                 }
+            };
+            if ready {
+                self.matched = true;
+                return;
             }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if self.readers > 0 {
+            tracing::warn!(
+                topic = %self.topic,
+                "{seen} of {} planned subscribers announced after {MATCH_TIMEOUT:?}: sending anyway",
+                self.readers
+            );
         }
         self.matched = true;
+    }
+
+    /// Subscribers of this key whose liveliness token this session knows of now.
+    fn announced_readers(&self) -> usize {
+        let replies = match self
+            .session
+            .liveliness()
+            .get(format!("{}/**", readers_key(&self.key)))
+            .timeout(Duration::from_millis(500))
+            .wait()
+        {
+            Ok(r) => r,
+            Err(e) => {
+                tracing::warn!(topic = %self.topic, "zenoh liveliness query: {e}");
+                return 0;
+            }
+        };
+        let mut tokens = std::collections::BTreeSet::new();
+        while let Ok(reply) = replies.recv() {
+            if let Ok(sample) = reply.result() {
+                tokens.insert(sample.key_expr().as_str().to_string());
+            }
+        }
+        tokens.len()
     }
 }
 
 pub(crate) struct ZenSubscriber {
     topic: String,
     queue: SubscriberQueue,
+    /// Announces the subscriber to publishers (see [`readers_key`]); undeclared when dropped.
+    _token: zenoh::liveliness::LivelinessToken,
 }
 
 /// A reliable subscriber's FIFO, or a best-effort one's ring.
@@ -147,7 +220,15 @@ impl ZenSubscriber {
         } else {
             SubscriberQueue::Fifo(builder.with(zenoh::handlers::FifoChannel::new(capacity)).wait().map_err(declare)?)
         };
-        Ok(ZenSubscriber { topic: topic.to_string(), queue })
+        // After the subscriber: a publisher that sees the token already routes to it.
+        let n = SUBSCRIBER_COUNT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let token_key = format!("{}/{}/{n}", readers_key(key), session.zid());
+        let token = session
+            .liveliness()
+            .declare_token(token_key.clone())
+            .wait()
+            .map_err(|e| err(topic, format!("declare liveliness `{token_key}`: {e}")))?;
+        Ok(ZenSubscriber { topic: topic.to_string(), queue, _token: token })
     }
 
     pub(crate) fn recv_timeout(&self, timeout: Duration) -> Result<Option<Sample>> {

@@ -56,6 +56,43 @@ fn zenoh_frames_round_trip_in_one_process() {
 }
 
 #[test]
+fn a_zenoh_publisher_holds_its_first_frame_until_every_planned_subscriber_is_there() {
+    // The publisher listens; one subscriber is there from the start, the second declares itself
+    // 300 ms later. Told (as the launcher tells it) that two subscribers read the topic, the
+    // publisher waits for both: the late one gets the first frame too.
+    let base = bus("late-reader", Transport::Zenoh);
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let mut publisher_bus = base.clone();
+    publisher_bus.zenoh.listen = vec![endpoint.clone()];
+    publisher_bus.zenoh_readers = [(topics::CONTACTS.name.to_string(), 2)].into();
+    let mut reader_bus = base;
+    reader_bus.zenoh.connect = vec![endpoint];
+    let writer = Node::new("writer", publisher_bus, false);
+    let mut publisher = writer.publisher(topics::CONTACTS).unwrap();
+    let early_node = Node::new("early", reader_bus.clone(), false);
+    let mut early = early_node.subscriber(topics::CONTACTS).unwrap();
+    let late = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(300));
+        let node = Node::new("late", reader_bus, false);
+        let mut late = node.subscriber(topics::CONTACTS).unwrap();
+        let first = late.recv_timeout(Duration::from_secs(15)).unwrap().expect("a frame reaches the late subscriber");
+        first.header().step
+    });
+    let started = std::time::Instant::now();
+    for step in 0..3 {
+        publisher.publish(&StepHeader { run_id: 1, simulation: 0, step }, &contacts(2, step)).unwrap();
+    }
+    let waited = started.elapsed();
+    assert!(
+        waited >= Duration::from_millis(250),
+        "the first frame left after {waited:?}, before the second subscriber"
+    );
+    assert_eq!(early.recv_timeout(Duration::from_secs(5)).unwrap().expect("first frame").header().step, 0);
+    assert_eq!(late.join().unwrap(), 0, "the late subscriber missed the first frame");
+}
+
+#[test]
 fn zero_copy_publish_writes_in_place() {
     let bus = bus("inplace", Transport::Iceoryx2);
     let node = Node::new("both", bus, false);
