@@ -94,6 +94,12 @@ pub const MODELS: &[ModelInfo] = &[
     plain("rough-error", "the oracle plus the rest of builtin's error (its local, high-frequency part)"),
     plain("gnn", "the contact-graph network's correction to builtin (in the simulator, `--gnn-model FILE`)"),
     ModelInfo {
+        name: "gnn-subspace",
+        served_on: None,
+        param: Some(Param { what: "K: the previous solve's last K sweeps beside the network's direction", default: 2.0, min: 0.0, max: 4.0 }),
+        about: "the network's correction as a direction only: builtin plus the amplitudes of it and the previous solve's last K sweeps that the step's own Galerkin system picks (`--gnn-model FILE`)",
+    },
+    ModelInfo {
         name: "gnn-node",
         served_on: Some(topics::WARM_GNN.name),
         param: None,

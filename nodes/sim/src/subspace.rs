@@ -16,14 +16,18 @@ use crate::contact::ContactPoint;
 use crate::solver::{tangent_of, ContactRow, Impulse, SolverBody, TRAIL_SWEEPS};
 use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
 
-/// The largest K (the solver keeps this many sweeps per row).
-pub const MAX_DIMENSIONS: usize = TRAIL_SWEEPS;
+/// The most basis vectors: the solver's kept sweeps and one model's direction.
+pub const MAX_DIMENSIONS: usize = TRAIL_SWEEPS + 1;
 
 /// See the module documentation.
-#[derive(Debug)]
 pub struct Subspace {
     name: String,
+    /// Sweeps of the previous solve's trail in the basis.
     dimensions: usize,
+    /// A model whose guess minus builtin's is one more direction (`gnn-subspace`: the network's
+    /// correction, its amplitude left to the step's own problem).
+    direction: Option<Box<dyn WarmStartModel>>,
+    guess: Vec<Impulse>,
     /// Scratch: per row `[normal, tangent]` values of each basis vector, the residual, W z.
     basis: Vec<Vec<[f64; 2]>>,
     residual: Vec<[f64; 2]>,
@@ -32,11 +36,13 @@ pub struct Subspace {
 }
 
 impl Subspace {
-    /// `dimensions` of the previous solve's last sweeps (1..=[`MAX_DIMENSIONS`]).
+    /// `dimensions` of the previous solve's last sweeps (1..=[`TRAIL_SWEEPS`]).
     pub fn new(name: String, dimensions: usize) -> Subspace {
         Subspace {
             name,
-            dimensions: dimensions.clamp(1, MAX_DIMENSIONS),
+            dimensions: dimensions.clamp(1, TRAIL_SWEEPS),
+            direction: None,
+            guess: Vec::new(),
             basis: Vec::new(),
             residual: Vec::new(),
             product: Vec::new(),
@@ -45,12 +51,39 @@ impl Subspace {
     }
 }
 
+impl Subspace {
+    /// `model`'s correction to builtin as one direction, with `dimensions` (0..=[`TRAIL_SWEEPS`])
+    /// sweeps of the previous solve's trail.
+    pub fn with_direction(name: String, dimensions: usize, model: Box<dyn WarmStartModel>) -> Subspace {
+        Subspace { dimensions: dimensions.min(TRAIL_SWEEPS), direction: Some(model), ..Subspace::new(name, 1) }
+    }
+}
+
+impl std::fmt::Debug for Subspace {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Subspace")
+            .field("name", &self.name)
+            .field("dimensions", &self.dimensions)
+            .field("direction", &self.direction.as_ref().map(|m| m.name().to_string()))
+            .finish()
+    }
+}
+
 impl WarmStartModel for Subspace {
     fn name(&self) -> &str {
         &self.name
     }
 
+    fn wants_problem(&self) -> bool {
+        self.direction.as_ref().is_some_and(|m| m.wants_problem())
+    }
+
     fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        if let Some(model) = &mut self.direction {
+            self.guess.clear();
+            self.guess.resize(out.len(), Impulse::default());
+            model.warm_start(input, &mut self.guess)?;
+        }
         input.history.fill_previous(input.contacts, out);
         let (rows, bodies) = (input.rows, input.bodies);
         if rows.len() != out.len() || rows.is_empty() {
@@ -85,12 +118,24 @@ impl WarmStartModel for Subspace {
             [if act[0] { -vn } else { 0.0 }, if act[1] { -vt } else { 0.0 }]
         }));
 
-        // The basis: the previous solve's last sweeps, on the active rows, orthonormalised.
-        self.basis.resize_with(self.dimensions, Vec::new);
+        // The basis: the model's direction, then the previous solve's last sweeps, on the active
+        // rows, orthonormalised.
+        let from_model = usize::from(self.direction.is_some());
+        self.basis.resize_with(from_model + self.dimensions, Vec::new);
         let mut kept = 0;
-        for j in 0..self.dimensions {
+        for j in 0..from_model + self.dimensions {
             let mut z = std::mem::take(&mut self.basis[kept]);
-            fill_trail(&mut z, input.contacts, input.history, j, &active);
+            if j < from_model {
+                z.clear();
+                z.extend(self.guess.iter().zip(out.iter()).zip(&active).map(|((g, b), act)| {
+                    [
+                        if act[0] { (g.normal - b.normal) as f64 } else { 0.0 },
+                        if act[1] { (g.tangent - b.tangent) as f64 } else { 0.0 },
+                    ]
+                }));
+            } else {
+                fill_trail(&mut z, input.contacts, input.history, j - from_model, &active);
+            }
             for q in &self.basis[..kept] {
                 let d = dot(&z, q);
                 axpy(&mut z, -d, q);
@@ -320,5 +365,38 @@ mod tests {
         // No trail (a solve that made no sweeps): builtin as it is.
         let g = guess(&mut Subspace::new("subspace:4".into(), 4), [zero; TRAIL_SWEEPS]);
         assert_eq!(g, vec![imp(0.4, 0.0), zero]);
+    }
+
+    /// A model that answers builtin plus a fixed change on every contact.
+    struct Nudge(Impulse);
+
+    impl WarmStartModel for Nudge {
+        fn name(&self) -> &str {
+            "nudge"
+        }
+        fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+            input.history.fill_previous(input.contacts, out);
+            for o in out.iter_mut() {
+                (o.normal, o.tangent) = (o.normal + self.0.normal, o.tangent + self.0.tangent);
+            }
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_models_direction_gets_its_amplitude_from_the_step() {
+        let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
+        let zero = imp(0.0, 0.0);
+        // The model says "a little more normal impulse" (0.05 where 0.6 is missing): the step's
+        // own problem scales that direction to the full 0.6.
+        let nudge = Box::new(Nudge(imp(0.05, 0.0)));
+        let g = guess(&mut Subspace::with_direction("gnn-subspace:0".into(), 0, nudge), [zero; TRAIL_SWEEPS]);
+        assert!((g[0].normal - 1.0).abs() < 1e-5 && g[0].tangent == 0.0, "{g:?}");
+        // A direction pointing the wrong way (less impulse) is followed backwards: the step picks the sign.
+        let away = Box::new(Nudge(imp(-0.3, 0.0)));
+        let g = guess(&mut Subspace::with_direction("gnn-subspace:0".into(), 0, away), [zero; TRAIL_SWEEPS]);
+        assert!((g[0].normal - 1.0).abs() < 1e-5, "{g:?}");
+        // Only the active rows of the new contact (none: builtin gives it 0, so it is open) move.
+        assert_eq!(g[1], zero);
     }
 }

@@ -466,6 +466,8 @@ pub enum ModelKind {
     RoughError,
     /// The contact-graph network.
     Gnn,
+    /// The network's correction as a direction, amplitudes from the step's Galerkin system.
+    GnnSubspace,
     /// The contact-graph network over the bus.
     GnnNode,
     /// The exact solution through the value-preserving grid transfer and back.
@@ -482,7 +484,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 25] = [
+    pub const ALL: [ModelKind; 26] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -502,6 +504,7 @@ impl ModelKind {
         ModelKind::SmoothError,
         ModelKind::RoughError,
         ModelKind::Gnn,
+        ModelKind::GnnSubspace,
         ModelKind::GnnNode,
         ModelKind::CopyGrid,
         ModelKind::CopyGridSph,
@@ -613,7 +616,7 @@ impl ModelSpec {
             ModelKind::Noise => ablation(Ablation::Noise(param)),
             ModelKind::SmoothError => ablation(Ablation::SmoothError),
             ModelKind::RoughError => ablation(Ablation::RoughError),
-            ModelKind::Gnn => return Err(SimError::NoModelFile(self.name())),
+            ModelKind::Gnn | ModelKind::GnnSubspace => return Err(SimError::NoModelFile(self.name())),
             ModelKind::GnnNode => return Err(SimError::NoGridSource(self.name())),
             ModelKind::CopyGrid => Box::new(CopyGrid::new(sph::Mode::Preserving)),
             ModelKind::CopyGridSph => Box::new(CopyGrid::new(sph::Mode::Sph)),
@@ -647,6 +650,12 @@ impl ModelSpec {
             (ModelKind::Gnn, Some(path)) => {
                 let file = gnn::ModelFile::load(path).map_err(|e| SimError::ModelFile(e.to_string()))?;
                 Ok(Box::new(crate::learned::GnnModel::new(file.net)))
+            }
+            (ModelKind::GnnSubspace, Some(path)) => {
+                let file = gnn::ModelFile::load(path).map_err(|e| SimError::ModelFile(e.to_string()))?;
+                let network = Box::new(crate::learned::GnnModel::new(file.net));
+                let trail = self.param.unwrap_or_default().round() as usize;
+                Ok(Box::new(crate::subspace::Subspace::with_direction(self.name(), trail, network)))
             }
             _ => self.build_with_source(seed, source),
         }

@@ -175,18 +175,24 @@ fn an_untrained_contact_graph_network_is_builtin_exactly() {
     let err = spec.build(0).err().unwrap().to_string();
     assert!(err.contains("--gnn-model"), "{err}");
     let files = sim::ModelFiles { gnn: Some(path) };
-    let mut warm = WarmStarter::new(spec.build_with(0, None, &files).unwrap(), ModelKind::None.build(0).unwrap());
-    warm.begin_simulation(0, 0);
-    let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
-    let sweeps: Vec<u32> = (0..150)
-        .map(|_| {
-            let s = world.step(&mut warm);
-            assert!(!s.fallback, "step {}: the network fell back", s.step);
-            s.sweeps
-        })
-        .collect();
+    let run = |spec: &ModelSpec| -> Vec<u32> {
+        let mut warm = WarmStarter::new(spec.build_with(0, None, &files).unwrap(), ModelKind::None.build(0).unwrap());
+        warm.begin_simulation(0, 0);
+        let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
+        (0..150)
+            .map(|_| {
+                let s = world.step(&mut warm);
+                assert!(!s.fallback, "step {}: {} fell back", s.step, s.model);
+                s.sweeps
+            })
+            .collect()
+    };
     // The decoder starts at zero: the correction is 0 and the warm start is builtin's, bit for bit.
-    assert_eq!(sweeps, sweeps_per_step("builtin"));
+    assert_eq!(run(&spec), sweeps_per_step("builtin"));
+    // As a direction only (gnn-subspace:0), a zero correction is no direction: builtin again.
+    let direction: ModelSpec = "gnn-subspace:0".parse().unwrap();
+    assert!(direction.build(0).err().unwrap().to_string().contains("--gnn-model"));
+    assert_eq!(run(&direction), sweeps_per_step("builtin"));
     let _ = std::fs::remove_dir_all(&dir);
 }
 
