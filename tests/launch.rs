@@ -284,3 +284,37 @@ fn eval_starts_the_gnn_node_for_gnn_node_and_asks_for_its_model() {
     assert!(listed.contains("publishes warm/gnn; subscribes control, problem/bodies, problem/contacts"), "{listed}");
     assert!(listed.contains("warm/gnn") && listed.contains("sim-0 -> "), "{listed}");
 }
+
+#[test]
+fn a_daemon_finishes_its_backlog_before_the_daemon_that_records_it_stops() {
+    // The simulator outruns an SPH node on a fine grid (back-pressure holds it a queue ahead), so
+    // when it ends, steps are still queued at SPH. The launcher stops producers before their
+    // readers and SPH turns what it holds into grids: the recording has every step's grid.
+    let dir = scratch_dir("daemon-backlog");
+    let recordings = dir.join("rec");
+    let graph = format!(
+        "[[nodes]]\nname = \"sim\"\nbinary = \"dc-sim\"\nparams = {{ models = \"builtin\", seeds = \"0\", steps = 60 }}\n\n\
+         [[nodes]]\nname = \"sph\"\nbinary = \"dc-sph\"\ndaemon = true\nparams = {{ res = 0.04 }}\n\n\
+         [[nodes]]\nname = \"recorder\"\nbinary = \"dc-record\"\ndaemon = true\n\
+         params = {{ dir = \"{}\", topics = \"bodies,grid/contacts\" }}\n",
+        recordings.display()
+    );
+    let out = launch_within("daemon-backlog", &graph, Duration::from_secs(120));
+    assert!(out.status.success(), "{}", text(&out));
+    let (mut bodies, mut grids) = (std::collections::BTreeSet::new(), std::collections::BTreeSet::new());
+    for file in recorder::recording_files(&recordings).unwrap() {
+        let mut reader = recorder::RecordingReader::open(&file).unwrap();
+        while let Some(m) = reader.next_message() {
+            let m = m.unwrap();
+            match m.channel.topic.as_str() {
+                "bodies" => bodies.insert(msgs::decode::<msgs::StepHeader, msgs::Body>(&m.data).unwrap().header.step),
+                "grid/contacts" => {
+                    grids.insert(msgs::decode::<msgs::GridHeader, f32>(&m.data).unwrap().header.step.step)
+                }
+                other => panic!("unexpected topic {other}"),
+            };
+        }
+    }
+    assert_eq!(bodies.len(), 60, "{}", text(&out));
+    assert_eq!(grids, bodies, "steps recorded without their grid:\n{}", text(&out));
+}

@@ -715,7 +715,7 @@ impl<'a> Supervisor<'a> {
     /// publishers are still alive), then the lingering workers. A node that fails while being
     /// stopped is still a failure worth reporting.
     fn drain_and_shutdown(mut self) -> Result<RunReport, RunError> {
-        stop_where(&mut self.nodes, |n| !n.done);
+        stop_in_waves(&mut self.nodes, &self.plan);
         stop_all(&mut self.nodes);
         self.drain_lines();
         if let Some(n) = self.nodes.iter().find(|n| n.exited.is_some_and(failed_on_stop)) {
@@ -787,6 +787,34 @@ fn describe(status: ExitStatus) -> String {
 /// SIGTERM to every running node, then SIGKILL after the grace period.
 fn stop_all(nodes: &mut [Running]) {
     stop_where(nodes, |_| true)
+}
+
+/// Stops the nodes still at work, producers before their consumers: each wave is every such node
+/// none of whose input topics another of them writes (the launchers' control notices aside), and
+/// it exits before the next wave is asked to, so what a producer makes of its last inputs (an SPH
+/// node's last grids) still reaches a reader that records it. Readers of each other stop together.
+fn stop_in_waves(nodes: &mut [Running], plan: &Plan) {
+    let ports = |name: &str| plan.members.iter().find(|m| m.name == name).map(|m| &m.ports);
+    loop {
+        let at_work: Vec<String> =
+            nodes.iter().filter(|n| n.exited.is_none() && !n.done).map(|n| n.spec.name.clone()).collect();
+        if at_work.is_empty() {
+            return;
+        }
+        let fed_by_others = |name: &str| {
+            ports(name).is_some_and(|p| {
+                p.subscribes
+                    .iter()
+                    .filter(|t| t.as_str() != msgs::topics::CONTROL.name)
+                    .any(|t| at_work.iter().any(|o| o != name && ports(o).is_some_and(|q| q.publishes.contains(t))))
+            })
+        };
+        let mut wave: Vec<String> = at_work.iter().filter(|n| !fed_by_others(n)).cloned().collect();
+        if wave.is_empty() {
+            wave = at_work;
+        }
+        stop_where(nodes, |n| wave.contains(&n.spec.name));
+    }
 }
 
 /// Stops the running nodes `which` selects: stdin closed (a node waiting for `start`, or lingering

@@ -83,7 +83,10 @@ fn run_node(args: NodeArgs) -> Result<()> {
     // end is not the end of the work.
     let mut run_ended: Option<Instant> = None;
     let mut open_runs = std::collections::BTreeSet::new();
-    while !node.is_shutdown() {
+    loop {
+        // Asked to stop (the launcher stops a graph's producers before their readers): one last
+        // pass turns what has already arrived into grids, so a recording keeps its last steps.
+        let stopping = node.is_shutdown();
         while let Some(c) = control.try_recv()? {
             node.observe_control(c.header());
             match c.header().kind() {
@@ -101,7 +104,9 @@ fn run_node(args: NodeArgs) -> Result<()> {
             }
         }
         // Wait on the stream that is behind, so a step goes out as soon as its second half lands.
-        let waited = if pairer.pending_a() > 0 {
+        let waited = if stopping {
+            Ok(None)
+        } else if pairer.pending_a() > 0 {
             contacts_sub
                 .recv_timeout(Duration::from_millis(50))
                 .map(|r| r.map(|r| pairer.push_b(*r.header(), r.into_frame())))
@@ -110,10 +115,10 @@ fn run_node(args: NodeArgs) -> Result<()> {
                 .recv_timeout(Duration::from_millis(50))
                 .map(|r| r.map(|r| pairer.push_a(*r.header(), r.into_frame())))
         };
-        let waited = match waited {
+        let (waited, interrupted) = match waited {
             // Ctrl-C / SIGTERM interrupts the wait: that is a shutdown, not a failure.
-            Err(_) if node.is_shutdown() => break,
-            other => other?,
+            Err(_) if node.is_shutdown() => (None, true),
+            other => (other?, false),
         };
         let mut got = waited.is_some();
         while let Some(r) = bodies_sub.try_recv()? {
@@ -161,6 +166,9 @@ fn run_node(args: NodeArgs) -> Result<()> {
                     tracing::error!(simulation = step.simulation, step = step.step, "no grids for this step: {e}");
                 }
             }
+        }
+        if stopping || interrupted {
+            break;
         }
         if let Some(at) = run_ended {
             if got {
