@@ -4,7 +4,7 @@
 //! reported, with the same residual after every sweep. With `--label-tolerance` the problems
 //! carry a reference solution from which the solve is over at once.
 
-use deep_contact::{launch, scratch_dir, text};
+use deep_contact::{bin, launch, scratch_dir, text};
 
 #[test]
 fn recorded_problems_resolve_to_the_recorded_sweeps() {
@@ -80,4 +80,18 @@ params = {{ model = "builtin", seeds = "3", steps = 150, n = 40, publish-problem
     assert_eq!(steps, 150);
     assert!(with_contacts > 50 && total_sweeps > 1000, "{with_contacts} steps with contacts, {total_sweeps} sweeps");
     assert!(old_contacts > 1000, "{old_contacts} contacts at least two steps old");
+
+    // The network trains end to end on the recording, and with --save-epochs every epoch's
+    // network is written beside the chosen one, as a model file `dc-gnn` reads.
+    let model = dir.join("net.dcg");
+    let trained = std::process::Command::new(bin("dc-gnn-train"))
+        .args(["--data", &file.display().to_string(), "--validation", &file.display().to_string()])
+        .args(["--out", &model.display().to_string(), "--method", "backprop", "--epochs", "2", "--save-epochs"])
+        .output()
+        .unwrap();
+    assert!(trained.status.success(), "{}", text(&trained));
+    for path in [model.clone(), dir.join("net.epoch1.dcg"), dir.join("net.epoch2.dcg")] {
+        let info = std::process::Command::new(bin("dc-gnn")).arg("info").arg(&path).output().unwrap();
+        assert!(info.status.success(), "{}: {}", path.display(), text(&info));
+    }
 }

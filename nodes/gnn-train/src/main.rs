@@ -72,6 +72,11 @@ struct Args {
     epochs: usize,
     #[arg(long, default_value_t = 1e-3)]
     lr: f64,
+    /// With `backprop`: also write every epoch's network beside --out (`<out>.epoch<N>.dcg`),
+    /// whichever wins on validation — e.g. to use one as a direction (`gnn-subspace`), where its
+    /// size is the step's to choose and its warm-start sweeps say little.
+    #[arg(long)]
+    save_epochs: bool,
 }
 
 /// The labelled steps of a recording: (problem, builtin's sweeps).
@@ -267,6 +272,15 @@ fn train_end_to_end(
             sweeps as f64 / builtin as f64,
             started.elapsed().as_secs_f64()
         );
+        if args.save_epochs {
+            let path = args.out.with_extension(format!("epoch{}.dcg", epoch + 1));
+            let how = format!("epoch {} of end to end training on the {} loss (lr {})", epoch + 1, args.loss, args.lr);
+            let provenance = format!("dc-gnn-train: {how}; validation {sweeps} sweeps re-solved");
+            match ModelFile::new(candidate.clone(), &provenance).save(&path) {
+                Ok(()) => println!("  wrote {}", path.display()),
+                Err(e) => eprintln!("  could not write {}: {e}", path.display()),
+            }
+        }
         if sweeps < best.0 {
             best = (sweeps, epoch + 1, candidate.clone());
         }
