@@ -81,12 +81,12 @@ params = {{ model = "builtin", seeds = "3", steps = 150, n = 40, publish-problem
     assert!(with_contacts > 50 && total_sweeps > 1000, "{with_contacts} steps with contacts, {total_sweeps} sweeps");
     assert!(old_contacts > 1000, "{old_contacts} contacts at least two steps old");
 
-    // The network trains end to end on the recording, and with --save-epochs every epoch's
+    // The network trains end to end on the recording, and with --save-candidates every epoch's
     // network is written beside the chosen one, as a model file `dc-gnn` reads.
     let model = dir.join("net.dcg");
     let trained = std::process::Command::new(bin("dc-gnn-train"))
         .args(["--data", &file.display().to_string(), "--validation", &file.display().to_string()])
-        .args(["--out", &model.display().to_string(), "--method", "backprop", "--epochs", "2", "--save-epochs"])
+        .args(["--out", &model.display().to_string(), "--method", "backprop", "--epochs", "2", "--save-candidates"])
         .output()
         .unwrap();
     assert!(trained.status.success(), "{}", text(&trained));

@@ -72,11 +72,12 @@ struct Args {
     epochs: usize,
     #[arg(long, default_value_t = 1e-3)]
     lr: f64,
-    /// With `backprop`: also write every epoch's network beside --out (`<out>.epoch<N>.dcg`),
-    /// whichever wins on validation — e.g. to use one as a direction (`gnn-subspace`), where its
-    /// size is the step's to choose and its warm-start sweeps say little.
+    /// Also write every candidate beside --out, whichever wins on validation: each epoch's
+    /// network (`backprop`: `<out>.epoch<N>.dcg`) or each ridge's fit (`readout`:
+    /// `<out>.ridge<R>.dcg`) — e.g. to use one as a direction (`gnn-subspace`), where its size is
+    /// the step's to choose and its warm-start sweeps say little.
     #[arg(long)]
-    save_epochs: bool,
+    save_candidates: bool,
 }
 
 /// The labelled steps of a recording: (problem, builtin's sweeps).
@@ -272,14 +273,9 @@ fn train_end_to_end(
             sweeps as f64 / builtin as f64,
             started.elapsed().as_secs_f64()
         );
-        if args.save_epochs {
-            let path = args.out.with_extension(format!("epoch{}.dcg", epoch + 1));
+        if args.save_candidates {
             let how = format!("epoch {} of end to end training on the {} loss (lr {})", epoch + 1, args.loss, args.lr);
-            let provenance = format!("dc-gnn-train: {how}; validation {sweeps} sweeps re-solved");
-            match ModelFile::new(candidate.clone(), &provenance).save(&path) {
-                Ok(()) => println!("  wrote {}", path.display()),
-                Err(e) => eprintln!("  could not write {}: {e}", path.display()),
-            }
+            save_candidate(args, &format!("epoch{}", epoch + 1), candidate, &how, sweeps);
         }
         if sweeps < best.0 {
             best = (sweeps, epoch + 1, candidate.clone());
@@ -396,6 +392,10 @@ fn try_main() -> Result<()> {
         candidate.decode = decoder(&w[..2 * (readout + 1)], readout);
         let sweeps = validation_sweeps(&candidate, &validation);
         println!("  ridge {ridge:e}: {sweeps} sweeps ({:.3}x builtin)", sweeps as f64 / builtin as f64);
+        if args.save_candidates {
+            let how = format!("readout fit on the {} loss, ridge {ridge:e}", args.loss);
+            save_candidate(&args, &format!("ridge{ridge:e}"), &candidate, &how, sweeps);
+        }
         if best.as_ref().is_none_or(|(s, _, _)| sweeps < *s) {
             best = Some((sweeps, ridge, candidate));
         }
@@ -410,6 +410,16 @@ fn try_main() -> Result<()> {
 }
 
 /// Writes the model with its provenance: how it was made, and what it did on validation.
+/// Writes a candidate that may not win beside --out (`<out>.<tag>.dcg`); a failure is said, not fatal.
+fn save_candidate(args: &Args, tag: &str, model: &Net, how: &str, sweeps: u64) {
+    let path = args.out.with_extension(format!("{tag}.dcg"));
+    let provenance = format!("dc-gnn-train: {how}; validation {sweeps} sweeps re-solved");
+    match ModelFile::new(model.clone(), &provenance).save(&path) {
+        Ok(()) => println!("  wrote {}", path.display()),
+        Err(e) => eprintln!("  could not write {}: {e}", path.display()),
+    }
+}
+
 fn save(args: &Args, model: Net, how: &str, sweeps: u64, builtin: u64, validation_steps: usize) -> Result<()> {
     let provenance = format!(
         "dc-gnn-train: {how} of {}, hidden {}, {} rounds, seed {}; validation {validation_steps} steps of {}: {sweeps} sweeps re-solved = {:.3}x builtin",
