@@ -139,18 +139,24 @@ pub fn parse(spec: &str) -> Result<(&'static ModelInfo, Option<f32>), String> {
         None => (spec, None),
     };
     let info = model(name).ok_or_else(|| format!("unknown warm-start model `{name}` (known: {})", names_list()))?;
-    if spec.len() > 16 {
-        return Err(format!("`{spec}` is longer than 16 bytes, the statistics' name field (write fewer digits)"));
-    }
-    match (info.param, value) {
-        (None, None) => Ok((info, None)),
-        (None, Some(_)) => Err(format!("model `{name}` takes no parameter (`{spec}`)")),
-        (Some(p), None) => Ok((info, Some(p.default))),
+    let param = match (info.param, value) {
+        (None, None) => None,
+        (None, Some(_)) => return Err(format!("model `{name}` takes no parameter (`{spec}`)")),
+        (Some(p), None) => Some(p.default),
         (Some(p), Some(v)) => match v.trim().parse::<f32>() {
-            Ok(x) if x.is_finite() && (p.min..=p.max).contains(&x) => Ok((info, Some(x))),
-            _ => Err(format!("`{spec}`: {} must be a number in [{}, {}]", p.what, p.min, p.max)),
+            Ok(x) if x.is_finite() && (p.min..=p.max).contains(&x) => Some(x),
+            _ => return Err(format!("`{spec}`: {} must be a number in [{}, {}]", p.what, p.min, p.max)),
         },
+    };
+    // The name the statistics carry is the canonical one (`extrapolate:.125` is
+    // `extrapolate:0.125`): it must fit, or two models would share a truncated name.
+    let canonical = spec_name(info, param);
+    if canonical.len() > 16 {
+        return Err(format!(
+            "`{spec}` is named `{canonical}`, longer than 16 bytes, the statistics' name field (write fewer digits)"
+        ));
     }
+    Ok((info, param))
 }
 
 /// The canonical name of a model with its parameter (`blend:0.5`; the default included).
@@ -197,6 +203,9 @@ mod tests {
         assert!(parse("blend:x").is_err());
         assert!(parse("builtin:3").unwrap_err().contains("no parameter"));
         assert!(parse("nope:1").unwrap_err().contains("unknown"));
+        // Checked on the name the statistics carry, not on what was typed.
+        assert!(parse("extrapolate:.125").unwrap_err().contains("`extrapolate:0.125`, longer than 16 bytes"));
+        assert_eq!(parse("extrapolate:.25").unwrap().1, Some(0.25));
         assert_eq!(spec_name(m, Some(0.75)), "blend:0.75");
         // Names must fit the 16-byte name of the statistics.
         assert!(parse("extrapolate:0.25").is_ok());
