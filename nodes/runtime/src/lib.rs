@@ -224,18 +224,22 @@ pub struct Node {
     describe: Option<std::cell::RefCell<Ports>>,
     /// Past [`Node::ready`]: a subscriber made now attaches at once.
     running: std::cell::Cell<bool>,
+    /// Publishes something over zenoh (see [`Node`]'s `Drop`).
+    zenoh_publishing: std::cell::Cell<bool>,
 }
 
 /// A launched node outlives its work: iceoryx2 maps a publisher's data segment into a subscriber
 /// lazily, at the first sample it takes, and the segment disappears with the publisher. A source
 /// that sent a dozen frames and exited before a slower reader (the recorder) took the first one
-/// lost them all. So the publishers stay alive until the launcher, which knows when the graph's
-/// readers are done, closes our stdin (or a signal arrives).
+/// lost them all. Over zenoh, a put returns once the frame is queued for each link, and a process
+/// that exits at once can take the last frames to a slower link with it (a sink lost the last of
+/// 60 while a tap got it). So the publishers stay alive until the launcher, which knows when the
+/// graph's readers are done, closes our stdin (or a signal arrives).
 impl Drop for Node {
     fn drop(&mut self) {
         // A node that never started sent nothing anybody could be reading.
-        if !self.launched || !self.running.get() || self.iox_publishers.borrow().is_empty() || std::thread::panicking()
-        {
+        let publishes = !self.iox_publishers.borrow().is_empty() || self.zenoh_publishing.get();
+        if !self.launched || !self.running.get() || !publishes || std::thread::panicking() {
             return;
         }
         if say(DONE_MARKER).is_err() {
@@ -294,6 +298,7 @@ impl Node {
             iox_publishers: Default::default(),
             describe: None,
             running: Default::default(),
+            zenoh_publishing: Default::default(),
         }
     }
 
@@ -352,6 +357,7 @@ impl Node {
             None
         };
         let zen = if transport.uses_zenoh() {
+            self.zenoh_publishing.set(true);
             Some(zen::ZenPublisher::new(
                 self.zenoh(topic)?,
                 &self.bus.key(topic),
