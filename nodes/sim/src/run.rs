@@ -119,7 +119,7 @@ pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Re
             world.contact_msgs(&mut contacts);
             let stats = world.stats();
             sweeps += stats.sweeps as u64;
-            shadow += world.shadow_sweeps().unwrap_or(0) as u64;
+            shadow += stats.builtin_sweeps as u64;
             unconverged += (!stats.converged) as u32;
             let residuals = &world.residuals()[..world.residuals().len().min(msgs::MAX_RESIDUALS)];
             let header = StepHeader { run_id, simulation, step };

@@ -166,8 +166,7 @@ pub struct World {
     oracle_report: Option<SolveReport>,
     /// Capture each step's velocity problem (and solve a reference with these parameters).
     capture: Option<Capture>,
-    /// Sweeps of the step solved from builtin's warm start on scratch velocities, when asked.
-    shadow: Option<u32>,
+    /// Also solve each step from builtin's warm start (see [`World::shadow_builtin`]).
     shadow_on: bool,
     shadow_warm: Vec<Impulse>,
     problem: Problem,
@@ -261,7 +260,6 @@ impl World {
             min_separation: 0.0,
             oracle_report: None,
             capture: None,
-            shadow: None,
             shadow_on: false,
             shadow_warm: Vec::new(),
             problem: Problem::default(),
@@ -272,15 +270,9 @@ impl World {
     }
 
     /// From the next step on, also solve each step from builtin's warm start on scratch
-    /// velocities (not part of the step's time): [`World::shadow_sweeps`].
+    /// velocities (not part of the step's time): the step statistics' `builtin_sweeps`.
     pub fn shadow_builtin(&mut self, on: bool) {
         self.shadow_on = on;
-    }
-
-    /// The sweeps builtin's warm start needed on the last step's problem, with
-    /// [`World::shadow_builtin`].
-    pub fn shadow_sweeps(&self) -> Option<u32> {
-        self.shadow
     }
 
     /// From the next step on, capture each step's velocity problem before solving it
@@ -644,7 +636,7 @@ impl World {
         let t_solve = Instant::now();
         let report = self.solver.solve(&self.rows, &mut self.solver_bodies, &self.warm, &self.params.solve);
         let solve_us = t_solve.elapsed().as_secs_f32() * 1e6;
-        self.shadow = self.shadow_on.then(|| shadow.unwrap_or(report.sweeps));
+        let builtin_sweeps = self.shadow_on.then(|| shadow.unwrap_or(report.sweeps));
 
         // Integrate positions (dynamic bodies; kinematic ones follow their prescribed motion).
         self.poses.clear();
@@ -732,8 +724,8 @@ impl World {
             step_us: t_step.elapsed().saturating_sub(capture_time + shadow_time).as_secs_f32() * 1e6,
             kinetic_energy: 0.0,
             max_speed: 0.0,
-            builtin_sweeps: self.shadow.unwrap_or(0),
-            builtin_measured: self.shadow.is_some(),
+            builtin_sweeps: builtin_sweeps.unwrap_or(0),
+            builtin_measured: builtin_sweeps.is_some(),
         };
         self.min_separation = min_separation;
         // Measured after the step's timer stopped: bookkeeping, not simulation.
