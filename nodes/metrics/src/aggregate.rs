@@ -115,6 +115,14 @@ pub struct Paired {
     pub worst_ratio: f64,
 }
 
+/// Total sweeps of `steps` and builtin's on the same problems; None when a step did not measure
+/// builtin.
+pub fn same_states_totals<'a>(steps: impl IntoIterator<Item = &'a StepRecord>) -> Option<(u64, u64)> {
+    steps.into_iter().try_fold((0u64, 0u64), |(own, builtin), r| {
+        r.builtin_measured.then(|| (own + r.sweeps as u64, builtin + r.builtin_sweeps as u64))
+    })
+}
+
 impl Paired {
     /// Over `simulations` (simulation -> step -> record); None when a step did not measure
     /// builtin or builtin took no sweeps at all.
@@ -122,14 +130,7 @@ impl Paired {
         let (mut own, mut builtin) = (0u64, 0u64);
         let mut worst: Option<(u32, f64)> = None;
         for (&simulation, steps) in simulations {
-            let (mut o, mut b) = (0u64, 0u64);
-            for r in steps.values() {
-                if !r.builtin_measured {
-                    return None;
-                }
-                o += r.sweeps as u64;
-                b += r.builtin_sweeps as u64;
-            }
+            let (o, b) = same_states_totals(steps.values())?;
             own += o;
             builtin += b;
             if b > 0 {

@@ -224,10 +224,8 @@ impl Aggregate {
                     model_total_sweeps: model_total,
                     share_of_model: share(total, model_total),
                     ratio_to_builtin_total: ratio(total as f64, builtin),
-                    same_states_ratio: match steps.iter().all(|r| r.builtin_measured) {
-                        true => ratio(total as f64, Some(steps.iter().map(|r| r.builtin_sweeps as f64).sum())),
-                        false => None,
-                    },
+                    same_states_ratio: crate::aggregate::same_states_totals(steps.iter().copied())
+                        .and_then(|(own, builtin)| ratio(own as f64, Some(builtin as f64))),
                     cap_hits: capped().count(),
                     cap_sweeps,
                     cap_sweeps_share: share(cap_sweeps, model_total),
