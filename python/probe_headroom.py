@@ -16,6 +16,12 @@ tolerance; `cgK` counts its K conjugate-gradient iterations as sweeps):
   active-change      exact on contacts whose closed/open state changes
   slip-change        exact on contacts whose stick/slip state changes
   cg5, cg20, cg50    K conjugate-gradient iterations on builtin's active set, then PGS
+  low20, low150      builtin corrected exactly within the K slowest linear modes of its active set
+  prox1e-4, prox1e-3 builtin plus the exact regularised linear solve (W + a diag W) on its active set
+  true-set           the exact linear solution on the reference's own active set (closed/open,
+                     stick/slip with direction), least change from builtin
+The last five are exact global solves whose cost is not counted: an upper bound for any warm
+start that corrects builtin by linear algebra on the step's problem.
 """
 import argparse
 import sys
@@ -115,17 +121,28 @@ class Problem:
                 return sweep
         return cap
 
-    def cg_start(self, iterations):
-        """builtin, then `iterations` CG steps on its active set (closed normals, sticking tangents)."""
+    def builtin_rows(self):
+        """builtin projected onto the friction cone, as solver rows (tangent, normal per contact),
+        its active set (closed normals, sticking tangents), W = J M^-1 J^T and the free velocity."""
         J, minv = self.jacobian()
         W = (J * minv) @ J.T
         u0 = J @ self.v0.reshape(-1)
         lam = np.empty(2 * len(self.a))
-        lam[0::2], lam[1::2] = self.previous[:, 1], self.previous[:, 0]
-        closed = self.previous[:, 0] > 0
+        lam[1::2] = np.maximum(self.previous[:, 0], 0.0)
+        lam[0::2] = np.clip(self.previous[:, 1], -self.mu * lam[1::2], self.mu * lam[1::2])
+        closed = lam[1::2] > 0
         active = np.zeros(len(lam), bool)
         active[1::2] = closed
-        active[0::2] = closed & (np.abs(self.previous[:, 1]) < self.mu * self.previous[:, 0] * 0.999)
+        active[0::2] = closed & (np.abs(lam[0::2]) < self.mu * lam[1::2] * 0.999)
+        return lam, active, W, u0
+
+    @staticmethod
+    def contacts_of(lam):
+        return np.stack([lam[1::2], lam[0::2]], 1)
+
+    def cg_start(self, iterations):
+        """builtin, then `iterations` CG steps on its active set (closed normals, sticking tangents)."""
+        lam, active, W, u0 = self.builtin_rows()
         rhs = -(u0 + W @ np.where(active, 0.0, lam))[active]
         Waa = W[np.ix_(active, active)]
         x = lam[active]
@@ -140,7 +157,56 @@ class Problem:
             rn = r @ r
             d, rr = r + (rn / rr) * d, rn
         lam[active] = x
-        return np.stack([lam[1::2], lam[0::2]], 1)
+        return self.contacts_of(lam)
+
+    def prox_start(self, regularisation):
+        """builtin plus the exact solution of (W_aa + a diag(W_aa)) y = -u on its active set: a
+        global linear solve that does not chase the near-null modes (uncounted)."""
+        lam, active, W, u0 = self.builtin_rows()
+        Waa = W[np.ix_(active, active)]
+        r = -(u0 + W @ lam)[active]
+        lam[active] += np.linalg.solve(Waa + regularisation * np.diag(np.diag(Waa)), r)
+        return self.contacts_of(lam)
+
+    def low_modes_start(self, k):
+        """builtin corrected exactly (Galerkin) within the k lowest non-null modes of the
+        diagonally scaled W on its active set: the smooth, slow error (uncounted)."""
+        lam, active, W, u0 = self.builtin_rows()
+        Waa = W[np.ix_(active, active)]
+        d = np.sqrt(np.maximum(np.diag(Waa), 1e-30))
+        w, V = np.linalg.eigh(Waa / d[:, None] / d[None, :])
+        Z = V[:, np.where(w > 1e-8 * w.max())[0][:k]] / d[:, None]
+        r = -(u0 + W @ lam)[active]
+        lam[active] += Z @ np.linalg.lstsq(Z.T @ Waa @ Z, Z.T @ r, rcond=1e-10)[0]
+        return self.contacts_of(lam)
+
+    def true_set_start(self):
+        """builtin moved, by the least change, onto a solution of the linear problem of the
+        reference's own active set (closed / open, sticking / sliding with its direction): what
+        knowing the exact active set buys (uncounted)."""
+        lam0, _, W, u0 = self.builtin_rows()
+        closed = self.reference[:, 0] > 1e-7
+        stick = closed & (np.abs(self.reference[:, 1]) < self.mu * self.reference[:, 0] * 0.999)
+        sign = np.sign(self.reference[:, 1])
+        m = len(self.a)
+        x0 = np.zeros(2 * m)
+        x0[1::2] = np.where(closed, lam0[1::2], 0.0)
+        x0[0::2] = np.where(stick, lam0[0::2], np.where(closed, sign * self.mu * x0[1::2], 0.0))
+        columns = []
+        for i in np.where(closed)[0]:
+            z = np.zeros(2 * m)
+            z[2 * i + 1] = 1.0
+            z[2 * i] = 0.0 if stick[i] else sign[i] * self.mu[i]
+            columns.append(z)
+        for i in np.where(stick)[0]:
+            z = np.zeros(2 * m)
+            z[2 * i] = 1.0
+            columns.append(z)
+        if not columns:
+            return self.contacts_of(x0)
+        Z = np.stack(columns, 1)
+        y = np.linalg.lstsq(Z.T @ W @ Z, -Z.T @ (u0 + W @ x0), rcond=1e-12)[0]
+        return self.contacts_of(x0 + Z @ y)
 
 
 def variants(p, previous_reference):
@@ -168,6 +234,12 @@ def variants(p, previous_reference):
     yield "slip-change", fix(sliding(prev) != sliding(ref)), 0
     for k in (5, 20, 50):
         yield f"cg{k}", p.cg_start(k), k
+    # Exact global linear solves, their cost not counted: what linear algebra could buy at best.
+    for k in (20, 150):
+        yield f"low{k}", p.low_modes_start(k), 0
+    for a in (1e-4, 1e-3):
+        yield f"prox{a:g}", p.prox_start(a), 0
+    yield "true-set", p.true_set_start(), 0
 
 
 def main():

@@ -74,6 +74,12 @@ pub const MODELS: &[ModelInfo] = &[
         param: Some(Param { what: "K: the previous solve's last K sweeps span the correction", default: 2.0, min: 1.0, max: 4.0 }),
         about: "builtin corrected, by the step's own K x K Galerkin system, along the previous solve's last K sweep changes (its slowest modes)",
     },
+    ModelInfo {
+        name: "coarse",
+        served_on: None,
+        param: Some(Param { what: "S: side of a cell in metres", default: 2.0, min: 0.25, max: 1000.0 }),
+        about: "builtin plus a coarse-grid correction: the step's own problem solved (Galerkin) within piecewise-uniform stress fields over cells of side S",
+    },
     plain("builtin-reappear", "builtin, and a contact new this step that existed two steps ago gets that impulse"),
     plain("copy-persisting", "oracle on persisting contacts, 0 on new ones"),
     plain("copy-new", "builtin on persisting contacts, the oracle on new ones"),

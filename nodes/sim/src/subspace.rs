@@ -90,33 +90,8 @@ impl WarmStartModel for Subspace {
             // Nothing to correct against (no rows given): builtin as it is.
             return Ok(());
         }
-        // The solver projects the guess onto the friction cone; the correction starts from there.
-        for (row, o) in rows.iter().zip(out.iter_mut()) {
-            o.normal = o.normal.max(0.0);
-            let t_max = row.friction * o.normal;
-            o.tangent = o.tangent.clamp(-t_max, t_max);
-        }
-        let active: Vec<[bool; 2]> = rows
-            .iter()
-            .zip(out.iter())
-            .map(|(row, o)| {
-                let closed = o.normal > 0.0;
-                [closed, closed && o.tangent.abs() < 0.999 * row.friction * o.normal]
-            })
-            .collect();
-
-        // What the step's problem still asks after builtin's guess: minus the relative velocity
-        // of the active rows.
-        self.velocities.clear();
-        self.velocities.extend(bodies.iter().map(|b| [b.v.x as f64, b.v.y as f64, b.w as f64]));
-        for (row, o) in rows.iter().zip(out.iter()) {
-            apply(&mut self.velocities, bodies, row, [o.normal as f64, o.tangent as f64]);
-        }
-        self.residual.clear();
-        self.residual.extend(rows.iter().zip(&active).map(|(row, act)| {
-            let [vn, vt] = relative(&self.velocities, row);
-            [if act[0] { -vn } else { 0.0 }, if act[1] { -vt } else { 0.0 }]
-        }));
+        let active = project_to_cone(rows, out);
+        step_residual(bodies, rows, out, &active, &mut self.velocities, &mut self.residual);
 
         // The basis: the model's direction, then the previous solve's last sweeps, on the active
         // rows, orthonormalised.
@@ -186,6 +161,43 @@ impl WarmStartModel for Subspace {
     }
 }
 
+/// Projects a guess onto the friction cone as the solver will, and says which rows are active
+/// there: `[normal closed, tangent sticking]`. A Galerkin correction moves only active rows.
+pub(crate) fn project_to_cone(rows: &[ContactRow], out: &mut [Impulse]) -> Vec<[bool; 2]> {
+    rows.iter()
+        .zip(out.iter_mut())
+        .map(|(row, o)| {
+            o.normal = o.normal.max(0.0);
+            let t_max = row.friction * o.normal;
+            o.tangent = o.tangent.clamp(-t_max, t_max);
+            let closed = o.normal > 0.0;
+            [closed, closed && o.tangent.abs() < 0.999 * row.friction * o.normal]
+        })
+        .collect()
+}
+
+/// What the step's problem still asks after the guess `out`: minus the relative velocity of the
+/// active rows (0 on the others). `velocities` is scratch.
+pub(crate) fn step_residual(
+    bodies: &[SolverBody],
+    rows: &[ContactRow],
+    out: &[Impulse],
+    active: &[[bool; 2]],
+    velocities: &mut Vec<[f64; 3]>,
+    residual: &mut Vec<[f64; 2]>,
+) {
+    velocities.clear();
+    velocities.extend(bodies.iter().map(|b| [b.v.x as f64, b.v.y as f64, b.w as f64]));
+    for (row, o) in rows.iter().zip(out.iter()) {
+        apply(velocities, bodies, row, [o.normal as f64, o.tangent as f64]);
+    }
+    residual.clear();
+    residual.extend(rows.iter().zip(active).map(|(row, act)| {
+        let [vn, vt] = relative(velocities, row);
+        [if act[0] { -vn } else { 0.0 }, if act[1] { -vt } else { 0.0 }]
+    }));
+}
+
 /// Sweep `-j` of the previous solve's trail per contact, `[normal, tangent]`, zero on inactive
 /// rows and new contacts.
 fn fill_trail(
@@ -205,7 +217,7 @@ fn fill_trail(
 }
 
 /// Adds the velocity change of impulse `[normal, tangent]` at `row` to `v` (per body vx, vy, w).
-fn apply(v: &mut [[f64; 3]], bodies: &[SolverBody], row: &ContactRow, [n, t]: [f64; 2]) {
+pub(crate) fn apply(v: &mut [[f64; 3]], bodies: &[SolverBody], row: &ContactRow, [n, t]: [f64; 2]) {
     let (normal, tangent) = (row.normal, tangent_of(row.normal));
     let p = [normal.x as f64 * n + tangent.x as f64 * t, normal.y as f64 * n + tangent.y as f64 * t];
     for (body, r, sign) in [(row.body_a as usize, row.ra, -1.0), (row.body_b as usize, row.rb, 1.0)] {
@@ -218,7 +230,7 @@ fn apply(v: &mut [[f64; 3]], bodies: &[SolverBody], row: &ContactRow, [n, t]: [f
 }
 
 /// Relative velocity of b with respect to a at the row's point: `[normal, tangent]`.
-fn relative(v: &[[f64; 3]], row: &ContactRow) -> [f64; 2] {
+pub(crate) fn relative(v: &[[f64; 3]], row: &ContactRow) -> [f64; 2] {
     let at = |body: usize, r: rapier2d::math::Vec2| {
         let [vx, vy, w] = v[body];
         [vx - w * r.y as f64, vy + w * r.x as f64]

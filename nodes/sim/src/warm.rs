@@ -448,6 +448,8 @@ pub enum ModelKind {
     Continue,
     /// Builtin corrected along the previous solve's last sweeps.
     Subspace,
+    /// Builtin plus the step's own coarse-grid (piecewise-uniform stress) correction.
+    Coarse,
     /// Builtin, reappearing contacts from two steps back.
     BuiltinReappear,
     /// Oracle ablation: exact on persisting contacts.
@@ -484,7 +486,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 26] = [
+    pub const ALL: [ModelKind; 27] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -495,6 +497,7 @@ impl ModelKind {
         ModelKind::Extrapolate,
         ModelKind::Continue,
         ModelKind::Subspace,
+        ModelKind::Coarse,
         ModelKind::BuiltinReappear,
         ModelKind::CopyPersisting,
         ModelKind::CopyNew,
@@ -608,6 +611,7 @@ impl ModelSpec {
             ModelKind::Extrapolate => Box::new(Extrapolate::new(self.name(), param)),
             ModelKind::Continue => Box::new(Continue::new(self.name(), param)),
             ModelKind::Subspace => Box::new(crate::subspace::Subspace::new(self.name(), param.round() as usize)),
+            ModelKind::Coarse => Box::new(crate::coarse::Coarse::new(self.name(), param)),
             ModelKind::BuiltinReappear => Box::new(BuiltinReappear),
             ModelKind::CopyPersisting => ablation(Ablation::CopyPersisting),
             ModelKind::CopyNew => ablation(Ablation::CopyNew),

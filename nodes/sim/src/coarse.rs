@@ -1,0 +1,259 @@
+//! `coarse:S` — builtin's warm start with a coarse-grid correction: the step's own problem solved
+//! exactly within piecewise-constant stress fields over square cells of side S.
+//!
+//! PGS is a smoother: it removes local error in a few sweeps and stalls on error that is smooth
+//! over the pile (README "Headroom"). In a packing, a uniform stress `sigma` carried by contact
+//! forces `f = sigma n` leaves every interior body in balance: such fields barely change any
+//! velocity, which is what makes them PGS's slowest modes — and builtin's step-to-step error in
+//! a settling pile is mostly of that kind. So the model cuts the scene into cells, gives each
+//! cell the three components of a uniform stress (each contact's `[n^T S n, t^T S n]` for
+//! `S = xx, yy, xy`, on active rows only) and adds to builtin's guess the combination that best
+//! solves the step's linearised problem in the energy norm of its `J M^-1 J^T` (a Galerkin
+//! system, as in algebraic multigrid's coarse-grid correction, applied once before the sweeps).
+//! The system is assembled per body from the cells that touch it, so it costs one pass over the
+//! rows plus a dense solve of 3 x cells unknowns. Not learned.
+
+use std::collections::HashMap;
+
+use crate::solver::{tangent_of, ContactRow, Impulse};
+use crate::subspace::{project_to_cone, step_residual};
+use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
+
+/// Basis vectors per cell: the stress components xx, yy, xy.
+const PER_CELL: usize = 3;
+
+/// See the module documentation.
+#[derive(Debug)]
+pub struct Coarse {
+    name: String,
+    /// Side of a cell in metres.
+    cell: f32,
+    /// Scratch, reused across steps.
+    velocities: Vec<[f64; 3]>,
+    residual: Vec<[f64; 2]>,
+    /// Per row: its cell and the `[normal, tangent]` value of each of the cell's basis vectors.
+    row_cells: Vec<usize>,
+    row_basis: Vec<[[f64; 2]; PER_CELL]>,
+    /// Per body: the generalised force (x, y, torque) of each basis vector that touches it.
+    body_forces: Vec<Vec<(usize, [f64; 3])>>,
+}
+
+impl Coarse {
+    /// Cells of side `cell` metres (> 0).
+    pub fn new(name: String, cell: f32) -> Coarse {
+        Coarse {
+            name,
+            cell,
+            velocities: Vec::new(),
+            residual: Vec::new(),
+            row_cells: Vec::new(),
+            row_basis: Vec::new(),
+            body_forces: Vec::new(),
+        }
+    }
+}
+
+impl WarmStartModel for Coarse {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        input.history.fill_previous(input.contacts, out);
+        let (rows, bodies) = (input.rows, input.bodies);
+        if rows.len() != out.len() || rows.is_empty() {
+            return Ok(());
+        }
+        let active = project_to_cone(rows, out);
+        step_residual(bodies, rows, out, &active, &mut self.velocities, &mut self.residual);
+
+        // Cells numbered in the order rows (sorted by contact key) first meet them: deterministic.
+        let mut cells: HashMap<(i32, i32), usize> = HashMap::new();
+        self.row_cells.clear();
+        self.row_basis.clear();
+        for ((contact, row), act) in input.contacts.iter().zip(rows).zip(&active) {
+            let at = ((contact.point.x / self.cell).floor() as i32, (contact.point.y / self.cell).floor() as i32);
+            let next = cells.len();
+            self.row_cells.push(*cells.entry(at).or_insert(next));
+            self.row_basis.push(stress_basis(row, *act));
+        }
+        let unknowns = cells.len() * PER_CELL;
+
+        // Per body, the generalised force of every basis vector acting on it (J^T z).
+        self.body_forces.iter_mut().for_each(Vec::clear);
+        self.body_forces.resize_with(bodies.len(), Vec::new);
+        for ((row, &cell), values) in rows.iter().zip(&self.row_cells).zip(&self.row_basis) {
+            let (n, t) = (row.normal, tangent_of(row.normal));
+            for (s, [vn, vt]) in values.iter().enumerate() {
+                if *vn == 0.0 && *vt == 0.0 {
+                    continue;
+                }
+                let p = [n.x as f64 * vn + t.x as f64 * vt, n.y as f64 * vn + t.y as f64 * vt];
+                for (body, r, sign) in [(row.body_a as usize, row.ra, -1.0), (row.body_b as usize, row.rb, 1.0)] {
+                    let force = [sign * p[0], sign * p[1], sign * (r.x as f64 * p[1] - r.y as f64 * p[0])];
+                    let index = cell * PER_CELL + s;
+                    let forces = &mut self.body_forces[body];
+                    match forces.iter_mut().find(|(j, _)| *j == index) {
+                        Some((_, f)) => (0..3).for_each(|d| f[d] += force[d]),
+                        None => forces.push((index, force)),
+                    }
+                }
+            }
+        }
+
+        // Galerkin: (Z^T W Z) y = Z^T r with W = J M^-1 J^T, summed body by body.
+        let mut system = vec![0.0f64; unknowns * unknowns];
+        for (body, forces) in bodies.iter().zip(&self.body_forces) {
+            let inverse = [body.inv_mass as f64, body.inv_mass as f64, body.inv_inertia as f64];
+            if inverse == [0.0; 3] {
+                continue;
+            }
+            for (j, fj) in forces {
+                for (k, fk) in forces {
+                    system[j * unknowns + k] += (0..3).map(|d| fj[d] * inverse[d] * fk[d]).sum::<f64>();
+                }
+            }
+        }
+        let mut rhs = vec![0.0f64; unknowns];
+        for ((&cell, values), r) in self.row_cells.iter().zip(&self.row_basis).zip(&self.residual) {
+            for (s, v) in values.iter().enumerate() {
+                rhs[cell * PER_CELL + s] += v[0] * r[0] + v[1] * r[1];
+            }
+        }
+        let Some(y) = solve_semidefinite(&mut system, &rhs, unknowns) else { return Ok(()) };
+        for ((o, &cell), values) in out.iter_mut().zip(&self.row_cells).zip(&self.row_basis) {
+            let (mut dn, mut dt) = (0.0, 0.0);
+            for (s, v) in values.iter().enumerate() {
+                dn += y[cell * PER_CELL + s] * v[0];
+                dt += y[cell * PER_CELL + s] * v[1];
+            }
+            o.normal += dn as f32;
+            o.tangent += dt as f32;
+        }
+        Ok(())
+    }
+}
+
+/// A row's `[normal, tangent]` force under unit stresses xx, yy and xy: `[n^T S n, t^T S n]`,
+/// zero on inactive rows.
+fn stress_basis(row: &ContactRow, [closed, sticking]: [bool; 2]) -> [[f64; 2]; PER_CELL] {
+    let (n, t) = (row.normal, tangent_of(row.normal));
+    let (nx, ny, tx, ty) = (n.x as f64, n.y as f64, t.x as f64, t.y as f64);
+    let mask = |[vn, vt]: [f64; 2]| [if closed { vn } else { 0.0 }, if sticking { vt } else { 0.0 }];
+    [mask([nx * nx, tx * nx]), mask([ny * ny, ty * ny]), mask([2.0 * nx * ny, tx * ny + ty * nx])]
+}
+
+/// Solves the symmetric positive semi-definite `n x n` system `a x = b` (row-major, overwritten)
+/// by Cholesky, leaving out every unknown whose pivot is below 1e-9 of its diagonal — a basis
+/// vector the step's problem cannot see, or one the earlier ones already span, gets 0. `None`
+/// when nothing is left or a value is not finite.
+pub(crate) fn solve_semidefinite(a: &mut [f64], b: &[f64], n: usize) -> Option<Vec<f64>> {
+    let diagonal: Vec<f64> = (0..n).map(|i| a[i * n + i]).collect();
+    let mut kept = vec![false; n];
+    // In place: the lower triangle becomes L, column by column.
+    for j in 0..n {
+        let s = a[j * n + j] - (0..j).filter(|&k| kept[k]).map(|k| a[j * n + k] * a[j * n + k]).sum::<f64>();
+        if !(diagonal[j] > 0.0 && s > 1e-9 * diagonal[j]) {
+            continue;
+        }
+        let pivot = s.sqrt();
+        a[j * n + j] = pivot;
+        kept[j] = true;
+        for i in j + 1..n {
+            let s = a[i * n + j] - (0..j).filter(|&k| kept[k]).map(|k| a[i * n + k] * a[j * n + k]).sum::<f64>();
+            a[i * n + j] = s / pivot;
+        }
+    }
+    if !kept.iter().any(|&k| k) {
+        return None;
+    }
+    let mut y = vec![0.0f64; n];
+    for i in (0..n).filter(|&i| kept[i]) {
+        let s = b[i] - (0..i).filter(|&k| kept[k]).map(|k| a[i * n + k] * y[k]).sum::<f64>();
+        y[i] = s / a[i * n + i];
+    }
+    let mut x = vec![0.0f64; n];
+    for i in (0..n).rev().filter(|&i| kept[i]) {
+        let s = y[i] - (i + 1..n).filter(|&k| kept[k]).map(|k| a[k * n + i] * x[k]).sum::<f64>();
+        x[i] = s / a[i * n + i];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_semidefinite_solve_leaves_out_dependent_unknowns() {
+        // x0 and x1 are the same direction twice, x2 independent: 2 x0 + 2 x1 = 2, 3 x2 = 6.
+        let mut a = vec![2.0, 2.0, 0.0, 2.0, 2.0, 0.0, 0.0, 0.0, 3.0];
+        let x = solve_semidefinite(&mut a, &[2.0, 2.0, 6.0], 3).unwrap();
+        assert!((x[0] - 1.0).abs() < 1e-12 && x[1] == 0.0 && (x[2] - 2.0).abs() < 1e-12, "{x:?}");
+        let mut zero = vec![0.0; 4];
+        assert!(solve_semidefinite(&mut zero, &[1.0, 1.0], 2).is_none());
+    }
+
+    use crate::contact::{ContactKey, ContactPoint, ImpulseHistory};
+    use crate::solver::SolverBody;
+    use rapier2d::math::Vec2;
+
+    /// Ground (fixed) and two unit-mass balls falling at 1 and 2 (velocity after gravity), each
+    /// resting on one contact at x = 0 and x = `apart`; builtin remembers 0.4 and 0.5 where the
+    /// step needs 1 and 2 (the speed times the mass).
+    fn guess(model: &mut Coarse, apart: f32) -> Vec<Impulse> {
+        let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
+        let bodies = [
+            SolverBody::default(),
+            SolverBody { v: Vec2::new(0.0, -1.0), w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
+            SolverBody { v: Vec2::new(0.0, -2.0), w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
+        ];
+        let point = |body: u32, x: f32| ContactPoint {
+            key: ContactKey { body_a: 0, body_b: body, feature: 0 },
+            point: Vec2::new(x, 0.1),
+            normal: Vec2::Y,
+            penetration: 0.0,
+            friction: 0.5,
+        };
+        let row = |body: u32| ContactRow {
+            body_a: 0,
+            body_b: body,
+            ra: Vec2::ZERO,
+            rb: Vec2::new(0.0, -0.5),
+            normal: Vec2::Y,
+            friction: 0.5,
+        };
+        let contacts = [point(1, 0.0), point(2, apart)];
+        let mut history = ImpulseHistory::default();
+        history.push(contacts.iter().map(|c| c.key), &[imp(0.4, 0.0), imp(0.5, 0.0)], ImpulseHistory::no_trail());
+        let rows = [row(1), row(2)];
+        let mut oracle = |_: &mut [Impulse]| {};
+        let mut input = WarmStartInput {
+            run_id: 0,
+            simulation: 0,
+            step: 2,
+            contacts: &contacts,
+            history: &history,
+            fixed: &[true, false, false],
+            problem: None,
+            rows: &rows,
+            bodies: &bodies,
+            oracle: &mut oracle,
+        };
+        let mut out = vec![Impulse::default(); 2];
+        model.warm_start(&mut input, &mut out).unwrap();
+        out
+    }
+
+    #[test]
+    fn each_cell_gets_the_uniform_stress_that_best_solves_the_step() {
+        // Far apart (cells of 2 m): each ball's cell has its own vertical stress, exact for it.
+        let g = guess(&mut Coarse::new("coarse:2".into(), 2.0), 5.0);
+        assert!((g[0].normal - 1.0).abs() < 1e-5 && (g[1].normal - 2.0).abs() < 1e-5, "{g:?}");
+        assert!(g.iter().all(|i| i.tangent.abs() < 1e-6), "a vertical load needs no friction: {g:?}");
+        // Both in one cell: one amplitude for both rows. The energy-optimal common increment of
+        // 0.6 and 1.5 missing (equal effective masses) is their mean, 1.05.
+        let g = guess(&mut Coarse::new("coarse:100".into(), 100.0), 5.0);
+        assert!((g[0].normal - 1.45).abs() < 1e-5 && (g[1].normal - 1.55).abs() < 1e-5, "{g:?}");
+    }
+}
