@@ -172,6 +172,8 @@ class Problem:
         """builtin corrected exactly (Galerkin) within the k lowest non-null modes of the
         diagonally scaled W on its active set: the smooth, slow error (uncounted)."""
         lam, active, W, u0 = self.builtin_rows()
+        if not active.any():
+            return self.contacts_of(lam)
         Waa = W[np.ix_(active, active)]
         d = np.sqrt(np.maximum(np.diag(Waa), 1e-30))
         w, V = np.linalg.eigh(Waa / d[:, None] / d[None, :])
