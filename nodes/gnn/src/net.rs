@@ -49,6 +49,16 @@ impl Linear {
         }
     }
 
+    /// `out = W[:, first..first + x.len()] x`: the part of the layer that reads one block of its
+    /// input, without the bias.
+    #[inline]
+    fn apply_block(&self, first: usize, x: &[f32], out: &mut [f32]) {
+        debug_assert!(first + x.len() <= self.inputs);
+        for (o, row) in out.iter_mut().zip(self.weight.chunks_exact(self.inputs)) {
+            *o = dot(&row[first..first + x.len()], x);
+        }
+    }
+
     fn check(&self, name: &str, inputs: usize, outputs: usize) -> Result<(), String> {
         if (self.inputs, self.outputs) != (inputs, outputs)
             || self.weight.len() != inputs * outputs
@@ -130,6 +140,11 @@ pub struct Scratch {
     input: Vec<f32>,
     update: Vec<f32>,
     global: Vec<f32>,
+    /// Per body, the contact layer's terms for a contact's body a and body b.
+    from_a: Vec<f32>,
+    from_b: Vec<f32>,
+    /// The contact layer's term for the pile-wide mean, with its bias.
+    from_global: Vec<f32>,
 }
 
 impl Net {
@@ -222,6 +237,9 @@ impl Net {
         s.mb.resize(nb * h, 0.0);
         s.update.resize(h, 0.0);
         s.global.resize(h, 0.0);
+        s.from_a.resize(nb * h, 0.0);
+        s.from_b.resize(nb * h, 0.0);
+        s.from_global.resize(h, 0.0);
         for (x, hc) in contact_features.chunks_exact(CONTACT_FEATURES).zip(s.hc.chunks_exact_mut(h)) {
             self.encode_contact.apply(x, true, hc);
         }
@@ -252,7 +270,9 @@ impl Net {
                 }
                 self.body.apply(&s.input[..2 * h], true, hb);
             }
-            // The pile-wide mean, then each contact from itself, its bodies and the mean.
+            // The pile-wide mean, then each contact from itself, its bodies and the mean. The
+            // contact layer is linear in its four input blocks: the body and mean blocks are
+            // computed once per body and once per round, not once per contact.
             s.global.fill(0.0);
             for hc in s.hc.chunks_exact(h) {
                 for (g, v) in s.global.iter_mut().zip(hc) {
@@ -261,14 +281,22 @@ impl Net {
             }
             let inv = 1.0 / nc as f32;
             s.global.iter_mut().for_each(|g| *g *= inv);
+            self.contact.apply_block(3 * h, &s.global, &mut s.from_global);
+            for (g, b) in s.from_global.iter_mut().zip(&self.contact.bias) {
+                *g += b;
+            }
+            for ((hb, fa), fb) in
+                s.hb.chunks_exact(h).zip(s.from_a.chunks_exact_mut(h)).zip(s.from_b.chunks_exact_mut(h))
+            {
+                self.contact.apply_block(h, hb, fa);
+                self.contact.apply_block(2 * h, hb, fb);
+            }
             for (&(a, b), hc) in pairs.iter().zip(s.hc.chunks_exact_mut(h)) {
-                s.input[..h].copy_from_slice(hc);
-                s.input[h..2 * h].copy_from_slice(&s.hb[a as usize * h..(a as usize + 1) * h]);
-                s.input[2 * h..3 * h].copy_from_slice(&s.hb[b as usize * h..(b as usize + 1) * h]);
-                s.input[3 * h..4 * h].copy_from_slice(&s.global);
-                self.contact.apply(&s.input[..4 * h], true, &mut s.update);
-                for (v, u) in hc.iter_mut().zip(&s.update) {
-                    *v += u;
+                self.contact.apply_block(0, hc, &mut s.update);
+                let (fa, fb) =
+                    (&s.from_a[a as usize * h..(a as usize + 1) * h], &s.from_b[b as usize * h..(b as usize + 1) * h]);
+                for ((((v, u), x), y), g) in hc.iter_mut().zip(&s.update).zip(fa).zip(fb).zip(&s.from_global) {
+                    *v += (u + x + y + g).max(0.0);
                 }
             }
         }
