@@ -20,7 +20,9 @@ tolerance; `cgK` counts its K conjugate-gradient iterations as sweeps):
   prox1e-4, prox1e-3 builtin plus the exact regularised linear solve (W + a diag W) on its active set
   true-set           the exact linear solution on the reference's own active set (closed/open,
                      stick/slip with direction), least change from builtin
-The last five are exact global solves whose cost is not counted: an upper bound for any warm
+  physics            the reference's net impulse on every body (the step's exact outcome),
+                     least change from builtin: only the choice among equivalent impulses left
+The last six are exact global solves whose cost is not counted: an upper bound for any warm
 start that corrects builtin by linear algebra on the step's problem.
 """
 import argparse
@@ -182,6 +184,23 @@ class Problem:
         lam[active] += Z @ np.linalg.lstsq(Z.T @ Waa @ Z, Z.T @ r, rcond=1e-10)[0]
         return self.contacts_of(lam)
 
+    def physics_start(self):
+        """builtin moved, by the least change (in each row's own scale, diag W), to impulses whose
+        net effect on every body equals the reference's: the step's exact outcome (velocities)
+        known, the choice among the impulses that produce it left at builtin's (uncounted)."""
+        J, minv = self.jacobian()
+        lam, _, _, _ = self.builtin_rows()
+        reference = np.empty_like(lam)
+        reference[0::2], reference[1::2] = self.reference[:, 1], self.reference[:, 0]
+        moves = (minv > 0) & (np.abs(J).sum(0) > 0)
+        if not moves.any():
+            return self.contacts_of(lam)
+        Js = J[:, moves]
+        scale = 1.0 / np.maximum(((J * minv) * J).sum(1), 1e-12)
+        body = (Js.T * scale) @ Js
+        y = np.linalg.lstsq(body, Js.T @ (reference - lam), rcond=1e-12)[0]
+        return self.contacts_of(lam + scale * (Js @ y))
+
     def true_set_start(self):
         """builtin moved, by the least change, onto a solution of the linear problem of the
         reference's own active set (closed / open, sticking / sliding with its direction): what
@@ -242,6 +261,7 @@ def variants(p, previous_reference):
     for a in (1e-4, 1e-3):
         yield f"prox{a:g}", p.prox_start(a), 0
     yield "true-set", p.true_set_start(), 0
+    yield "physics", p.physics_start(), 0
 
 
 def main():
