@@ -9,6 +9,30 @@ use deep_contact::{bin, launch, scratch_dir, text};
 #[test]
 fn recorded_problems_resolve_to_the_recorded_sweeps() {
     let dir = scratch_dir("problem");
+    let file = record_problems(&dir, "", 150);
+    let resolved = resolve_every_step(&file, 0.0);
+    assert_eq!(resolved.steps, 150);
+    let (with_contacts, total_sweeps, old_contacts) = (resolved.with_contacts, resolved.sweeps, resolved.old_contacts);
+    assert!(with_contacts > 50 && total_sweeps > 1000, "{with_contacts} steps with contacts, {total_sweeps} sweeps");
+    assert!(old_contacts > 1000, "{old_contacts} contacts at least two steps old");
+
+    // The network trains end to end on the recording, and with --save-candidates every epoch's
+    // network is written beside the chosen one, as a model file `dc-gnn` reads.
+    let model = dir.join("net.dcg");
+    let trained = std::process::Command::new(bin("dc-gnn-train"))
+        .args(["--data", &file.display().to_string(), "--validation", &file.display().to_string()])
+        .args(["--out", &model.display().to_string(), "--method", "backprop", "--epochs", "2", "--save-candidates"])
+        .output()
+        .unwrap();
+    assert!(trained.status.success(), "{}", text(&trained));
+    for path in [model.clone(), dir.join("net.epoch1.dcg"), dir.join("net.epoch2.dcg")] {
+        let info = std::process::Command::new(bin("dc-gnn")).arg("info").arg(&path).output().unwrap();
+        assert!(info.status.success(), "{}: {}", path.display(), text(&info));
+    }
+}
+
+/// Records `steps` steps of builtin on seed 3 with labelled problems (`extra`: more sim params).
+fn record_problems(dir: &std::path::Path, extra: &str, steps: u32) -> std::path::PathBuf {
     let file = dir.join("problem.mcap");
     let graph = format!(
         r#"
@@ -24,21 +48,34 @@ params = {{ out = "{}" }}
 [[nodes]]
 name = "sim"
 binary = "dc-sim"
-params = {{ model = "builtin", seeds = "3", steps = 150, n = 40, publish-problem = true, label-tolerance = 1e-6 }}
+params = {{ model = "builtin", seeds = "3", steps = {steps}, n = 40, publish-problem = true, label-tolerance = 1e-6{extra} }}
 "#,
         file.display()
     );
     let (_, out) = launch("problem", &graph, &[]);
     assert!(out.status.success(), "{}", text(&out));
+    file
+}
 
-    let (mut steps, mut with_contacts, mut total_sweeps, mut old_contacts) = (0, 0, 0u64, 0u64);
-    for step in recorder::Steps::open(&file).expect("the recording") {
+struct Resolved {
+    steps: usize,
+    with_contacts: usize,
+    sweeps: u64,
+    old_contacts: u64,
+}
+
+/// Re-solves every recorded problem from builtin's warm start with its own stopping rule and
+/// checks the sweeps, residuals and impulses against the recorded ones, and the reference.
+fn resolve_every_step(file: &std::path::Path, compliance: f32) -> Resolved {
+    let mut r = Resolved { steps: 0, with_contacts: 0, sweeps: 0, old_contacts: 0 };
+    for step in recorder::Steps::open(file).expect("the recording") {
         let step = step.expect("a complete step");
         let stats = step.stats.as_ref().expect("statistics");
         let (bodies, contacts) = step.problem.as_ref().expect("the step's problem");
         assert_eq!(contacts.header.step, step.key);
         assert_eq!(contacts.header.bodies as usize, bodies.items.len());
         assert_eq!(contacts.items.len(), stats.header.contacts as usize);
+        assert_eq!(contacts.header.compliance, compliance);
         let problem = sim::problem::Problem {
             header: contacts.header,
             bodies: bodies.items.clone(),
@@ -56,7 +93,7 @@ params = {{ model = "builtin", seeds = "3", steps = 150, n = 40, publish-problem
             assert_eq!((l.normal, l.tangent), (c.normal_impulse, c.tangent_impulse), "step {:?}", step.key);
         }
         if !problem.contacts.is_empty() {
-            with_contacts += 1;
+            r.with_contacts += 1;
             let reference = problem.reference().expect("labelled");
             assert!(contacts.header.reference_sweeps > 0 && contacts.header.reference_tolerance == 1e-6);
             let (from_reference, _) = problem.solve(&reference);
@@ -71,27 +108,20 @@ params = {{ model = "builtin", seeds = "3", steps = 150, n = 40, publish-problem
                 if c.age == 0 {
                     assert_eq!(c.previous, [0.0; 2], "step {:?}", step.key);
                 }
-                old_contacts += (c.age >= 2) as u64;
+                r.old_contacts += (c.age >= 2) as u64;
             }
         }
-        total_sweeps += report.sweeps as u64;
-        steps += 1;
+        r.sweeps += report.sweeps as u64;
+        r.steps += 1;
     }
-    assert_eq!(steps, 150);
-    assert!(with_contacts > 50 && total_sweeps > 1000, "{with_contacts} steps with contacts, {total_sweeps} sweeps");
-    assert!(old_contacts > 1000, "{old_contacts} contacts at least two steps old");
+    r
+}
 
-    // The network trains end to end on the recording, and with --save-candidates every epoch's
-    // network is written beside the chosen one, as a model file `dc-gnn` reads.
-    let model = dir.join("net.dcg");
-    let trained = std::process::Command::new(bin("dc-gnn-train"))
-        .args(["--data", &file.display().to_string(), "--validation", &file.display().to_string()])
-        .args(["--out", &model.display().to_string(), "--method", "backprop", "--epochs", "2", "--save-candidates"])
-        .output()
-        .unwrap();
-    assert!(trained.status.success(), "{}", text(&trained));
-    for path in [model.clone(), dir.join("net.epoch1.dcg"), dir.join("net.epoch2.dcg")] {
-        let info = std::process::Command::new(bin("dc-gnn")).arg("info").arg(&path).output().unwrap();
-        assert!(info.status.success(), "{}: {}", path.display(), text(&info));
-    }
+#[test]
+fn compliant_problems_carry_their_compliance_and_resolve_to_the_recorded_sweeps() {
+    let dir = scratch_dir("problem-compliant");
+    let file = record_problems(&dir, ", compliance = 0.05", 80);
+    let resolved = resolve_every_step(&file, 0.05);
+    assert_eq!(resolved.steps, 80);
+    assert!(resolved.with_contacts > 20, "{} steps with contacts", resolved.with_contacts);
 }

@@ -70,6 +70,13 @@ pub struct ProblemHeader {
     /// Sweeps the reference solve took, and whether it reached its tolerance.
     pub reference_sweeps: u32,
     pub reference_converged: u32,
+    /// Relative compliance of every contact row the step was solved with (0: rigid contacts;
+    /// absent in recordings made before it existed).
+    #[serde(default)]
+    pub compliance: f32,
+    /// Keeps the zero-copy layout a multiple of 8 bytes; always 0.
+    #[serde(skip)]
+    pub padding: u32,
 }
 
 /// A step's bodies of the problem.

@@ -19,6 +19,16 @@ fn positive_f32(s: &str) -> Result<f32, String> {
     }
 }
 
+/// A relative compliance: finite, in [0, 10] (10: contacts eleven times softer than their
+/// effective mass says; more is not a contact any more).
+fn compliance(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if v.is_finite() && (0.0..=10.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("must be a number in [0, 10], got {v}")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
 fn required_duration(s: &str) -> Result<Duration, String> {
     sim::parse_deadline(s).map_err(|e| e.to_string())?.ok_or_else(|| "a duration is required, not `none`".to_string())
 }
@@ -62,6 +72,10 @@ struct Args {
     /// Sweep cap.
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..))]
     max_sweeps: u32,
+    /// Relative compliance of every contact row (0: rigid, the thesis's problem); the oracle,
+    /// the labels and the shadow solves use the same. See `sim::SolveParams::compliance`.
+    #[arg(long, default_value_t = 0.0, value_parser = compliance)]
+    compliance: f32,
     /// The oracle's tolerance (`copy` and the oracle ablations solve each step from builtin's
     /// warm start to it).
     #[arg(long, default_value_t = 2e-6, value_parser = positive_f32)]
@@ -150,8 +164,12 @@ impl Args {
 
     fn world_params(&self) -> WorldParams {
         let mut p = WorldParams {
-            solve: SolveParams { tolerance: self.tolerance, max_sweeps: self.max_sweeps },
-            oracle: SolveParams { tolerance: self.oracle_tolerance, max_sweeps: self.oracle_max_sweeps },
+            solve: SolveParams { tolerance: self.tolerance, max_sweeps: self.max_sweeps, compliance: self.compliance },
+            oracle: SolveParams {
+                tolerance: self.oracle_tolerance,
+                max_sweeps: self.oracle_max_sweeps,
+                compliance: self.compliance,
+            },
             ..WorldParams::default()
         };
         p.position.slop = self.slop;
@@ -291,7 +309,11 @@ fn try_main() -> Result<()> {
             steps: args.steps,
             run_id: first_run_id + i as u64,
             problems: args.publish_problem,
-            label: args.label_tolerance.map(|tolerance| SolveParams { tolerance, max_sweeps: args.oracle_max_sweeps }),
+            label: args.label_tolerance.map(|tolerance| SolveParams {
+                tolerance,
+                max_sweeps: args.oracle_max_sweeps,
+                compliance: args.compliance,
+            }),
             shadow_builtin: args.shadow_builtin,
         };
         run(&args, &node, &mut pubs, model, &spec)?;

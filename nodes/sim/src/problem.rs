@@ -59,7 +59,11 @@ pub fn solve(
 impl Problem {
     /// The stopping rule the step was solved with.
     pub fn params(&self) -> SolveParams {
-        SolveParams { tolerance: self.header.tolerance, max_sweeps: self.header.max_sweeps }
+        SolveParams {
+            tolerance: self.header.tolerance,
+            max_sweeps: self.header.max_sweeps,
+            compliance: self.header.compliance,
+        }
     }
 
     /// Solves the problem from `warm` with its own stopping rule.

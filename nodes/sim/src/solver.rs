@@ -80,11 +80,17 @@ pub struct SolveParams {
     pub tolerance: f32,
     /// Sweep cap (the thesis: 1000).
     pub max_sweeps: u32,
+    /// Relative compliance `gamma` of every contact row (0: rigid, the thesis's problem). A row
+    /// then asks `u + gamma / m * lambda = 0` (u its relative velocity, m its effective mass)
+    /// instead of `u = 0`: a slightly soft contact, as Box2D v3's soft step, ODE's constraint
+    /// force mixing and MuJoCo's impedance make it. Rigid contacts in a jammed pile have a whole
+    /// set of solutions (impulses that move no body); a compliant problem has one.
+    pub compliance: f32,
 }
 
 impl Default for SolveParams {
     fn default() -> Self {
-        SolveParams { tolerance: 1e-4, max_sweeps: 1000 }
+        SolveParams { tolerance: 1e-4, max_sweeps: 1000, compliance: 0.0 }
     }
 }
 
@@ -213,9 +219,11 @@ impl ContactSolver {
             return SolveReport { sweeps: 0, converged: true, final_residual: 0.0 };
         }
 
+        // The compliant update is the rigid one scaled by 1 / (1 + gamma): exactly 1 when rigid.
+        let softness = 1.0 / (1.0 + params.compliance);
         let mut report = SolveReport::default();
         while report.sweeps < params.max_sweeps {
-            let residual = self.sweep(bodies, report.sweeps as usize % TRAIL_SWEEPS);
+            let residual = self.sweep(bodies, report.sweeps as usize % TRAIL_SWEEPS, softness);
             report.sweeps += 1;
             report.final_residual = residual;
             self.residuals.push(residual);
@@ -235,21 +243,21 @@ impl ContactSolver {
 
     /// One projected Gauss-Seidel sweep, its changes written to slot `slot` of the trail; returns
     /// the largest absolute impulse change.
-    fn sweep(&mut self, bodies: &mut [SolverBody], slot: usize) -> f32 {
+    fn sweep(&mut self, bodies: &mut [SolverBody], slot: usize, softness: f32) -> f32 {
         let mut residual = 0.0f32;
         for ((c, l), trail) in self.prepared.iter().zip(self.impulses.iter_mut()).zip(self.trail.iter_mut()) {
             // Tangent first, bounded by the current normal impulse (Box2D's order).
             let dv = relative(bodies, c);
             let vt = dv.dot(c.t);
             let max_t = c.mu * l.normal;
-            let new_t = (l.tangent - c.tangent_mass * vt).clamp(-max_t, max_t);
+            let new_t = ((l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t);
             let dt = new_t - l.tangent;
             l.tangent = new_t;
             apply(bodies, c, c.t * dt);
 
             let dv = relative(bodies, c);
             let vn = dv.dot(c.n);
-            let new_n = (l.normal - c.normal_mass * vn).max(0.0);
+            let new_n = ((l.normal - c.normal_mass * vn) * softness).max(0.0);
             let dn = new_n - l.normal;
             l.normal = new_n;
             apply(bodies, c, c.n * dn);
@@ -467,6 +475,40 @@ mod tests {
 
     fn ball(v: Vec2) -> SolverBody {
         SolverBody { v, w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 }
+    }
+
+    /// A ball (mass 1, falling at 1 after gravity) on two contact rows at the same point: the
+    /// rigid problem only fixes their sum, the compliant one has a single answer.
+    fn twin_rows(warm: [f32; 2], compliance: f32) -> [f32; 2] {
+        let row = ContactRow {
+            body_a: 0,
+            body_b: 1,
+            ra: Vec2::ZERO,
+            rb: Vec2::new(0.0, -0.5),
+            normal: Vec2::Y,
+            friction: 0.5,
+        };
+        let mut bodies = [SolverBody::default(), ball(Vec2::new(0.0, -1.0))];
+        let warm = warm.map(|normal| Impulse { normal, tangent: 0.0 });
+        let params = SolveParams { tolerance: 1e-7, max_sweeps: 10_000, compliance };
+        let mut s = ContactSolver::new();
+        assert!(s.solve(&[row, row], &mut bodies, &warm, &params).converged);
+        [s.impulses()[0].normal, s.impulses()[1].normal]
+    }
+
+    #[test]
+    fn compliance_makes_the_solution_unique() {
+        // Rigid: any split of the 1 that stops the ball solves it; PGS keeps the warm start's.
+        let [a, b] = twin_rows([0.8, 0.0], 0.0);
+        assert!((a + b - 1.0).abs() < 1e-5 && a > 0.7, "rigid from (0.8, 0): {a} {b}");
+        let [a, b] = twin_rows([0.0, 0.0], 0.0);
+        assert!((a + b - 1.0).abs() < 1e-5 && b < 1e-6, "rigid from 0: {a} {b}");
+        // Compliance 0.1: each row (effective mass 1) asks u + 0.1 l = 0 with u = -1 + a + b,
+        // so a = b = 1 / 2.1 from any start — the split is no longer the warm start's to choose.
+        for warm in [[0.8, 0.0], [0.0, 0.0], [0.0, 3.0]] {
+            let [a, b] = twin_rows(warm, 0.1);
+            assert!((a - 1.0 / 2.1).abs() < 1e-5 && (b - 1.0 / 2.1).abs() < 1e-5, "{warm:?}: {a} {b}");
+        }
     }
 
     #[test]

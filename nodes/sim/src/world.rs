@@ -61,7 +61,7 @@ impl Default for WorldParams {
             dt: 1.0 / 100.0,
             gravity: [0.0, -9.81],
             solve: SolveParams::default(),
-            oracle: SolveParams { tolerance: 2e-6, max_sweeps: 10_000 },
+            oracle: SolveParams { tolerance: 2e-6, max_sweeps: 10_000, compliance: 0.0 },
             position: PositionParams::default(),
             prediction: 0.02,
             contact_margin: 0.0,
@@ -81,6 +81,11 @@ impl WorldParams {
         }
         if self.solve.max_sweeps == 0 {
             return bad("max-sweeps", "0".into(), "must be >= 1");
+        }
+        for c in [self.solve.compliance, self.oracle.compliance] {
+            if !(c.is_finite() && (0.0..=10.0).contains(&c)) {
+                return bad("compliance", c.to_string(), "must be in [0, 10]");
+            }
         }
         if !(self.oracle.tolerance.is_finite() && self.oracle.tolerance > 0.0) || self.oracle.max_sweeps == 0 {
             return bad("oracle", format!("{:?}", self.oracle), "tolerance > 0 and max sweeps >= 1");
@@ -527,6 +532,7 @@ impl World {
             bodies: p.bodies.len() as u32,
             tolerance: self.params.solve.tolerance,
             max_sweeps: self.params.solve.max_sweeps,
+            compliance: self.params.solve.compliance,
             ..ProblemHeader::default()
         };
         if let Some(params) = capture.reference {

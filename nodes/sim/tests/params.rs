@@ -12,12 +12,15 @@ fn library_rejects_bad_parameters_with_clear_errors() {
     assert!("oracle".parse::<ModelKind>().unwrap_err().to_string().starts_with("unknown warm-start model `oracle`"));
     let e = World::new(
         &SceneConfig::default(),
-        WorldParams { solve: SolveParams { tolerance: 0.0, max_sweeps: 10 }, ..Default::default() },
+        WorldParams { solve: SolveParams { tolerance: 0.0, max_sweeps: 10, compliance: 0.0 }, ..Default::default() },
     )
     .err()
     .unwrap();
     assert!(matches!(e, SimError::InvalidParameter { name: "tolerance", .. }), "{e}");
     assert_eq!(e.to_string(), "invalid parameter `tolerance` = 0: must be > 0");
+    let soft = SolveParams { compliance: -1.0, ..Default::default() };
+    let e = World::new(&SceneConfig::default(), WorldParams { solve: soft, ..Default::default() }).err().unwrap();
+    assert_eq!(e.to_string(), "invalid parameter `compliance` = -1: must be in [0, 10]");
     let e = World::new(&SceneConfig { n: 1000, side: Some(15.0), ..Default::default() }, WorldParams::default())
         .err()
         .unwrap();
@@ -48,6 +51,12 @@ fn binary_rejects_bad_parameters_with_clear_errors() {
     let (code, err) = dc_sim(&["--tolerance", "0"]);
     assert_ne!(code, 0);
     assert!(err.contains("--tolerance") && err.contains("> 0"), "{err}");
+
+    for bad in ["--compliance=-0.1", "--compliance=nan", "--compliance=11"] {
+        let (code, err) = dc_sim(&[bad]);
+        assert_ne!(code, 0);
+        assert!(err.contains("--compliance") && err.contains("[0, 10]"), "{bad}: {err}");
+    }
 
     let (code, err) = dc_sim(&["--n", "1000", "--side", "15"]);
     assert_ne!(code, 0);

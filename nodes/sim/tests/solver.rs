@@ -106,7 +106,8 @@ fn copy_with_friction_restarts_from_a_converged_solution_cheaply() {
 
 #[test]
 fn unconverged_solves_are_reported_as_such() {
-    let params = WorldParams { solve: SolveParams { tolerance: 1e-7, max_sweeps: 3 }, ..Default::default() };
+    let params =
+        WorldParams { solve: SolveParams { tolerance: 1e-7, max_sweeps: 3, compliance: 0.0 }, ..Default::default() };
     let mut world = World::new(&SceneConfig { seed: 4, ..Default::default() }, params).unwrap();
     let mut warm = WarmStarter::local(ModelKind::None, 0).unwrap();
     let mut capped = 0;
