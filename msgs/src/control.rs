@@ -25,6 +25,9 @@ pub struct RunParams {
     pub sampler: String,
     /// Time step, seconds.
     pub dt: f32,
+    /// Relative compliance of the contact rows (0: rigid; absent in older recordings).
+    #[serde(default)]
+    pub compliance: f32,
 }
 
 /// What a simulation start announces about its scene.
@@ -177,6 +180,7 @@ mod tests {
             max_sweeps: 1000,
             sampler: "native".into(),
             dt: 0.01,
+            compliance: 0.0,
         }
     }
 

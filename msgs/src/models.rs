@@ -80,6 +80,12 @@ pub const MODELS: &[ModelInfo] = &[
         param: Some(Param { what: "S: side of a cell in metres", default: 2.0, min: 0.25, max: 1000.0 }),
         about: "builtin plus a coarse-grid correction: the step's own problem solved (Galerkin) within piecewise-uniform stress fields over cells of side S",
     },
+    ModelInfo {
+        name: "cg",
+        served_on: None,
+        param: Some(Param { what: "K: conjugate-gradient iterations (each about a sweep's work)", default: 50.0, min: 0.0, max: 10000.0 }),
+        about: "builtin plus K Jacobi-preconditioned CG iterations on the step's own linear problem on builtin's active set (with the solver's compliance; rigid problems regularised by 1e-4 W_ii)",
+    },
     plain("builtin-reappear", "builtin, and a contact new this step that existed two steps ago gets that impulse"),
     plain("copy-persisting", "oracle on persisting contacts, 0 on new ones"),
     plain("copy-new", "builtin on persisting contacts, the oracle on new ones"),

@@ -238,6 +238,7 @@ mod tests {
             problem: None,
             rows: &rows,
             bodies: &bodies,
+            compliance: 0.0,
             oracle: &mut oracle,
         };
         let mut out = vec![Impulse::default(); 2];

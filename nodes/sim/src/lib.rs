@@ -22,6 +22,7 @@
 //! - [`rng`]: MT19937 / numpy legacy `RandomState`, xoshiro256++.
 
 pub mod bench;
+pub mod cg;
 pub mod coarse;
 pub mod contact;
 pub mod error;

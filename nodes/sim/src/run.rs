@@ -66,6 +66,7 @@ pub fn run_params(spec: &RunSpec, warm: &WarmStarter) -> RunParams {
         max_sweeps: spec.params.solve.max_sweeps,
         sampler: format!("{:?}", spec.scene.sampler).to_lowercase(),
         dt: spec.params.dt,
+        compliance: spec.params.solve.compliance,
     }
 }
 

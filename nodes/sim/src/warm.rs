@@ -33,6 +33,8 @@ pub struct WarmStartInput<'a> {
     pub rows: &'a [crate::solver::ContactRow],
     /// The solver's bodies: velocities after external forces, inverse masses.
     pub bodies: &'a [crate::solver::SolverBody],
+    /// The solver's relative compliance (`SolveParams::compliance`; 0: rigid).
+    pub compliance: f32,
     /// Solves the step's contact problem from builtin's warm start to the oracle's tolerance on
     /// scratch velocities and writes the solution (the oracle behind `copy` and the ablations);
     /// the world's velocities are untouched.
@@ -450,6 +452,8 @@ pub enum ModelKind {
     Subspace,
     /// Builtin plus the step's own coarse-grid (piecewise-uniform stress) correction.
     Coarse,
+    /// Builtin plus a few CG iterations on the step's own linear problem.
+    Cg,
     /// Builtin, reappearing contacts from two steps back.
     BuiltinReappear,
     /// Oracle ablation: exact on persisting contacts.
@@ -486,7 +490,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 27] = [
+    pub const ALL: [ModelKind; 28] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -498,6 +502,7 @@ impl ModelKind {
         ModelKind::Continue,
         ModelKind::Subspace,
         ModelKind::Coarse,
+        ModelKind::Cg,
         ModelKind::BuiltinReappear,
         ModelKind::CopyPersisting,
         ModelKind::CopyNew,
@@ -612,6 +617,7 @@ impl ModelSpec {
             ModelKind::Continue => Box::new(Continue::new(self.name(), param)),
             ModelKind::Subspace => Box::new(crate::subspace::Subspace::new(self.name(), param.round() as usize)),
             ModelKind::Coarse => Box::new(crate::coarse::Coarse::new(self.name(), param)),
+            ModelKind::Cg => Box::new(crate::cg::ConjugateGradient::new(self.name(), param.round() as usize)),
             ModelKind::BuiltinReappear => Box::new(BuiltinReappear),
             ModelKind::CopyPersisting => ablation(Ablation::CopyPersisting),
             ModelKind::CopyNew => ablation(Ablation::CopyNew),
@@ -784,6 +790,7 @@ pub(crate) mod tests {
             problem: None,
             rows: &[],
             bodies: &[],
+            compliance: 0.0,
             oracle: &mut oracle,
         };
         let mut out = vec![Impulse::default(); contacts.len()];

@@ -619,6 +619,7 @@ impl World {
                 problem: model_reads_problem.then_some(&self.problem),
                 rows,
                 bodies,
+                compliance: self.params.solve.compliance,
                 oracle: &mut oracle,
             };
             warm.warm_start(&mut input, &mut self.warm)
