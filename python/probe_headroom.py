@@ -88,8 +88,11 @@ class Problem:
         minv = np.stack([self.inv_m, self.inv_m, self.inv_i], 1).reshape(-1)
         return J, minv
 
-    def solve(self, start, tolerance, cap=1000):
-        """Sweeps of projected Gauss-Seidel from `start` ((normal, tangent) per contact)."""
+    def solve(self, start, tolerance, cap=1000, compliance=0.0, out=None):
+        """Sweeps of projected Gauss-Seidel from `start` ((normal, tangent) per contact); with
+        `compliance` G each row's update is the rigid one over 1 + G (`dc-sim --compliance`);
+        the final impulses are written to `out` when given."""
+        soft = 1.0 / (1.0 + compliance)
         v = [list(x) for x in self.v0]
         im, ii = self.inv_m, self.inv_i
         rows = list(zip(self.a.tolist(), self.b.tolist(), self.ra.tolist(), self.rb.tolist(), self.n.tolist(),
@@ -113,15 +116,17 @@ class Problem:
                     va, vb = v[a], v[b]
                     dvx = vb[0] - vb[2] * rb[1] - va[0] + va[2] * ra[1]
                     dvy = vb[1] + vb[2] * rb[0] - va[1] - va[2] * ra[0]
-                    new = l[k] - mass * (dvx * d[0] + dvy * d[1])
+                    new = (l[k] - mass * (dvx * d[0] + dvy * d[1])) * soft
                     new = min(max(new, -mu * l[0]), mu * l[0]) if k == 1 else max(new, 0.0)
                     change = new - l[k]
                     l[k] = new
                     apply(a, b, ra, rb, d[0] * change, d[1] * change)
                     residual = max(residual, abs(change))
             if residual <= tolerance:
-                return sweep
-        return cap
+                break
+        if out is not None:
+            out[:] = np.array(lam)
+        return min(sweep, cap)
 
     def builtin_rows(self):
         """builtin projected onto the friction cone, as solver rows (tangent, normal per contact),

@@ -112,6 +112,17 @@ params = {{ model = "builtin", seeds = "3..5", steps = 60, n = 30, publish-probl
     assert_eq!(ratio("builtin"), 1.0, "{table}");
     assert!(ratio("reference") < 0.2, "the exact solution needs almost no sweeps:\n{table}");
 
+    // With compliant contacts the linear solution on the exact solution's own active set is that
+    // solution: about one sweep.
+    let probe = python("probe_active_set.py", &[file.to_str().unwrap(), "--from-step", "40", "--limit", "2"]);
+    assert!(probe.status.success(), "{}", text(&probe));
+    let table = String::from_utf8_lossy(&probe.stdout);
+    let sweeps = |name: &str| -> u64 {
+        let line = table.lines().find(|l| l.starts_with(name)).unwrap_or_else(|| panic!("no {name}:\n{table}"));
+        line.split_whitespace().nth(1).unwrap().parse().unwrap()
+    };
+    assert!(sweeps("true-set") <= 2 * 2 && sweeps("builtin") > sweeps("true-set"), "{table}");
+
     // Bad input: a clear message naming the file, no traceback.
     let junk = dir.join("junk.mcap");
     std::fs::write(&junk, b"\x89MCAP0\r\n this is not a recording").unwrap();
