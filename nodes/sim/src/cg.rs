@@ -13,7 +13,7 @@
 //! would have to approximate to pay.
 
 use crate::solver::{row_masses, ContactRow, Impulse, SolverBody};
-use crate::subspace::{apply, project_to_cone, relative, step_residual};
+use crate::subspace::{apply, dot, project_to_cone, relative, step_residual};
 use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
 
 /// Regularisation of a rigid problem, relative to each row's `W_ii` (the best of the uncounted
@@ -69,10 +69,6 @@ impl ConjugateGradient {
     }
 }
 
-fn dot(a: &[[f64; 2]], b: &[[f64; 2]]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1]).sum()
-}
-
 impl WarmStartModel for ConjugateGradient {
     fn name(&self) -> &str {
         &self.name
@@ -118,14 +114,15 @@ impl WarmStartModel for ConjugateGradient {
         let mut rz = dot(&self.residual, &z);
         let start = rz;
         for _ in 0..self.iterations {
-            if !(rz > RELATIVE_TOLERANCE * RELATIVE_TOLERANCE * start) {
+            // Converged (or not a number: the correction is dropped below).
+            if rz.is_nan() || rz <= RELATIVE_TOLERANCE * RELATIVE_TOLERANCE * start {
                 break;
             }
             let direction = std::mem::take(&mut self.direction);
             self.multiply(rows, bodies, &shift, &direction);
             self.direction = direction;
             let curvature = dot(&self.direction, &self.product);
-            if !(curvature > 0.0) {
+            if curvature.is_nan() || curvature <= 0.0 {
                 break;
             }
             let step = rz / curvature;

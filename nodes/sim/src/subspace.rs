@@ -241,7 +241,7 @@ pub(crate) fn relative(v: &[[f64; 3]], row: &ContactRow) -> [f64; 2] {
     [d[0] * n.x as f64 + d[1] * n.y as f64, d[0] * t.x as f64 + d[1] * t.y as f64]
 }
 
-fn dot(a: &[[f64; 2]], b: &[[f64; 2]]) -> f64 {
+pub(crate) fn dot(a: &[[f64; 2]], b: &[[f64; 2]]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1]).sum()
 }
 
