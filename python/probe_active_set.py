@@ -12,8 +12,8 @@ Variants (each solved by compliant PGS to the recording's tolerance):
                    slip direction): with compliance that *is* the solution
   true-set-Kflips  the true set with K random row states wrong (stick <-> slip on a closed
                    contact, an open one taken as closed and sticking)
-The recordings' states come from a rigid run, so builtin here carries the rigid run's impulses:
-the figures say how sharp the active set must be, not what builtin costs in a compliant run.
+Record the problems with the same compliance (`launch/record-gnn-val-compliant.toml`, 0.01):
+on a rigid run's recording builtin carries the rigid run's impulses and looks worse than it is.
 """
 import argparse
 import sys
