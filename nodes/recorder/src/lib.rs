@@ -42,6 +42,12 @@ pub const MESSAGE_ENCODING: &str = "cbor";
 pub const META_TYPE: &str = "type";
 /// Channel metadata key: the wire version of the CBOR frames ([`msgs::WIRE_VERSION`]).
 pub const META_WIRE_VERSION: &str = "wire_version";
+/// Name of the metadata record that repeats every channel declaration outside the chunks, after
+/// each new channel and at every flush. MCAP declares a channel once, inside the chunk where it
+/// first appears; a killed recording has no summary to repeat it, so damage to that one chunk
+/// would lose every later message of the channel. Keys: `<id>/topic`, `<id>/encoding` and
+/// `<id>/meta/<key>` for each key of the channel's metadata. Readers take it in silently.
+pub const CHANNELS_METADATA: &str = "dc.channels";
 
 /// Why a recording could not be read or written; every variant names the file.
 #[derive(Debug, thiserror::Error)]

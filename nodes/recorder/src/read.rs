@@ -219,6 +219,9 @@ pub struct RecordingReader {
     counting_skipped: bool,
     /// The summary section's channels (lenient mode: for messages whose declaration was lost).
     summary_channels: Option<HashMap<u16, RawChannel>>,
+    /// The channels the writer repeated outside the chunks ([`crate::CHANNELS_METADATA`]), for
+    /// the same use in a file without a summary (a killed recording).
+    repeated_channels: HashMap<u16, RawChannel>,
 }
 
 impl RecordingReader {
@@ -261,6 +264,7 @@ impl RecordingReader {
             skipped: BTreeMap::new(),
             counting_skipped: false,
             summary_channels: None,
+            repeated_channels: HashMap::new(),
         };
         reader.start()?;
         Ok(reader)
@@ -480,7 +484,12 @@ impl RecordingReader {
             op::SCHEMA => parse_schema(body).map_err(fault)?,
             op::METADATA => {
                 let (name, metadata) = parse_metadata(body).map_err(fault)?;
-                self.pending.push_back(Item::Metadata(mcap::records::Metadata { name, metadata }));
+                if name == crate::CHANNELS_METADATA {
+                    // The format's own bookkeeping, not the recording's metadata.
+                    self.repeated_channels.extend(repeated_channels(&metadata));
+                } else {
+                    self.pending.push_back(Item::Metadata(mcap::records::Metadata { name, metadata }));
+                }
             }
             op::MESSAGE_INDEX => {
                 let entries = parse_message_index(body).map_err(fault)?;
@@ -545,8 +554,9 @@ impl RecordingReader {
                 let detail = format!("a message on channel {id} that was never declared");
                 return Err(Stop::Fault(Fault { offset, opcode: Some(op::MESSAGE), detail }));
             }
-            // Its declaration was in a skipped region: the summary may still have it.
-            match self.summary_channel(id) {
+            // Its declaration was in a skipped region: the summary or the writer's repetition
+            // outside the chunks may still have it.
+            match self.summary_channel(id).or_else(|| self.repeated_channels.get(&id).cloned()) {
                 Some(c) => self.add_channel(c)?,
                 None => {
                     *self.skipped.entry(format!("channel {id} (undeclared)")).or_default() += 1;
@@ -716,6 +726,7 @@ impl RecordingReader {
                     && id.is_some_and(|id| {
                         self.channels.contains_key(&id)
                             || self.summary_channels.as_ref().is_some_and(|c| c.contains_key(&id))
+                            || self.repeated_channels.contains_key(&id)
                     })
             }
             op::HEADER | op::CHANNEL | op::SCHEMA | op::METADATA => len >= 8 && small,
@@ -925,6 +936,35 @@ fn parse_message(body: &[u8]) -> Result<(MessageHeader, &[u8]), String> {
         publish_time: f.u64("the publish time")?,
     };
     Ok((header, &body[f.at..]))
+}
+
+/// The channels of a [`crate::CHANNELS_METADATA`] record; entries without a topic and an
+/// encoding, or with an id that is not a number, are left out.
+fn repeated_channels(record: &BTreeMap<String, String>) -> HashMap<u16, RawChannel> {
+    let mut out: HashMap<u16, RawChannel> = HashMap::new();
+    let mut complete: HashMap<u16, [bool; 2]> = HashMap::new();
+    for (key, value) in record {
+        let Some((id, field)) = key.split_once('/') else { continue };
+        let Ok(id) = id.parse::<u16>() else { continue };
+        let c = out.entry(id).or_insert_with(|| RawChannel {
+            id,
+            topic: String::new(),
+            encoding: String::new(),
+            metadata: BTreeMap::new(),
+        });
+        let seen = complete.entry(id).or_default();
+        match field {
+            "topic" => (c.topic, seen[0]) = (value.clone(), true),
+            "encoding" => (c.encoding, seen[1]) = (value.clone(), true),
+            _ => {
+                if let Some(k) = field.strip_prefix("meta/") {
+                    c.metadata.insert(k.to_string(), value.clone());
+                }
+            }
+        }
+    }
+    out.retain(|id, _| complete.get(id) == Some(&[true, true]));
+    out
 }
 
 fn parse_metadata(body: &[u8]) -> Result<(String, BTreeMap<String, String>), String> {

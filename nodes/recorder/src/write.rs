@@ -1,6 +1,6 @@
 //! Writing recordings.
 
-use crate::{Error, FrameKind, Result, MESSAGE_ENCODING, META_TYPE, META_WIRE_VERSION};
+use crate::{Error, FrameKind, Result, CHANNELS_METADATA, MESSAGE_ENCODING, META_TYPE, META_WIRE_VERSION};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
@@ -39,6 +39,11 @@ pub struct RecordingWriter {
     /// The output file, for `sync_all` at the end (none for another kind of output).
     file: Option<File>,
     channels: HashMap<String, u16>,
+    /// Every channel as declared (id -> topic, encoding, metadata), repeated in
+    /// [`CHANNELS_METADATA`] records.
+    declared: BTreeMap<u16, (String, String, BTreeMap<String, String>)>,
+    /// A channel was declared since the last repetition: repeat before the next message.
+    repeat_pending: bool,
     sequences: HashMap<u16, u32>,
     messages: u64,
 }
@@ -76,6 +81,8 @@ impl RecordingWriter {
             failed,
             file,
             channels: HashMap::new(),
+            declared: BTreeMap::new(),
+            repeat_pending: false,
             sequences: HashMap::new(),
             messages: 0,
         };
@@ -132,16 +139,33 @@ impl RecordingWriter {
             ("header".to_string(), header.to_string()),
             ("item".to_string(), item.to_string()),
         ]);
-        let id = self.writer()?.add_channel(0, topic, MESSAGE_ENCODING, &metadata).map_err(|e| self.err(e))?;
-        self.channels.insert(topic.to_string(), id);
-        Ok(id)
+        self.add_raw_channel(topic, MESSAGE_ENCODING, &metadata)
     }
 
     /// Adds a channel with the given encoding and metadata as found in another file (recovery).
     pub fn add_raw_channel(&mut self, topic: &str, encoding: &str, metadata: &BTreeMap<String, String>) -> Result<u16> {
         let id = self.writer()?.add_channel(0, topic, encoding, metadata).map_err(|e| self.err(e))?;
         self.channels.insert(topic.to_string(), id);
+        let declaration = (topic.to_string(), encoding.to_string(), metadata.clone());
+        if self.declared.insert(id, declaration.clone()) != Some(declaration) {
+            self.repeat_pending = true;
+        }
         Ok(id)
+    }
+
+    /// Writes the [`CHANNELS_METADATA`] record of every channel declared so far (which ends the
+    /// chunk holding the new declarations: they are said again outside any chunk).
+    fn repeat_channels(&mut self) -> Result<()> {
+        self.repeat_pending = false;
+        let mut record = BTreeMap::new();
+        for (id, (topic, encoding, metadata)) in &self.declared {
+            record.insert(format!("{id}/topic"), topic.clone());
+            record.insert(format!("{id}/encoding"), encoding.clone());
+            for (k, v) in metadata {
+                record.insert(format!("{id}/meta/{k}"), v.clone());
+            }
+        }
+        self.write_metadata(CHANNELS_METADATA, record)
     }
 
     /// Writes one CBOR frame of `topic` (its channel is added if needed). Times in ns since the epoch.
@@ -152,6 +176,9 @@ impl RecordingWriter {
 
     /// Writes one message to a channel added before.
     pub fn write_to_channel(&mut self, channel_id: u16, log_time: u64, publish_time: u64, data: &[u8]) -> Result<()> {
+        if self.repeat_pending {
+            self.repeat_channels()?;
+        }
         let seq = self.sequences.entry(channel_id).or_insert(0);
         *seq = seq.wrapping_add(1);
         let header = mcap::records::MessageHeader { channel_id, sequence: *seq, log_time, publish_time };
@@ -166,9 +193,12 @@ impl RecordingWriter {
         self.writer()?.write_metadata(&record).map_err(|e| self.err(e))
     }
 
-    /// Closes the current chunk and pushes everything to the operating system: a kill after this
-    /// loses nothing written before it.
+    /// Closes the current chunk, repeats the channel declarations after it, and pushes everything
+    /// to the operating system: a kill after this loses nothing written before it.
     pub fn flush(&mut self) -> Result<()> {
+        if !self.declared.is_empty() {
+            self.repeat_channels()?;
+        }
         self.writer()?.flush().map_err(|e| self.err(e))
     }
 

@@ -133,10 +133,6 @@ fn a_flipped_byte_loses_at_most_its_chunk_wherever_it_is() {
     let killed = &bytes[..data_end(&bytes)];
     for (label, original) in [("finished", &bytes[..]), ("killed", killed)] {
         for (i, (chunk, in_chunk)) in chunks(original).into_iter().enumerate() {
-            // Without a summary the channels live only in the first chunk: it takes them along.
-            if label == "killed" && i == 0 {
-                continue;
-            }
             for at in [chunk.offset + 3, chunk.offset + 9 + 20, chunk.offset + 9 + chunk.len / 3, chunk.end() - 1] {
                 let mut damaged = original.to_vec();
                 damaged[at] ^= 0x40;
@@ -199,25 +195,52 @@ fn a_damaged_magic_is_looked_past_by_recover() {
 }
 
 #[test]
-fn a_lost_channel_declaration_is_taken_from_the_summary() {
-    // The first chunk declares the channels; the summary repeats them.
+fn a_lost_channel_declaration_is_taken_from_the_summary_or_the_repetition() {
+    // The chunks that declare the channels (the first ones, before any message) and the first
+    // chunk of messages are damaged; a finished file's summary repeats the declarations, and so
+    // do the writer's `dc.channels` records between chunks, which a killed file still has.
     let dir = scratch("lost-channels");
     let good = dir.join("good.mcap");
     let total = chunked_fixture(&good, 1, 2, 100, 20);
     let mut bytes = std::fs::read(&good).unwrap();
-    let (first, in_first) = chunks(&bytes)[0];
-    bytes[first.end() - 5] ^= 0x01;
+    let all = chunks(&bytes);
+    let declaring = all.iter().take_while(|(_, n)| *n == 0).count();
+    assert!(declaring >= 1, "the channels are declared before any message");
+    let (first_messages, in_first) = all[declaring];
+    for (chunk, _) in &all[..=declaring] {
+        bytes[chunk.end() - 5] ^= 0x01;
+    }
+    assert_eq!(first_messages.offset, all[declaring].0.offset);
     let bad = dir.join("bad.mcap");
     std::fs::write(&bad, &bytes).unwrap();
     let r = recover(&bad, &dir.join("out.mcap")).unwrap();
     assert_eq!(r.messages, total - in_first, "{r}");
     assert_eq!(r.channels, 4, "{r}");
-    // Without the summary those messages are lost, and counted per channel id.
+
     let killed = dir.join("killed.mcap");
-    std::fs::write(&killed, &bytes[..data_end(&bytes)]).unwrap();
-    let e = recover(&killed, &dir.join("out2.mcap")).unwrap_err();
+    let killed_bytes = bytes[..data_end(&bytes)].to_vec();
+    std::fs::write(&killed, &killed_bytes).unwrap();
+    let r = recover(&killed, &dir.join("out2.mcap")).unwrap();
+    assert_eq!(r.messages, total - in_first, "{r}");
+    assert_eq!(r.channels, 4, "{r}");
+
+    // Without the repetition (its records renamed, framing intact) every message is lost — the
+    // damaged chunk's by its message index, the rest as undeclared — and counted per channel id.
+    let mut hidden = killed_bytes.clone();
+    let name = recorder::CHANNELS_METADATA.as_bytes();
+    let mut renamed = 0;
+    for at in 0..hidden.len() - name.len() {
+        if &hidden[at..at + name.len()] == name {
+            hidden[at + name.len() - 1] = b'X';
+            renamed += 1;
+        }
+    }
+    assert!(renamed > declaring, "a repetition after each declaration and at each flush: {renamed}");
+    let hidden_file = dir.join("hidden.mcap");
+    std::fs::write(&hidden_file, &hidden).unwrap();
+    let e = recover(&hidden_file, &dir.join("out3.mcap")).unwrap_err();
     assert!(matches!(e, Error::NothingRecovered { .. }), "{e}");
-    let mut reader = RecordingReader::open_with(&killed, LENIENT).unwrap();
+    let mut reader = RecordingReader::open_with(&hidden_file, LENIENT).unwrap();
     while reader.next_item().is_some() {}
     assert_eq!(reader.skipped().values().sum::<u64>(), total, "{:?}", reader.skipped());
     assert!(reader.skipped().keys().all(|k| k.contains("undeclared")), "{:?}", reader.skipped());

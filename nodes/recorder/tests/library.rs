@@ -103,11 +103,13 @@ fn killed_writer(file: &std::path::Path) -> (Vec<u64>, Vec<u64>, Vec<u8>) {
 fn recover_keeps_every_message_written_before_the_last_flush() {
     let dir = scratch("recover");
     let (sizes, counts, bytes) = killed_writer(&dir.join("full.mcap"));
-    // Cut at a flush, just after one (a torn chunk), and midway between two flushes.
+    // Cut at a flush, just after one (a torn chunk), and midway through the chunk written
+    // between two flushes.
+    let torn_chunk = chunks(&bytes).into_iter().map(|(c, _)| c).find(|c| c.offset as u64 >= sizes[0]).unwrap();
     let cuts = [
         (sizes[2] as usize, counts[2]),
         (sizes[1] as usize + 37, counts[1]),
-        ((sizes[0] + sizes[1]) as usize / 2, counts[0]),
+        (torn_chunk.offset + torn_chunk.len / 2, counts[0]),
         (bytes.len(), counts[2]),
     ];
     for (cut, expected) in cuts {
