@@ -16,7 +16,7 @@
 use std::collections::HashMap;
 
 use crate::solver::{tangent_of, ContactRow, Impulse};
-use crate::subspace::{project_to_cone, step_residual};
+use crate::subspace::{add_compliance_residual, project_to_cone, row_compliance, step_residual};
 use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
 
 /// Basis vectors per cell: the stress components xx, yy, xy.
@@ -66,6 +66,10 @@ impl WarmStartModel for Coarse {
         }
         let active = project_to_cone(rows, out);
         step_residual(bodies, rows, out, &active, &mut self.velocities, &mut self.residual);
+        let compliance = row_compliance(rows, bodies, input.compliance);
+        if let Some(c) = &compliance {
+            add_compliance_residual(c, out, &active, &mut self.residual);
+        }
 
         // Cells numbered in the order rows (sorted by contact key) first meet them: deterministic.
         let mut cells: HashMap<(i32, i32), usize> = HashMap::new();
@@ -111,6 +115,17 @@ impl WarmStartModel for Coarse {
             for (j, fj) in forces {
                 for (k, fk) in forces {
                     system[j * unknowns + k] += (0..3).map(|d| fj[d] * inverse[d] * fk[d]).sum::<f64>();
+                }
+            }
+        }
+        // Compliance adds Z^T C Z: per row, within its cell's block.
+        if let Some(c) = &compliance {
+            for ((&cell, values), c) in self.row_cells.iter().zip(&self.row_basis).zip(c) {
+                for (a, va) in values.iter().enumerate() {
+                    for (b, vb) in values.iter().enumerate() {
+                        system[(cell * PER_CELL + a) * unknowns + cell * PER_CELL + b] +=
+                            c[0] * va[0] * vb[0] + c[1] * va[1] * vb[1];
+                    }
                 }
             }
         }
@@ -201,7 +216,7 @@ mod tests {
     /// Ground (fixed) and two unit-mass balls falling at 1 and 2 (velocity after gravity), each
     /// resting on one contact at x = 0 and x = `apart`; builtin remembers 0.4 and 0.5 where the
     /// step needs 1 and 2 (the speed times the mass).
-    fn guess(model: &mut Coarse, apart: f32) -> Vec<Impulse> {
+    fn guess(model: &mut Coarse, apart: f32, compliance: f32) -> Vec<Impulse> {
         let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
         let bodies = [
             SolverBody::default(),
@@ -238,7 +253,7 @@ mod tests {
             problem: None,
             rows: &rows,
             bodies: &bodies,
-            compliance: 0.0,
+            compliance,
             oracle: &mut oracle,
         };
         let mut out = vec![Impulse::default(); 2];
@@ -249,12 +264,15 @@ mod tests {
     #[test]
     fn each_cell_gets_the_uniform_stress_that_best_solves_the_step() {
         // Far apart (cells of 2 m): each ball's cell has its own vertical stress, exact for it.
-        let g = guess(&mut Coarse::new("coarse:2".into(), 2.0), 5.0);
+        let g = guess(&mut Coarse::new("coarse:2".into(), 2.0), 5.0, 0.0);
         assert!((g[0].normal - 1.0).abs() < 1e-5 && (g[1].normal - 2.0).abs() < 1e-5, "{g:?}");
         assert!(g.iter().all(|i| i.tangent.abs() < 1e-6), "a vertical load needs no friction: {g:?}");
         // Both in one cell: one amplitude for both rows. The energy-optimal common increment of
         // 0.6 and 1.5 missing (equal effective masses) is their mean, 1.05.
-        let g = guess(&mut Coarse::new("coarse:100".into(), 100.0), 5.0);
+        let g = guess(&mut Coarse::new("coarse:100".into(), 100.0), 5.0, 0.0);
         assert!((g[0].normal - 1.45).abs() < 1e-5 && (g[1].normal - 1.55).abs() < 1e-5, "{g:?}");
+        // Compliant contacts (0.1) ask u + 0.1 l = 0: each ball's own cell gives it 1/1.1, 2/1.1.
+        let g = guess(&mut Coarse::new("coarse:2".into(), 2.0), 5.0, 0.1);
+        assert!((g[0].normal - 1.0 / 1.1).abs() < 1e-5 && (g[1].normal - 2.0 / 1.1).abs() < 1e-5, "{g:?}");
     }
 }

@@ -92,6 +92,10 @@ impl WarmStartModel for Subspace {
         }
         let active = project_to_cone(rows, out);
         step_residual(bodies, rows, out, &active, &mut self.velocities, &mut self.residual);
+        let compliance = row_compliance(rows, bodies, input.compliance);
+        if let Some(c) = &compliance {
+            add_compliance_residual(c, out, &active, &mut self.residual);
+        }
 
         // The basis: the model's direction, then the previous solve's last sweeps, on the active
         // rows, orthonormalised.
@@ -142,6 +146,12 @@ impl WarmStartModel for Subspace {
                 let [vn, vt] = relative(&self.velocities, row);
                 [if act[0] { vn } else { 0.0 }, if act[1] { vt } else { 0.0 }]
             }));
+            if let Some(c) = &compliance {
+                for ((p, c), z) in self.product.iter_mut().zip(c).zip(&self.basis[j]) {
+                    p[0] += c[0] * z[0];
+                    p[1] += c[1] * z[1];
+                }
+            }
             for (row, z) in system.iter_mut().zip(&self.basis[..kept]) {
                 row[j] = dot(z, &self.product);
             }
@@ -196,6 +206,37 @@ pub(crate) fn step_residual(
         let [vn, vt] = relative(velocities, row);
         [if act[0] { -vn } else { 0.0 }, if act[1] { -vt } else { 0.0 }]
     }));
+}
+
+/// Per row the compliance term `[C_nn, C_tt]` of the solver (`gamma W_ii`: the row asks
+/// `u + C lambda = 0`), or `None` for rigid contacts.
+pub(crate) fn row_compliance(rows: &[ContactRow], bodies: &[SolverBody], gamma: f32) -> Option<Vec<[f64; 2]>> {
+    (gamma > 0.0).then(|| {
+        rows.iter()
+            .map(|row| {
+                let (mn, mt) = crate::solver::row_masses(row, bodies);
+                let c = |m: f32| if m > 0.0 { gamma as f64 / m as f64 } else { 0.0 };
+                [c(mn), c(mt)]
+            })
+            .collect()
+    })
+}
+
+/// With compliance, the step still asks `-C lambda` of the guess's active rows.
+pub(crate) fn add_compliance_residual(
+    compliance: &[[f64; 2]],
+    out: &[Impulse],
+    active: &[[bool; 2]],
+    residual: &mut [[f64; 2]],
+) {
+    for (((c, o), act), r) in compliance.iter().zip(out).zip(active).zip(residual.iter_mut()) {
+        if act[0] {
+            r[0] -= c[0] * o.normal as f64;
+        }
+        if act[1] {
+            r[1] -= c[1] * o.tangent as f64;
+        }
+    }
 }
 
 /// Sweep `-j` of the previous solve's trail per contact, `[normal, tangent]`, zero on inactive
@@ -334,6 +375,10 @@ mod tests {
     /// Ground (fixed) and two balls falling at 1 and 2 (velocity after gravity), each on one
     /// contact: the impulse that stops a ball is its speed times its mass (1).
     fn guess(model: &mut Subspace, trail: [Impulse; TRAIL_SWEEPS]) -> Vec<Impulse> {
+        guess_with(model, trail, 0.0)
+    }
+
+    fn guess_with(model: &mut Subspace, trail: [Impulse; TRAIL_SWEEPS], compliance: f32) -> Vec<Impulse> {
         let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
         let bodies = [
             SolverBody::default(),
@@ -356,7 +401,7 @@ mod tests {
             problem: None,
             rows: &rows,
             bodies: &bodies,
-            compliance: 0.0,
+            compliance,
             oracle: &mut oracle,
         };
         let mut out = vec![Impulse::default(); 2];
@@ -372,6 +417,10 @@ mod tests {
         let g = guess(&mut Subspace::new("subspace:2".into(), 2), [imp(0.01, 0.0), imp(0.02, 0.0), zero, zero]);
         assert!((g[0].normal - 1.0).abs() < 1e-6 && g[0].tangent == 0.0, "{g:?}");
         assert_eq!(g[1], zero, "a new contact keeps builtin's 0: no trail there");
+        // Compliant contacts (0.1) ask u + 0.1 l = 0: the same direction is scaled to 1 / 1.1.
+        let g =
+            guess_with(&mut Subspace::new("subspace:2".into(), 2), [imp(0.01, 0.0), imp(0.02, 0.0), zero, zero], 0.1);
+        assert!((g[0].normal - 1.0 / 1.1).abs() < 1e-6, "{g:?}");
         // A trail only along the tangent (which the ball does not need) changes nothing.
         let g = guess(&mut Subspace::new("subspace:1".into(), 1), [imp(0.0, 0.3), zero, zero, zero]);
         assert!((g[0].normal - 0.4).abs() < 1e-7 && g[0].tangent.abs() < 1e-7, "{g:?}");
