@@ -32,6 +32,8 @@ pub struct ConjugateGradient {
     residual: Vec<[f64; 2]>,
     /// Per row `W_ii + C_ii + R_ii` of its normal and tangent (0 where inactive).
     diagonal: Vec<[f64; 2]>,
+    /// Per row what `diagonal` adds to `W_ii` (compliance or regularisation).
+    shift: Vec<[f64; 2]>,
     correction: Vec<[f64; 2]>,
     direction: Vec<[f64; 2]>,
     product: Vec<[f64; 2]>,
@@ -47,6 +49,7 @@ impl ConjugateGradient {
             velocities: Vec::new(),
             residual: Vec::new(),
             diagonal: Vec::new(),
+            shift: Vec::new(),
             correction: Vec::new(),
             direction: Vec::new(),
             product: Vec::new(),
@@ -86,7 +89,8 @@ impl WarmStartModel for ConjugateGradient {
         let extra = if gamma > 0.0 { gamma } else { RIGID_REGULARISATION };
         // Per row: W_ii (1 / effective mass), the compliance's C_ii = gamma W_ii and the
         // regularisation's; the residual also owes C lambda_builtin.
-        let mut shift = Vec::with_capacity(rows.len());
+        let mut shift = std::mem::take(&mut self.shift);
+        shift.clear();
         self.diagonal.clear();
         for (((row, act), o), r) in rows.iter().zip(&active).zip(out.iter()).zip(self.residual.iter_mut()) {
             let (mn, mt) = row_masses(row, bodies);
@@ -144,6 +148,7 @@ impl WarmStartModel for ConjugateGradient {
             rz = next;
         }
         self.preconditioned = z;
+        self.shift = shift;
         if self.correction.iter().any(|y| !(y[0].is_finite() && y[1].is_finite())) {
             return Ok(());
         }
