@@ -10,7 +10,7 @@ use deep_contact::{bin, launch, scratch_dir, text};
 fn recorded_problems_resolve_to_the_recorded_sweeps() {
     let dir = scratch_dir("problem");
     let file = record_problems(&dir, "", 150);
-    let resolved = resolve_every_step(&file, 0.0);
+    let resolved = resolve_every_step(&file, 0.0, 1.0);
     assert_eq!(resolved.steps, 150);
     let (with_contacts, total_sweeps, old_contacts) = (resolved.with_contacts, resolved.sweeps, resolved.old_contacts);
     assert!(with_contacts > 50 && total_sweeps > 1000, "{with_contacts} steps with contacts, {total_sweeps} sweeps");
@@ -66,7 +66,7 @@ struct Resolved {
 
 /// Re-solves every recorded problem from builtin's warm start with its own stopping rule and
 /// checks the sweeps, residuals and impulses against the recorded ones, and the reference.
-fn resolve_every_step(file: &std::path::Path, compliance: f32) -> Resolved {
+fn resolve_every_step(file: &std::path::Path, compliance: f32, relaxation: f32) -> Resolved {
     let mut r = Resolved { steps: 0, with_contacts: 0, sweeps: 0, old_contacts: 0 };
     for step in recorder::Steps::open(file).expect("the recording") {
         let step = step.expect("a complete step");
@@ -76,6 +76,7 @@ fn resolve_every_step(file: &std::path::Path, compliance: f32) -> Resolved {
         assert_eq!(contacts.header.bodies as usize, bodies.items.len());
         assert_eq!(contacts.items.len(), stats.header.contacts as usize);
         assert_eq!(contacts.header.compliance, compliance);
+        assert_eq!(contacts.header.relaxation, relaxation);
         let problem = sim::problem::Problem {
             header: contacts.header,
             bodies: bodies.items.clone(),
@@ -118,10 +119,10 @@ fn resolve_every_step(file: &std::path::Path, compliance: f32) -> Resolved {
 }
 
 #[test]
-fn compliant_problems_carry_their_compliance_and_resolve_to_the_recorded_sweeps() {
+fn compliant_relaxed_problems_carry_their_solver_and_resolve_to_the_recorded_sweeps() {
     let dir = scratch_dir("problem-compliant");
-    let file = record_problems(&dir, ", compliance = 0.05", 80);
-    let resolved = resolve_every_step(&file, 0.05);
+    let file = record_problems(&dir, ", compliance = 0.05, relaxation = 1.3", 80);
+    let resolved = resolve_every_step(&file, 0.05, 1.3);
     assert_eq!(resolved.steps, 80);
     assert!(resolved.with_contacts > 20, "{} steps with contacts", resolved.with_contacts);
 }

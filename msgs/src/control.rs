@@ -28,6 +28,14 @@ pub struct RunParams {
     /// Relative compliance of the contact rows (0: rigid; absent in older recordings).
     #[serde(default)]
     pub compliance: f32,
+    /// Over-relaxation factor of the solver (1: projected Gauss-Seidel; absent in older
+    /// recordings, read as 1).
+    #[serde(default = "plain_gauss_seidel")]
+    pub relaxation: f32,
+}
+
+fn plain_gauss_seidel() -> f32 {
+    1.0
 }
 
 /// What a simulation start announces about its scene.
@@ -181,6 +189,7 @@ mod tests {
             sampler: "native".into(),
             dt: 0.01,
             compliance: 0.0,
+            relaxation: 1.0,
         }
     }
 

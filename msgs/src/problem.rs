@@ -74,9 +74,10 @@ pub struct ProblemHeader {
     /// absent in recordings made before it existed).
     #[serde(default)]
     pub compliance: f32,
-    /// Keeps the zero-copy layout a multiple of 8 bytes; always 0.
-    #[serde(skip)]
-    pub padding: u32,
+    /// Over-relaxation factor the step was solved with (1: projected Gauss-Seidel; 0 stands for
+    /// 1: not recorded, as in recordings made before it existed).
+    #[serde(default)]
+    pub relaxation: f32,
 }
 
 /// A step's bodies of the problem.

@@ -29,6 +29,15 @@ fn compliance(s: &str) -> Result<f32, String> {
     }
 }
 
+/// An over-relaxation factor: finite, in (0, 2) (outside, projected SOR does not converge).
+fn relaxation(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v < 2.0 => Ok(v),
+        Ok(v) => Err(format!("must be a number in (0, 2), got {v}")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
 fn required_duration(s: &str) -> Result<Duration, String> {
     sim::parse_deadline(s).map_err(|e| e.to_string())?.ok_or_else(|| "a duration is required, not `none`".to_string())
 }
@@ -76,6 +85,10 @@ struct Args {
     /// the labels and the shadow solves use the same. See `sim::SolveParams::compliance`.
     #[arg(long, default_value_t = 0.0, value_parser = compliance)]
     compliance: f32,
+    /// Over-relaxation factor of the solver's row updates (1: projected Gauss-Seidel, the
+    /// thesis's solver); in (0, 2). The oracle, labels and shadow solves use the same.
+    #[arg(long, default_value_t = 1.0, value_parser = relaxation)]
+    relaxation: f32,
     /// The oracle's tolerance (`copy` and the oracle ablations solve each step from builtin's
     /// warm start to it).
     #[arg(long, default_value_t = 2e-6, value_parser = positive_f32)]
@@ -164,11 +177,17 @@ impl Args {
 
     fn world_params(&self) -> WorldParams {
         let mut p = WorldParams {
-            solve: SolveParams { tolerance: self.tolerance, max_sweeps: self.max_sweeps, compliance: self.compliance },
+            solve: SolveParams {
+                tolerance: self.tolerance,
+                max_sweeps: self.max_sweeps,
+                compliance: self.compliance,
+                relaxation: self.relaxation,
+            },
             oracle: SolveParams {
                 tolerance: self.oracle_tolerance,
                 max_sweeps: self.oracle_max_sweeps,
                 compliance: self.compliance,
+                relaxation: self.relaxation,
             },
             ..WorldParams::default()
         };
@@ -313,6 +332,7 @@ fn try_main() -> Result<()> {
                 tolerance,
                 max_sweeps: args.oracle_max_sweeps,
                 compliance: args.compliance,
+                relaxation: args.relaxation,
             }),
             shadow_builtin: args.shadow_builtin,
         };

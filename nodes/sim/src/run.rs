@@ -67,6 +67,7 @@ pub fn run_params(spec: &RunSpec, warm: &WarmStarter) -> RunParams {
         sampler: format!("{:?}", spec.scene.sampler).to_lowercase(),
         dt: spec.params.dt,
         compliance: spec.params.solve.compliance,
+        relaxation: spec.params.solve.relaxation,
     }
 }
 

@@ -86,11 +86,15 @@ pub struct SolveParams {
     /// force mixing and MuJoCo's impedance make it. Rigid contacts in a jammed pile have a whole
     /// set of solutions (impulses that move no body); a compliant problem has one.
     pub compliance: f32,
+    /// Over-relaxation factor `omega` of every row update (1: plain projected Gauss-Seidel, the
+    /// thesis's solver). Each row moves `omega` times its Gauss-Seidel step before projection
+    /// (projected SOR); in (0, 2). Jammed piles converge in fewer sweeps with omega ~1.5.
+    pub relaxation: f32,
 }
 
 impl Default for SolveParams {
     fn default() -> Self {
-        SolveParams { tolerance: 1e-4, max_sweeps: 1000, compliance: 0.0 }
+        SolveParams { tolerance: 1e-4, max_sweeps: 1000, compliance: 0.0, relaxation: 1.0 }
     }
 }
 
@@ -223,7 +227,13 @@ impl ContactSolver {
         let softness = 1.0 / (1.0 + params.compliance);
         let mut report = SolveReport::default();
         while report.sweeps < params.max_sweeps {
-            let residual = self.sweep(bodies, report.sweeps as usize % TRAIL_SWEEPS, softness);
+            let slot = report.sweeps as usize % TRAIL_SWEEPS;
+            // Plain Gauss-Seidel keeps its own loop: the unrelaxed solver bit for bit, at its speed.
+            let residual = if params.relaxation == 1.0 {
+                self.sweep::<false>(bodies, slot, softness, 1.0)
+            } else {
+                self.sweep::<true>(bodies, slot, softness, params.relaxation)
+            };
             report.sweeps += 1;
             report.final_residual = residual;
             self.residuals.push(residual);
@@ -243,21 +253,28 @@ impl ContactSolver {
 
     /// One projected Gauss-Seidel sweep, its changes written to slot `slot` of the trail; returns
     /// the largest absolute impulse change.
-    fn sweep(&mut self, bodies: &mut [SolverBody], slot: usize, softness: f32) -> f32 {
+    fn sweep<const RELAXED: bool>(
+        &mut self,
+        bodies: &mut [SolverBody],
+        slot: usize,
+        softness: f32,
+        relaxation: f32,
+    ) -> f32 {
+        let relax = |old: f32, target: f32| if RELAXED { old + relaxation * (target - old) } else { target };
         let mut residual = 0.0f32;
         for ((c, l), trail) in self.prepared.iter().zip(self.impulses.iter_mut()).zip(self.trail.iter_mut()) {
             // Tangent first, bounded by the current normal impulse (Box2D's order).
             let dv = relative(bodies, c);
             let vt = dv.dot(c.t);
             let max_t = c.mu * l.normal;
-            let new_t = ((l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t);
+            let new_t = relax(l.tangent, (l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t);
             let dt = new_t - l.tangent;
             l.tangent = new_t;
             apply(bodies, c, c.t * dt);
 
             let dv = relative(bodies, c);
             let vn = dv.dot(c.n);
-            let new_n = ((l.normal - c.normal_mass * vn) * softness).max(0.0);
+            let new_n = relax(l.normal, (l.normal - c.normal_mass * vn) * softness).max(0.0);
             let dn = new_n - l.normal;
             l.normal = new_n;
             apply(bodies, c, c.n * dn);
@@ -490,7 +507,7 @@ mod tests {
         };
         let mut bodies = [SolverBody::default(), ball(Vec2::new(0.0, -1.0))];
         let warm = warm.map(|normal| Impulse { normal, tangent: 0.0 });
-        let params = SolveParams { tolerance: 1e-7, max_sweeps: 10_000, compliance };
+        let params = SolveParams { tolerance: 1e-7, max_sweeps: 10_000, compliance, relaxation: 1.0 };
         let mut s = ContactSolver::new();
         assert!(s.solve(&[row, row], &mut bodies, &warm, &params).converged);
         [s.impulses()[0].normal, s.impulses()[1].normal]

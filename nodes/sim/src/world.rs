@@ -61,7 +61,7 @@ impl Default for WorldParams {
             dt: 1.0 / 100.0,
             gravity: [0.0, -9.81],
             solve: SolveParams::default(),
-            oracle: SolveParams { tolerance: 2e-6, max_sweeps: 10_000, compliance: 0.0 },
+            oracle: SolveParams { tolerance: 2e-6, max_sweeps: 10_000, compliance: 0.0, relaxation: 1.0 },
             position: PositionParams::default(),
             prediction: 0.02,
             contact_margin: 0.0,
@@ -85,6 +85,11 @@ impl WorldParams {
         for c in [self.solve.compliance, self.oracle.compliance] {
             if !(c.is_finite() && (0.0..=10.0).contains(&c)) {
                 return bad("compliance", c.to_string(), "must be in [0, 10]");
+            }
+        }
+        for w in [self.solve.relaxation, self.oracle.relaxation] {
+            if !(w > 0.0 && w < 2.0) {
+                return bad("relaxation", w.to_string(), "must be in (0, 2)");
             }
         }
         if !(self.oracle.tolerance.is_finite() && self.oracle.tolerance > 0.0) || self.oracle.max_sweeps == 0 {
@@ -533,6 +538,7 @@ impl World {
             tolerance: self.params.solve.tolerance,
             max_sweeps: self.params.solve.max_sweeps,
             compliance: self.params.solve.compliance,
+            relaxation: self.params.solve.relaxation,
             ..ProblemHeader::default()
         };
         if let Some(params) = capture.reference {

@@ -12,7 +12,10 @@ fn library_rejects_bad_parameters_with_clear_errors() {
     assert!("oracle".parse::<ModelKind>().unwrap_err().to_string().starts_with("unknown warm-start model `oracle`"));
     let e = World::new(
         &SceneConfig::default(),
-        WorldParams { solve: SolveParams { tolerance: 0.0, max_sweeps: 10, compliance: 0.0 }, ..Default::default() },
+        WorldParams {
+            solve: SolveParams { tolerance: 0.0, max_sweeps: 10, compliance: 0.0, relaxation: 1.0 },
+            ..Default::default()
+        },
     )
     .err()
     .unwrap();
@@ -21,6 +24,9 @@ fn library_rejects_bad_parameters_with_clear_errors() {
     let soft = SolveParams { compliance: -1.0, ..Default::default() };
     let e = World::new(&SceneConfig::default(), WorldParams { solve: soft, ..Default::default() }).err().unwrap();
     assert_eq!(e.to_string(), "invalid parameter `compliance` = -1: must be in [0, 10]");
+    let sor = SolveParams { relaxation: 2.5, ..Default::default() };
+    let e = World::new(&SceneConfig::default(), WorldParams { solve: sor, ..Default::default() }).err().unwrap();
+    assert_eq!(e.to_string(), "invalid parameter `relaxation` = 2.5: must be in (0, 2)");
     let e = World::new(&SceneConfig { n: 1000, side: Some(15.0), ..Default::default() }, WorldParams::default())
         .err()
         .unwrap();
@@ -56,6 +62,11 @@ fn binary_rejects_bad_parameters_with_clear_errors() {
         let (code, err) = dc_sim(&[bad]);
         assert_ne!(code, 0);
         assert!(err.contains("--compliance") && err.contains("[0, 10]"), "{bad}: {err}");
+    }
+    for bad in ["--relaxation=0", "--relaxation=2", "--relaxation=inf"] {
+        let (code, err) = dc_sim(&[bad]);
+        assert_ne!(code, 0);
+        assert!(err.contains("--relaxation") && err.contains("(0, 2)"), "{bad}: {err}");
     }
 
     let (code, err) = dc_sim(&["--n", "1000", "--side", "15"]);

@@ -57,6 +57,26 @@ fn complementarity_conditions_hold_at_convergence_for_every_contact() {
     }
 }
 
+#[test]
+fn over_relaxed_solves_satisfy_the_same_complementarity_conditions() {
+    // Projected SOR has the same fixed points as projected Gauss-Seidel: what it converges to
+    // solves the same problem (and a converged solve stops on a small change either way).
+    let solve = SolveParams { relaxation: 1.4, ..Default::default() };
+    let params = WorldParams { solve, ..Default::default() };
+    let mut world = World::new(&SceneConfig { seed: 4, ..Default::default() }, params).unwrap();
+    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+    warm.begin_simulation(0, 4);
+    let (mut checked, mut converged) = (0, 0);
+    for _ in 0..250 {
+        let s = world.step(&mut warm).clone();
+        if s.converged {
+            converged += 1;
+            checked += check_complementarity(&world, solve.tolerance);
+        }
+    }
+    assert!(converged > 200 && checked > 10_000, "{converged} steps converged, {checked} contacts checked");
+}
+
 /// The oracle: restarting from the converged solution converges at once. Checked without
 /// friction, where projected Gauss-Seidel converges monotonically. With Coulomb friction (mu 0.5)
 /// the problem is non-symmetric and PGS can hover around the tolerance in a settled pile, so a
@@ -106,8 +126,10 @@ fn copy_with_friction_restarts_from_a_converged_solution_cheaply() {
 
 #[test]
 fn unconverged_solves_are_reported_as_such() {
-    let params =
-        WorldParams { solve: SolveParams { tolerance: 1e-7, max_sweeps: 3, compliance: 0.0 }, ..Default::default() };
+    let params = WorldParams {
+        solve: SolveParams { tolerance: 1e-7, max_sweeps: 3, compliance: 0.0, relaxation: 1.0 },
+        ..Default::default()
+    };
     let mut world = World::new(&SceneConfig { seed: 4, ..Default::default() }, params).unwrap();
     let mut warm = WarmStarter::local(ModelKind::None, 0).unwrap();
     let mut capped = 0;
