@@ -9,6 +9,8 @@ struct RunInfo {
     model: Option<String>,
     /// The run's sweep cap (from its run start's parameters).
     max_sweeps: Option<u32>,
+    /// The run's solver, in words (from its run start's parameters).
+    solver: Option<String>,
     simulations_announced: Option<u32>,
     ended: bool,
 }
@@ -20,6 +22,20 @@ struct SimInfo {
     steps_seen: u32,
     /// Steps whose statistics arrived (a second copy of one is dropped).
     seen: std::collections::BTreeSet<u32>,
+}
+
+/// `PGS, tolerance 0.0001, cap 1000`, or with `projected SOR 1.4` and `compliance 0.01` where
+/// the run used them (a relaxation of 0 is an older run's: not recorded, plain PGS).
+fn solver_in_words(p: &msgs::RunParams) -> String {
+    let mut words = if p.relaxation > 0.0 && p.relaxation != 1.0 {
+        format!("projected SOR {}", p.relaxation)
+    } else {
+        "PGS".to_string()
+    };
+    if p.compliance > 0.0 {
+        words += &format!(", compliance {}", p.compliance);
+    }
+    words + &format!(", tolerance {}, cap {}", p.tolerance, p.max_sweeps)
 }
 
 /// The sweep bound of a step whose run's cap is unknown (no run start seen): far above any cap a
@@ -52,6 +68,7 @@ impl Completeness {
                 run.model = match msgs::control::details_of(c, details) {
                     Ok(msgs::ControlDetails::RunStart(p)) => {
                         run.max_sweeps = Some(p.max_sweeps);
+                        run.solver = Some(solver_in_words(&p));
                         Some(p.model)
                     }
                     other => {
@@ -135,6 +152,13 @@ impl Completeness {
     }
 
     /// Everything announced but not received, one sentence each; empty for a complete run.
+    /// The solvers the runs announced, in words, each once (a report compares models only under
+    /// one solver; more than one is worth a reader's notice).
+    pub fn solvers(&self) -> Vec<String> {
+        let set: std::collections::BTreeSet<&String> = self.runs.values().filter_map(|r| r.solver.as_ref()).collect();
+        set.into_iter().cloned().collect()
+    }
+
     pub fn missing(&self) -> Vec<String> {
         let mut out = Vec::new();
         let label = |id: &u64| match self.runs.get(id).and_then(|r| r.model.clone()) {
@@ -190,6 +214,25 @@ mod tests {
         let p =
             msgs::RunParams { seeds: vec![0], steps: 2, model: model.into(), max_sweeps: 1000, ..Default::default() };
         msgs::ControlMsg::run_start(StepHeader::default(), &p).items
+    }
+
+    #[test]
+    fn runs_say_their_solver() {
+        let mut k = Completeness::default();
+        k.control(&c(1, 0, ControlKind::RunStart, 1), &started("builtin"));
+        let p = msgs::RunParams {
+            model: "builtin".into(),
+            tolerance: 1e-4,
+            max_sweeps: 1000,
+            compliance: 0.01,
+            relaxation: 1.4,
+            ..Default::default()
+        };
+        k.control(&c(2, 0, ControlKind::RunStart, 1), &msgs::ControlMsg::run_start(StepHeader::default(), &p).items);
+        assert_eq!(
+            k.solvers(),
+            vec!["PGS, tolerance 0, cap 1000", "projected SOR 1.4, compliance 0.01, tolerance 0.0001, cap 1000"]
+        );
     }
 
     #[test]

@@ -119,7 +119,12 @@ fn try_main() -> Result<()> {
     for m in &missing {
         tracing::warn!("missing: {m}");
     }
-    let written = report::write(&aggregate, &out, &args.title, &missing)?;
+    // The solver the runs announced belongs in the title: reports under different solvers
+    // (`dc-sim --relaxation`, `--compliance`) must not be read as one.
+    let solvers = completeness.solvers();
+    let title =
+        if solvers.is_empty() { args.title.clone() } else { format!("{} ({})", args.title, solvers.join("; ")) };
+    let written = report::write(&aggregate, &out, &title, &missing)?;
     println!("{}", report::summary_markdown(&written.summaries));
     if !aggregate.is_empty() {
         println!("{}", report::phases_markdown(&written.phases));
