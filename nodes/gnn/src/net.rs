@@ -231,7 +231,9 @@ impl Net {
     fn embed(&self, contact_features: &[f32], body_features: &[f32], pairs: &[(u32, u32)], s: &mut Scratch) {
         let h = self.config.hidden;
         let (nc, nb) = (pairs.len(), body_features.len() / BODY_FEATURES);
-        s.input.resize((4 * h).max(h + CONTACT_FEATURES), 0.0);
+        // The body layer's input [h_b, m_b] and the decoder's [h_c, x_c]; the contact layer reads
+        // its blocks in place.
+        s.input.resize((2 * h).max(h + CONTACT_FEATURES), 0.0);
         s.hc.resize(nc * h, 0.0);
         s.hb.resize(nb * h, 0.0);
         s.mb.resize(nb * h, 0.0);
