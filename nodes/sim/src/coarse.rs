@@ -209,56 +209,22 @@ mod tests {
         assert!(solve_semidefinite(&mut zero, &[1.0, 1.0], 2).is_none());
     }
 
-    use crate::contact::{ContactKey, ContactPoint, ImpulseHistory};
+    use crate::contact::ImpulseHistory;
+    use crate::solver::tests::{ball, floor_row};
     use crate::solver::SolverBody;
+    use crate::warm::tests::{floor_contact, guess_on_rows};
     use rapier2d::math::Vec2;
 
     /// Ground (fixed) and two unit-mass balls falling at 1 and 2 (velocity after gravity), each
     /// resting on one contact at x = 0 and x = `apart`; builtin remembers 0.4 and 0.5 where the
     /// step needs 1 and 2 (the speed times the mass).
     fn guess(model: &mut Coarse, apart: f32, compliance: f32) -> Vec<Impulse> {
-        let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
-        let bodies = [
-            SolverBody::default(),
-            SolverBody { v: Vec2::new(0.0, -1.0), w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
-            SolverBody { v: Vec2::new(0.0, -2.0), w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
-        ];
-        let point = |body: u32, x: f32| ContactPoint {
-            key: ContactKey { body_a: 0, body_b: body, feature: 0 },
-            point: Vec2::new(x, 0.1),
-            normal: Vec2::Y,
-            penetration: 0.0,
-            friction: 0.5,
-        };
-        let row = |body: u32| ContactRow {
-            body_a: 0,
-            body_b: body,
-            ra: Vec2::ZERO,
-            rb: Vec2::new(0.0, -0.5),
-            normal: Vec2::Y,
-            friction: 0.5,
-        };
-        let contacts = [point(1, 0.0), point(2, apart)];
+        let bodies = [SolverBody::default(), ball(Vec2::new(0.0, -1.0)), ball(Vec2::new(0.0, -2.0))];
+        let contacts = [floor_contact(1, 0, 0.0), floor_contact(2, 0, apart)];
         let mut history = ImpulseHistory::default();
-        history.push(contacts.iter().map(|c| c.key), &[imp(0.4, 0.0), imp(0.5, 0.0)], ImpulseHistory::no_trail());
-        let rows = [row(1), row(2)];
-        let mut oracle = |_: &mut [Impulse]| {};
-        let mut input = WarmStartInput {
-            run_id: 0,
-            simulation: 0,
-            step: 2,
-            contacts: &contacts,
-            history: &history,
-            fixed: &[true, false, false],
-            problem: None,
-            rows: &rows,
-            bodies: &bodies,
-            compliance,
-            oracle: &mut oracle,
-        };
-        let mut out = vec![Impulse::default(); 2];
-        model.warm_start(&mut input, &mut out).unwrap();
-        out
+        let builtin = [0.4, 0.5].map(|normal| Impulse { normal, tangent: 0.0 });
+        history.push(contacts.iter().map(|c| c.key), &builtin, ImpulseHistory::no_trail());
+        guess_on_rows(model, &contacts, &history, &[floor_row(1), floor_row(2)], &bodies, compliance)
     }
 
     #[test]

@@ -487,24 +487,23 @@ pub fn correct_positions(rows: &[PositionRow], poses: &mut [PoseBody], params: &
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn ball(v: Vec2) -> SolverBody {
+    /// A unit-mass ball moving at `v`.
+    pub(crate) fn ball(v: Vec2) -> SolverBody {
         SolverBody { v, w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 }
+    }
+
+    /// The contact row of ball `body` (radius 0.5) resting on body 0, the floor, below its centre.
+    pub(crate) fn floor_row(body: u32) -> ContactRow {
+        ContactRow { body_a: 0, body_b: body, ra: Vec2::ZERO, rb: Vec2::new(0.0, -0.5), normal: Vec2::Y, friction: 0.5 }
     }
 
     /// A ball (mass 1, falling at 1 after gravity) on two contact rows at the same point: the
     /// rigid problem only fixes their sum, the compliant one has a single answer.
     fn twin_rows(warm: [f32; 2], compliance: f32) -> [f32; 2] {
-        let row = ContactRow {
-            body_a: 0,
-            body_b: 1,
-            ra: Vec2::ZERO,
-            rb: Vec2::new(0.0, -0.5),
-            normal: Vec2::Y,
-            friction: 0.5,
-        };
+        let row = floor_row(1);
         let mut bodies = [SolverBody::default(), ball(Vec2::new(0.0, -1.0))];
         let warm = warm.map(|normal| Impulse { normal, tangent: 0.0 });
         let params = SolveParams { tolerance: 1e-7, max_sweeps: 10_000, compliance, relaxation: 1.0 };
@@ -532,14 +531,7 @@ mod tests {
     fn a_warm_start_outside_the_friction_cone_is_projected_not_a_panic() {
         // A learned model may predict a negative normal impulse (or NaN); the solve must still
         // converge to the same answer as from zero.
-        let row = ContactRow {
-            body_a: 0,
-            body_b: 1,
-            ra: Vec2::ZERO,
-            rb: Vec2::new(0.0, -0.5),
-            normal: Vec2::Y,
-            friction: 0.5,
-        };
+        let row = floor_row(1);
         for guess in [
             Impulse { normal: -0.3, tangent: 0.2 },
             Impulse { normal: f32::NAN, tangent: 1.0 },

@@ -355,22 +355,10 @@ mod tests {
         assert!(solve_spd(&zero, &b, 2).is_none());
     }
 
-    use crate::contact::{ContactKey, ImpulseHistory, SolveTrail};
+    use crate::contact::{ImpulseHistory, SolveTrail};
+    use crate::solver::tests::{ball, floor_row};
+    use crate::warm::tests::{floor_contact, guess_on_rows};
     use rapier2d::math::Vec2;
-
-    fn point(body: u32) -> ContactPoint {
-        ContactPoint {
-            key: ContactKey { body_a: 0, body_b: body, feature: 0 },
-            point: Vec2::ZERO,
-            normal: Vec2::Y,
-            penetration: 0.0,
-            friction: 0.5,
-        }
-    }
-
-    fn row(body: u32) -> ContactRow {
-        ContactRow { body_a: 0, body_b: body, ra: Vec2::ZERO, rb: Vec2::new(0.0, -0.5), normal: Vec2::Y, friction: 0.5 }
-    }
 
     /// Ground (fixed) and two balls falling at 1 and 2 (velocity after gravity), each on one
     /// contact: the impulse that stops a ball is its speed times its mass (1).
@@ -379,34 +367,13 @@ mod tests {
     }
 
     fn guess_with(model: &mut Subspace, trail: [Impulse; TRAIL_SWEEPS], compliance: f32) -> Vec<Impulse> {
-        let imp = |n: f32, t: f32| Impulse { normal: n, tangent: t };
-        let bodies = [
-            SolverBody::default(),
-            SolverBody { v: Vec2::new(0.0, -1.0), w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
-            SolverBody { v: Vec2::new(0.0, -2.0), w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
-        ];
+        let bodies = [SolverBody::default(), ball(Vec2::new(0.0, -1.0)), ball(Vec2::new(0.0, -2.0))];
+        let contacts = [floor_contact(1, 0, 0.0), floor_contact(2, 0, 0.0)];
         let mut history = ImpulseHistory::default();
         // Ball 1's contact persists with builtin's 0.4 (the ball still falls); ball 2's is new.
-        history.push([point(1).key].into_iter(), &[imp(0.4, 0.0)], SolveTrail { changes: &[trail], rate: 0.9 });
-        let contacts = [point(1), point(2)];
-        let rows = [row(1), row(2)];
-        let mut oracle = |_: &mut [Impulse]| {};
-        let mut input = WarmStartInput {
-            run_id: 0,
-            simulation: 0,
-            step: 2,
-            contacts: &contacts,
-            history: &history,
-            fixed: &[true, false, false],
-            problem: None,
-            rows: &rows,
-            bodies: &bodies,
-            compliance,
-            oracle: &mut oracle,
-        };
-        let mut out = vec![Impulse::default(); 2];
-        model.warm_start(&mut input, &mut out).unwrap();
-        out
+        let builtin = [Impulse { normal: 0.4, tangent: 0.0 }];
+        history.push([contacts[0].key].into_iter(), &builtin, SolveTrail { changes: &[trail], rate: 0.9 });
+        guess_on_rows(model, &contacts, &history, &[floor_row(1), floor_row(2)], &bodies, compliance)
     }
 
     #[test]

@@ -754,13 +754,7 @@ pub(crate) mod tests {
     use crate::contact::ContactKey;
 
     fn point(body_b: u32) -> ContactPoint {
-        ContactPoint {
-            key: ContactKey { body_a: 0, body_b, feature: 0 },
-            point: rapier2d::math::Vec2::ZERO,
-            normal: rapier2d::math::Vec2::Y,
-            penetration: 0.0,
-            friction: 0.5,
-        }
+        floor_contact(body_b, 0, 0.0)
     }
 
     /// Runs `model` on `contacts` after two steps of history.
@@ -775,6 +769,42 @@ pub(crate) mod tests {
         history: &ImpulseHistory,
         exact: &[Impulse],
     ) -> Vec<Impulse> {
+        run_step(model, contacts, history, exact, &[], &[], 0.0)
+    }
+
+    /// Runs `model` on `contacts` with the solver's `rows` and `bodies` and its `compliance`
+    /// (step 2, body 0 fixed, no oracle): the models that solve the step's own problem.
+    pub(crate) fn guess_on_rows(
+        model: &mut dyn WarmStartModel,
+        contacts: &[ContactPoint],
+        history: &ImpulseHistory,
+        rows: &[crate::solver::ContactRow],
+        bodies: &[crate::solver::SolverBody],
+        compliance: f32,
+    ) -> Vec<Impulse> {
+        run_step(model, contacts, history, &[], rows, bodies, compliance)
+    }
+
+    /// The contact of ball `body_b` on the floor (body 0) at `x`, feature `feature`.
+    pub(crate) fn floor_contact(body_b: u32, feature: u32, x: f32) -> ContactPoint {
+        ContactPoint {
+            key: ContactKey { body_a: 0, body_b, feature },
+            point: rapier2d::math::Vec2::new(x, 0.0),
+            normal: rapier2d::math::Vec2::Y,
+            penetration: 0.0,
+            friction: 0.5,
+        }
+    }
+
+    fn run_step(
+        model: &mut dyn WarmStartModel,
+        contacts: &[ContactPoint],
+        history: &ImpulseHistory,
+        exact: &[Impulse],
+        rows: &[crate::solver::ContactRow],
+        bodies: &[crate::solver::SolverBody],
+        compliance: f32,
+    ) -> Vec<Impulse> {
         let mut oracle = |out: &mut [Impulse]| {
             if !exact.is_empty() {
                 out.copy_from_slice(exact)
@@ -788,9 +818,9 @@ pub(crate) mod tests {
             history,
             fixed: &[true, false, false, false],
             problem: None,
-            rows: &[],
-            bodies: &[],
-            compliance: 0.0,
+            rows,
+            bodies,
+            compliance,
             oracle: &mut oracle,
         };
         let mut out = vec![Impulse::default(); contacts.len()];
