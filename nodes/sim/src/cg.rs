@@ -30,10 +30,9 @@ pub struct ConjugateGradient {
     iterations: usize,
     velocities: Vec<[f64; 3]>,
     residual: Vec<[f64; 2]>,
-    /// Per row `W_ii + C_ii + R_ii` of its normal and tangent (0 where inactive).
-    diagonal: Vec<[f64; 2]>,
-    /// Per row what `diagonal` adds to `W_ii` (compliance or regularisation).
-    shift: Vec<[f64; 2]>,
+    /// Per row `W_ii` of its normal and tangent on the active rows, 0 elsewhere (the mask of the
+    /// system, and with `extra` its diagonal shift and its Jacobi preconditioner).
+    weights: Vec<[f64; 2]>,
     correction: Vec<[f64; 2]>,
     direction: Vec<[f64; 2]>,
     product: Vec<[f64; 2]>,
@@ -48,8 +47,7 @@ impl ConjugateGradient {
             iterations,
             velocities: Vec::new(),
             residual: Vec::new(),
-            diagonal: Vec::new(),
-            shift: Vec::new(),
+            weights: Vec::new(),
             correction: Vec::new(),
             direction: Vec::new(),
             product: Vec::new(),
@@ -57,17 +55,20 @@ impl ConjugateGradient {
         }
     }
 
-    /// `product = (W + shift) x` on the active rows (`shift` per row: `diagonal - W_ii`).
-    fn multiply(&mut self, rows: &[ContactRow], bodies: &[SolverBody], shift: &[[f64; 2]], x: &[[f64; 2]]) {
+    /// `product = (W + extra W_ii) x` on the active rows.
+    fn multiply(&mut self, rows: &[ContactRow], bodies: &[SolverBody], extra: f64, x: &[[f64; 2]]) {
         self.velocities.clear();
         self.velocities.resize(bodies.len(), [0.0; 3]);
         for (row, xi) in rows.iter().zip(x) {
             apply(&mut self.velocities, bodies, row, *xi);
         }
         self.product.clear();
-        self.product.extend(rows.iter().zip(x).zip(&self.diagonal).zip(shift).map(|(((row, xi), d), s)| {
+        self.product.extend(rows.iter().zip(x).zip(&self.weights).map(|((row, xi), w)| {
             let [vn, vt] = relative(&self.velocities, row);
-            [if d[0] > 0.0 { vn + s[0] * xi[0] } else { 0.0 }, if d[1] > 0.0 { vt + s[1] * xi[1] } else { 0.0 }]
+            [
+                if w[0] > 0.0 { vn + w[0] * extra * xi[0] } else { 0.0 },
+                if w[1] > 0.0 { vt + w[1] * extra * xi[1] } else { 0.0 },
+            ]
         }));
     }
 }
@@ -87,33 +88,32 @@ impl WarmStartModel for ConjugateGradient {
         step_residual(bodies, rows, out, &active, &mut self.velocities, &mut self.residual);
         let gamma = input.compliance as f64;
         let extra = if gamma > 0.0 { gamma } else { RIGID_REGULARISATION };
-        // Per row: W_ii (1 / effective mass), the compliance's C_ii = gamma W_ii and the
-        // regularisation's; the residual also owes C lambda_builtin.
-        let mut shift = std::mem::take(&mut self.shift);
-        shift.clear();
-        self.diagonal.clear();
+        // Per row: W_ii (1 / effective mass) where active; the compliance's C_ii = gamma W_ii and
+        // the regularisation's are `extra` W_ii; the residual also owes C lambda_builtin.
+        self.weights.clear();
         for (((row, act), o), r) in rows.iter().zip(&active).zip(out.iter()).zip(self.residual.iter_mut()) {
             let (mn, mt) = row_masses(row, bodies);
             let w = [if mn > 0.0 { 1.0 / mn as f64 } else { 0.0 }, if mt > 0.0 { 1.0 / mt as f64 } else { 0.0 }];
             let on = [act[0] && w[0] > 0.0, act[1] && w[1] > 0.0];
-            self.diagonal
-                .push([if on[0] { w[0] * (1.0 + extra) } else { 0.0 }, if on[1] { w[1] * (1.0 + extra) } else { 0.0 }]);
-            shift.push([w[0] * extra, w[1] * extra]);
+            self.weights.push([if on[0] { w[0] } else { 0.0 }, if on[1] { w[1] } else { 0.0 }]);
             r[0] = if on[0] { r[0] - gamma * w[0] * o.normal as f64 } else { 0.0 };
             r[1] = if on[1] { r[1] - gamma * w[1] * o.tangent as f64 } else { 0.0 };
         }
 
-        // Jacobi-preconditioned CG from y = 0.
-        let precondition = |r: &[[f64; 2]], d: &[[f64; 2]], z: &mut Vec<[f64; 2]>| {
+        // Jacobi-preconditioned CG from y = 0; the diagonal is (1 + extra) W_ii.
+        let precondition = |r: &[[f64; 2]], weights: &[[f64; 2]], z: &mut Vec<[f64; 2]>| {
             z.clear();
-            z.extend(r.iter().zip(d).map(|(r, d)| {
-                [if d[0] > 0.0 { r[0] / d[0] } else { 0.0 }, if d[1] > 0.0 { r[1] / d[1] } else { 0.0 }]
+            z.extend(r.iter().zip(weights).map(|(r, w)| {
+                [
+                    if w[0] > 0.0 { r[0] / (w[0] * (1.0 + extra)) } else { 0.0 },
+                    if w[1] > 0.0 { r[1] / (w[1] * (1.0 + extra)) } else { 0.0 },
+                ]
             }));
         };
         self.correction.clear();
         self.correction.resize(rows.len(), [0.0; 2]);
         let mut z = std::mem::take(&mut self.preconditioned);
-        precondition(&self.residual, &self.diagonal, &mut z);
+        precondition(&self.residual, &self.weights, &mut z);
         self.direction.clone_from(&z);
         let mut rz = dot(&self.residual, &z);
         let start = rz;
@@ -123,7 +123,7 @@ impl WarmStartModel for ConjugateGradient {
                 break;
             }
             let direction = std::mem::take(&mut self.direction);
-            self.multiply(rows, bodies, &shift, &direction);
+            self.multiply(rows, bodies, extra, &direction);
             self.direction = direction;
             let curvature = dot(&self.direction, &self.product);
             if curvature.is_nan() || curvature <= 0.0 {
@@ -138,7 +138,7 @@ impl WarmStartModel for ConjugateGradient {
                     r[k] -= step * q[k];
                 }
             }
-            precondition(&self.residual, &self.diagonal, &mut z);
+            precondition(&self.residual, &self.weights, &mut z);
             let next = dot(&self.residual, &z);
             let beta = next / rz;
             for (p, zi) in self.direction.iter_mut().zip(&z) {
@@ -148,7 +148,6 @@ impl WarmStartModel for ConjugateGradient {
             rz = next;
         }
         self.preconditioned = z;
-        self.shift = shift;
         if self.correction.iter().any(|y| !(y[0].is_finite() && y[1].is_finite())) {
             return Ok(());
         }
@@ -163,51 +162,20 @@ impl WarmStartModel for ConjugateGradient {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::contact::{ContactKey, ContactPoint, ImpulseHistory};
+    use crate::contact::ImpulseHistory;
+    use crate::solver::tests::{ball, floor_row};
+    use crate::warm::tests::{floor_contact, guess_on_rows};
     use rapier2d::math::Vec2;
 
     /// Ground and a unit-mass ball falling at 1 on two contact rows at the same point; builtin
     /// remembers `previous` for them.
     fn guess(model: &mut ConjugateGradient, previous: [f32; 2], compliance: f32) -> Vec<Impulse> {
-        let bodies =
-            [SolverBody::default(), SolverBody { v: Vec2::new(0.0, -1.0), w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 }];
-        let point = |feature: u32| ContactPoint {
-            key: ContactKey { body_a: 0, body_b: 1, feature },
-            point: Vec2::ZERO,
-            normal: Vec2::Y,
-            penetration: 0.0,
-            friction: 0.5,
-        };
-        let row = ContactRow {
-            body_a: 0,
-            body_b: 1,
-            ra: Vec2::ZERO,
-            rb: Vec2::new(0.0, -0.5),
-            normal: Vec2::Y,
-            friction: 0.5,
-        };
-        let contacts = [point(0), point(1)];
+        let bodies = [SolverBody::default(), ball(Vec2::new(0.0, -1.0))];
+        let contacts = [floor_contact(1, 0, 0.0), floor_contact(1, 1, 0.0)];
         let mut history = ImpulseHistory::default();
         let previous = previous.map(|normal| Impulse { normal, tangent: 0.0 });
         history.push(contacts.iter().map(|c| c.key), &previous, ImpulseHistory::no_trail());
-        let rows = [row, row];
-        let mut oracle = |_: &mut [Impulse]| {};
-        let mut input = WarmStartInput {
-            run_id: 0,
-            simulation: 0,
-            step: 2,
-            contacts: &contacts,
-            history: &history,
-            fixed: &[true, false],
-            problem: None,
-            rows: &rows,
-            bodies: &bodies,
-            compliance,
-            oracle: &mut oracle,
-        };
-        let mut out = vec![Impulse::default(); 2];
-        model.warm_start(&mut input, &mut out).unwrap();
-        out
+        guess_on_rows(model, &contacts, &history, &[floor_row(1), floor_row(1)], &bodies, compliance)
     }
 
     #[test]
