@@ -16,7 +16,7 @@
 use std::collections::HashMap;
 
 use crate::solver::{tangent_of, ContactRow, Impulse};
-use crate::subspace::{add_compliance_residual, project_to_cone, row_compliance, step_residual};
+use crate::subspace::{add_compliance_residual, body_impulses, project_to_cone, row_compliance, step_residual};
 use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
 
 /// Basis vectors per cell: the stress components xx, yy, xy.
@@ -36,6 +36,9 @@ pub struct Coarse {
     row_basis: Vec<[[f64; 2]; PER_CELL]>,
     /// Per body: the generalised force (x, y, torque) of each basis vector that touches it.
     body_forces: Vec<Vec<(usize, [f64; 3])>>,
+    /// The cells met this step, numbered; the Galerkin system (row-major).
+    cells: HashMap<(i32, i32), usize>,
+    system: Vec<f64>,
 }
 
 impl Coarse {
@@ -49,6 +52,8 @@ impl Coarse {
             row_cells: Vec::new(),
             row_basis: Vec::new(),
             body_forces: Vec::new(),
+            cells: HashMap::new(),
+            system: Vec::new(),
         }
     }
 }
@@ -72,7 +77,8 @@ impl WarmStartModel for Coarse {
         }
 
         // Cells numbered in the order rows (sorted by contact key) first meet them: deterministic.
-        let mut cells: HashMap<(i32, i32), usize> = HashMap::new();
+        let cells = &mut self.cells;
+        cells.clear();
         self.row_cells.clear();
         self.row_basis.clear();
         for ((contact, row), act) in input.contacts.iter().zip(rows).zip(&active) {
@@ -87,14 +93,11 @@ impl WarmStartModel for Coarse {
         self.body_forces.iter_mut().for_each(Vec::clear);
         self.body_forces.resize_with(bodies.len(), Vec::new);
         for ((row, &cell), values) in rows.iter().zip(&self.row_cells).zip(&self.row_basis) {
-            let (n, t) = (row.normal, tangent_of(row.normal));
-            for (s, [vn, vt]) in values.iter().enumerate() {
-                if *vn == 0.0 && *vt == 0.0 {
+            for (s, value) in values.iter().enumerate() {
+                if *value == [0.0; 2] {
                     continue;
                 }
-                let p = [n.x as f64 * vn + t.x as f64 * vt, n.y as f64 * vn + t.y as f64 * vt];
-                for (body, r, sign) in [(row.body_a as usize, row.ra, -1.0), (row.body_b as usize, row.rb, 1.0)] {
-                    let force = [sign * p[0], sign * p[1], sign * (r.x as f64 * p[1] - r.y as f64 * p[0])];
+                for (body, force) in body_impulses(row, *value) {
                     let index = cell * PER_CELL + s;
                     let forces = &mut self.body_forces[body];
                     match forces.iter_mut().find(|(j, _)| *j == index) {
@@ -106,7 +109,9 @@ impl WarmStartModel for Coarse {
         }
 
         // Galerkin: (Z^T W Z) y = Z^T r with W = J M^-1 J^T, summed body by body.
-        let mut system = vec![0.0f64; unknowns * unknowns];
+        let system = &mut self.system;
+        system.clear();
+        system.resize(unknowns * unknowns, 0.0);
         for (body, forces) in bodies.iter().zip(&self.body_forces) {
             let inverse = [body.inv_mass as f64, body.inv_mass as f64, body.inv_inertia as f64];
             if inverse == [0.0; 3] {
@@ -135,7 +140,7 @@ impl WarmStartModel for Coarse {
                 rhs[cell * PER_CELL + s] += v[0] * r[0] + v[1] * r[1];
             }
         }
-        let Some(y) = solve_semidefinite(&mut system, &rhs, unknowns) else { return Ok(()) };
+        let Some(y) = solve_semidefinite(system, &rhs, unknowns) else { return Ok(()) };
         for ((o, &cell), values) in out.iter_mut().zip(&self.row_cells).zip(&self.row_basis) {
             let (mut dn, mut dt) = (0.0, 0.0);
             for (s, v) in values.iter().enumerate() {

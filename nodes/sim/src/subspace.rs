@@ -257,16 +257,24 @@ fn fill_trail(
     }));
 }
 
-/// Adds the velocity change of impulse `[normal, tangent]` at `row` to `v` (per body vx, vy, w).
-pub(crate) fn apply(v: &mut [[f64; 3]], bodies: &[SolverBody], row: &ContactRow, [n, t]: [f64; 2]) {
+/// The generalised impulse `J^T [normal, tangent]` of a row on each of its two bodies: per body
+/// its index and `(x, y, torque)`.
+pub(crate) fn body_impulses(row: &ContactRow, [n, t]: [f64; 2]) -> [(usize, [f64; 3]); 2] {
     let (normal, tangent) = (row.normal, tangent_of(row.normal));
     let p = [normal.x as f64 * n + tangent.x as f64 * t, normal.y as f64 * n + tangent.y as f64 * t];
-    for (body, r, sign) in [(row.body_a as usize, row.ra, -1.0), (row.body_b as usize, row.rb, 1.0)] {
-        let (im, ii) = (bodies[body].inv_mass as f64, bodies[body].inv_inertia as f64);
+    [(row.body_a as usize, row.ra, -1.0), (row.body_b as usize, row.rb, 1.0)].map(|(body, r, sign)| {
         let torque = r.x as f64 * p[1] - r.y as f64 * p[0];
-        v[body][0] += sign * im * p[0];
-        v[body][1] += sign * im * p[1];
-        v[body][2] += sign * ii * torque;
+        (body, [sign * p[0], sign * p[1], sign * torque])
+    })
+}
+
+/// Adds the velocity change of impulse `[normal, tangent]` at `row` to `v` (per body vx, vy, w).
+pub(crate) fn apply(v: &mut [[f64; 3]], bodies: &[SolverBody], row: &ContactRow, impulse: [f64; 2]) {
+    for (body, j) in body_impulses(row, impulse) {
+        let (im, ii) = (bodies[body].inv_mass as f64, bodies[body].inv_inertia as f64);
+        v[body][0] += im * j[0];
+        v[body][1] += im * j[1];
+        v[body][2] += ii * j[2];
     }
 }
 
