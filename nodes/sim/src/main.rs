@@ -11,31 +11,28 @@ use sim::{
 };
 use std::time::Duration;
 
-fn positive_f32(s: &str) -> Result<f32, String> {
+/// A number `ok` accepts, or an error saying what it `must` be.
+fn f32_where(s: &str, ok: fn(f32) -> bool, must: &str) -> Result<f32, String> {
     match s.parse::<f32>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        Ok(v) => Err(format!("must be a finite number > 0, got {v}")),
+        Ok(v) if ok(v) => Ok(v),
+        Ok(v) => Err(format!("must be {must}, got {v}")),
         Err(e) => Err(e.to_string()),
     }
+}
+
+fn positive_f32(s: &str) -> Result<f32, String> {
+    f32_where(s, |v| v.is_finite() && v > 0.0, "a finite number > 0")
 }
 
 /// A relative compliance: finite, in [0, 10] (10: contacts eleven times softer than their
 /// effective mass says; more is not a contact any more).
 fn compliance(s: &str) -> Result<f32, String> {
-    match s.parse::<f32>() {
-        Ok(v) if v.is_finite() && (0.0..=10.0).contains(&v) => Ok(v),
-        Ok(v) => Err(format!("must be a number in [0, 10], got {v}")),
-        Err(e) => Err(e.to_string()),
-    }
+    f32_where(s, |v| v.is_finite() && (0.0..=10.0).contains(&v), "a number in [0, 10]")
 }
 
 /// An over-relaxation factor: finite, in (0, 2) (outside, projected SOR does not converge).
 fn relaxation(s: &str) -> Result<f32, String> {
-    match s.parse::<f32>() {
-        Ok(v) if v.is_finite() && v > 0.0 && v < 2.0 => Ok(v),
-        Ok(v) => Err(format!("must be a number in (0, 2), got {v}")),
-        Err(e) => Err(e.to_string()),
-    }
+    f32_where(s, |v| v.is_finite() && v > 0.0 && v < 2.0, "a number in (0, 2)")
 }
 
 fn required_duration(s: &str) -> Result<Duration, String> {
@@ -176,21 +173,15 @@ impl Args {
     }
 
     fn world_params(&self) -> WorldParams {
-        let mut p = WorldParams {
-            solve: SolveParams {
-                tolerance: self.tolerance,
-                max_sweeps: self.max_sweeps,
-                compliance: self.compliance,
-                relaxation: self.relaxation,
-            },
-            oracle: SolveParams {
-                tolerance: self.oracle_tolerance,
-                max_sweeps: self.oracle_max_sweeps,
-                compliance: self.compliance,
-                relaxation: self.relaxation,
-            },
-            ..WorldParams::default()
+        let solve = SolveParams {
+            tolerance: self.tolerance,
+            max_sweeps: self.max_sweeps,
+            compliance: self.compliance,
+            relaxation: self.relaxation,
         };
+        // The oracle solves the same problem with the same solver, only further.
+        let oracle = SolveParams { tolerance: self.oracle_tolerance, max_sweeps: self.oracle_max_sweeps, ..solve };
+        let mut p = WorldParams { solve, oracle, ..WorldParams::default() };
         p.position.slop = self.slop;
         p
     }
@@ -328,12 +319,8 @@ fn try_main() -> Result<()> {
             steps: args.steps,
             run_id: first_run_id + i as u64,
             problems: args.publish_problem,
-            label: args.label_tolerance.map(|tolerance| SolveParams {
-                tolerance,
-                max_sweeps: args.oracle_max_sweeps,
-                compliance: args.compliance,
-                relaxation: args.relaxation,
-            }),
+            // Labels are the oracle's solve to their own tolerance.
+            label: args.label_tolerance.map(|tolerance| SolveParams { tolerance, ..params.oracle }),
             shadow_builtin: args.shadow_builtin,
         };
         run(&args, &node, &mut pubs, model, &spec)?;
