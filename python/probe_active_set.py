@@ -15,13 +15,9 @@ Variants (each solved by compliant PGS to the recording's tolerance):
 Record the problems with the same compliance (`launch/record-gnn-val-compliant.toml`, 0.01):
 on a rigid run's recording builtin carries the rigid run's impulses and looks worse than it is.
 """
-import argparse
-import sys
-
 import numpy as np
 
-from deep_contact import FrameError
-from probe_headroom import Problem, load
+from probe_headroom import Problem, load_probed, print_totals, probe_arguments
 
 
 def states(p, impulses):
@@ -34,48 +30,24 @@ def states(p, impulses):
 def active_set_solution(p, compliance, closed, stick, sign):
     """The impulses that satisfy the compliant rows `u + G W_ii lambda = 0` of the closed normals
     and sticking tangents, sliding tangents at `sign mu normal`, open contacts at 0."""
+    problem = p.active_set_columns(closed, stick, sign)
+    if problem is None:
+        return np.zeros((len(p.a), 2))
+    Z, T = problem
     J, minv = p.jacobian()
     W = (J * minv) @ J.T
     u0 = J @ p.v0.reshape(-1)
-    m = len(p.a)
-    unknowns, equations = [], []
-    for i in np.where(closed)[0]:
-        z = np.zeros(2 * m)
-        z[2 * i + 1] = 1.0
-        equations.append(z.copy())
-        if not stick[i]:
-            z[2 * i] = sign[i] * p.mu[i]
-        unknowns.append(z)
-    for i in np.where(stick)[0]:
-        z = np.zeros(2 * m)
-        z[2 * i] = 1.0
-        unknowns.append(z)
-        equations.append(z)
-    if not unknowns:
-        return np.zeros((m, 2))
-    Z, T = np.stack(unknowns, 1), np.stack(equations, 1)
     system = T.T @ (W + compliance * np.diag(np.diag(W))) @ Z
     y = np.linalg.lstsq(system, -T.T @ u0, rcond=1e-12)[0]
     return Problem.contacts_of(Z @ y)
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("recording")
+    parser = probe_arguments(__doc__, limit=12)
     parser.add_argument("--compliance", type=float, default=0.01)
-    parser.add_argument("--from-step", type=int, default=150)
-    parser.add_argument("--every", type=int, default=10)
-    parser.add_argument("--limit", type=int, default=12, help="probe at most this many steps (0: all)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random flips")
     args = parser.parse_args()
-    try:
-        bodies, contacts, keys, tolerance = load(args.recording, args.from_step, args.every)
-    except (OSError, FrameError) as e:
-        sys.exit(f"{args.recording}: {e}")
-    if args.limit:
-        keys = keys[: args.limit]
-    if not keys:
-        sys.exit(f"{args.recording}: no problem frames from step {args.from_step} (record with --publish-problem)")
+    bodies, contacts, keys, tolerance = load_probed(args)
     g, rng, totals = args.compliance, np.random.default_rng(args.seed), {}
     for key in keys:
         p = Problem(bodies[key], contacts[key])
@@ -98,11 +70,8 @@ def main():
             )
         for name, sweeps in result.items():
             totals[name] = totals.get(name, 0) + sweeps
-    base = totals["builtin"]
     print(f"{len(keys)} steps (from step {args.from_step}, every {args.every}), tolerance {tolerance:g}, compliance {g:g}")
-    print(f"{'variant':<18} {'sweeps':>8} {'vs builtin':>10}")
-    for name, total in totals.items():
-        print(f"{name:<18} {total:>8} {total / base:>9.3f}x")
+    print_totals(totals, 18)
 
 
 if __name__ == "__main__":

@@ -206,6 +206,27 @@ class Problem:
         y = np.linalg.lstsq(body, Js.T @ (reference - lam), rcond=1e-12)[0]
         return self.contacts_of(lam + scale * (Js @ y))
 
+    def active_set_columns(self, closed, stick, sign):
+        """The linear problem of an active set, as solver-row vectors: per closed contact its
+        normal unknown (a sliding one drags its tangent along at `sign mu`), per sticking one its
+        tangent unknown (Z); and the rows that must hold there, closed normals and sticking
+        tangents (T). `None` when nothing is active."""
+        m = len(self.a)
+        unknowns, equations = [], []
+        for i in np.where(closed)[0]:
+            z = np.zeros(2 * m)
+            z[2 * i + 1] = 1.0
+            equations.append(z.copy())
+            if not stick[i]:
+                z[2 * i] = sign[i] * self.mu[i]
+            unknowns.append(z)
+        for i in np.where(stick)[0]:
+            z = np.zeros(2 * m)
+            z[2 * i] = 1.0
+            unknowns.append(z)
+            equations.append(z)
+        return (np.stack(unknowns, 1), np.stack(equations, 1)) if unknowns else None
+
     def true_set_start(self):
         """builtin moved, by the least change, onto a solution of the linear problem of the
         reference's own active set (closed / open, sticking / sliding with its direction): what
@@ -214,23 +235,13 @@ class Problem:
         closed = self.reference[:, 0] > 1e-7
         stick = closed & (np.abs(self.reference[:, 1]) < self.mu * self.reference[:, 0] * 0.999)
         sign = np.sign(self.reference[:, 1])
-        m = len(self.a)
-        x0 = np.zeros(2 * m)
+        x0 = np.zeros(2 * len(self.a))
         x0[1::2] = np.where(closed, lam0[1::2], 0.0)
         x0[0::2] = np.where(stick, lam0[0::2], np.where(closed, sign * self.mu * x0[1::2], 0.0))
-        columns = []
-        for i in np.where(closed)[0]:
-            z = np.zeros(2 * m)
-            z[2 * i + 1] = 1.0
-            z[2 * i] = 0.0 if stick[i] else sign[i] * self.mu[i]
-            columns.append(z)
-        for i in np.where(stick)[0]:
-            z = np.zeros(2 * m)
-            z[2 * i] = 1.0
-            columns.append(z)
-        if not columns:
+        problem = self.active_set_columns(closed, stick, sign)
+        if problem is None:
             return self.contacts_of(x0)
-        Z = np.stack(columns, 1)
+        Z, _ = problem
         y = np.linalg.lstsq(Z.T @ W @ Z, -Z.T @ (u0 + W @ x0), rcond=1e-12)[0]
         return self.contacts_of(x0 + Z @ y)
 
@@ -269,13 +280,19 @@ def variants(p, previous_reference):
     yield "physics", p.physics_start(), 0
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def probe_arguments(doc, limit=0):
+    """The arguments every probe takes: a recording, which late steps, how many."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("recording")
     parser.add_argument("--from-step", type=int, default=150, help="first step probed (the late phase)")
     parser.add_argument("--every", type=int, default=10, help="probe every k-th step")
-    parser.add_argument("--limit", type=int, default=0, help="probe at most this many steps (0: all)")
-    args = parser.parse_args()
+    parser.add_argument("--limit", type=int, default=limit, help="probe at most this many steps (0: all)")
+    return parser
+
+
+def load_probed(args):
+    """The recording's problems and the keys of the steps to probe; exits naming the file when
+    it does not read or holds no problem there."""
     try:
         bodies, contacts, keys, tolerance = load(args.recording, args.from_step, args.every)
     except (OSError, FrameError) as e:
@@ -284,6 +301,20 @@ def main():
         keys = keys[: args.limit]
     if not keys:
         sys.exit(f"{args.recording}: no problem frames from step {args.from_step} (record with --publish-problem)")
+    return bodies, contacts, keys, tolerance
+
+
+def print_totals(totals, width):
+    """Each variant's sweeps and their ratio to builtin's."""
+    base = totals["builtin"]
+    print(f"{'variant':<{width}} {'sweeps':>8} {'vs builtin':>10}")
+    for name, total in totals.items():
+        print(f"{name:<{width}} {total:>8} {total / base:>9.3f}x")
+
+
+def main():
+    args = probe_arguments(__doc__).parse_args()
+    bodies, contacts, keys, tolerance = load_probed(args)
     if np.isnan(contacts[keys[0]]["reference"]).any():
         sys.exit(f"{args.recording}: problems carry no reference solution (record with --label-tolerance)")
     totals = {}
@@ -296,11 +327,8 @@ def main():
         previous_reference = np.array([by_key.get(k, (0.0, 0.0)) for k in p.keys]).reshape(-1, 2)
         for name, start, extra in variants(p, previous_reference):
             totals[name] = totals.get(name, 0) + p.solve(start, tolerance) + extra
-    base = totals["builtin"]
     print(f"{len(keys)} steps (from step {args.from_step}, every {args.every}), tolerance {tolerance:g}")
-    print(f"{'variant':<16} {'sweeps':>8} {'vs builtin':>10}")
-    for name, total in totals.items():
-        print(f"{name:<16} {total:>8} {total / base:>9.3f}x")
+    print_totals(totals, 16)
 
 
 if __name__ == "__main__":
