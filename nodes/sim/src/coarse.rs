@@ -16,7 +16,7 @@
 use std::collections::HashMap;
 
 use crate::solver::{tangent_of, ContactRow, Impulse};
-use crate::subspace::{add_compliance_residual, body_impulses, project_to_cone, row_compliance, step_residual};
+use crate::subspace::{body_impulses, builtin_step, BuiltinStep};
 use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
 
 /// Basis vectors per cell: the stress components xx, yy, xy.
@@ -64,17 +64,12 @@ impl WarmStartModel for Coarse {
     }
 
     fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-        input.history.fill_previous(input.contacts, out);
-        let (rows, bodies) = (input.rows, input.bodies);
-        if rows.len() != out.len() || rows.is_empty() {
+        let Some(BuiltinStep { active, compliance }) =
+            builtin_step(input, out, &mut self.velocities, &mut self.residual)
+        else {
             return Ok(());
-        }
-        let active = project_to_cone(rows, out);
-        step_residual(bodies, rows, out, &active, &mut self.velocities, &mut self.residual);
-        let compliance = row_compliance(rows, bodies, input.compliance);
-        if let Some(c) = &compliance {
-            add_compliance_residual(c, out, &active, &mut self.residual);
-        }
+        };
+        let (rows, bodies) = (input.rows, input.bodies);
 
         // Cells numbered in the order rows (sorted by contact key) first meet them: deterministic.
         let cells = &mut self.cells;

@@ -84,18 +84,13 @@ impl WarmStartModel for Subspace {
             self.guess.resize(out.len(), Impulse::default());
             model.warm_start(input, &mut self.guess)?;
         }
-        input.history.fill_previous(input.contacts, out);
-        let (rows, bodies) = (input.rows, input.bodies);
-        if rows.len() != out.len() || rows.is_empty() {
-            // Nothing to correct against (no rows given): builtin as it is.
+        // Nothing to correct against (no rows given): builtin as it is.
+        let Some(BuiltinStep { active, compliance }) =
+            builtin_step(input, out, &mut self.velocities, &mut self.residual)
+        else {
             return Ok(());
-        }
-        let active = project_to_cone(rows, out);
-        step_residual(bodies, rows, out, &active, &mut self.velocities, &mut self.residual);
-        let compliance = row_compliance(rows, bodies, input.compliance);
-        if let Some(c) = &compliance {
-            add_compliance_residual(c, out, &active, &mut self.residual);
-        }
+        };
+        let (rows, bodies) = (input.rows, input.bodies);
 
         // The basis: the model's direction, then the previous solve's last sweeps, on the active
         // rows, orthonormalised.
@@ -171,6 +166,36 @@ impl WarmStartModel for Subspace {
     }
 }
 
+/// builtin's guess for a Galerkin correction to start from: its active set and the solver's
+/// per-row compliance (`None`: rigid).
+pub(crate) struct BuiltinStep {
+    pub active: Vec<[bool; 2]>,
+    pub compliance: Option<Vec<[f64; 2]>>,
+}
+
+/// Writes builtin's guess into `out`, projected onto the friction cone, and into `residual` what
+/// the step's own problem (with its compliance) still asks on the guess's active rows; `None`,
+/// with builtin's guess as it is, when the input carries no solver rows.
+pub(crate) fn builtin_step(
+    input: &WarmStartInput<'_>,
+    out: &mut [Impulse],
+    velocities: &mut Vec<[f64; 3]>,
+    residual: &mut Vec<[f64; 2]>,
+) -> Option<BuiltinStep> {
+    input.history.fill_previous(input.contacts, out);
+    let (rows, bodies) = (input.rows, input.bodies);
+    if rows.len() != out.len() || rows.is_empty() {
+        return None;
+    }
+    let active = project_to_cone(rows, out);
+    step_residual(bodies, rows, out, &active, velocities, residual);
+    let compliance = row_compliance(rows, bodies, input.compliance);
+    if let Some(c) = &compliance {
+        add_compliance_residual(c, out, &active, residual);
+    }
+    Some(BuiltinStep { active, compliance })
+}
+
 /// Projects a guess onto the friction cone as the solver will, and says which rows are active
 /// there: `[normal closed, tangent sticking]`. A Galerkin correction moves only active rows.
 pub(crate) fn project_to_cone(rows: &[ContactRow], out: &mut [Impulse]) -> Vec<[bool; 2]> {
@@ -210,7 +235,7 @@ pub(crate) fn step_residual(
 
 /// Per row the compliance term `[C_nn, C_tt]` of the solver (`gamma W_ii`: the row asks
 /// `u + C lambda = 0`), or `None` for rigid contacts.
-pub(crate) fn row_compliance(rows: &[ContactRow], bodies: &[SolverBody], gamma: f32) -> Option<Vec<[f64; 2]>> {
+fn row_compliance(rows: &[ContactRow], bodies: &[SolverBody], gamma: f32) -> Option<Vec<[f64; 2]>> {
     (gamma > 0.0).then(|| {
         rows.iter()
             .map(|row| {
@@ -223,12 +248,7 @@ pub(crate) fn row_compliance(rows: &[ContactRow], bodies: &[SolverBody], gamma: 
 }
 
 /// With compliance, the step still asks `-C lambda` of the guess's active rows.
-pub(crate) fn add_compliance_residual(
-    compliance: &[[f64; 2]],
-    out: &[Impulse],
-    active: &[[bool; 2]],
-    residual: &mut [[f64; 2]],
-) {
+fn add_compliance_residual(compliance: &[[f64; 2]], out: &[Impulse], active: &[[bool; 2]], residual: &mut [[f64; 2]]) {
     for (((c, o), act), r) in compliance.iter().zip(out).zip(active).zip(residual.iter_mut()) {
         if act[0] {
             r[0] -= c[0] * o.normal as f64;
