@@ -29,13 +29,14 @@ pub struct RunParams {
     #[serde(default)]
     pub compliance: f32,
     /// Over-relaxation factor of the solver (1: projected Gauss-Seidel; absent in older
-    /// recordings, read as 1).
+    /// recordings, read as 1; a zero, as `Default` makes it, reads as 1 through
+    /// [`crate::recorded_relaxation`]).
     #[serde(default = "plain_gauss_seidel")]
     pub relaxation: f32,
 }
 
 fn plain_gauss_seidel() -> f32 {
-    1.0
+    crate::recorded_relaxation(0.0)
 }
 
 /// What a simulation start announces about its scene.

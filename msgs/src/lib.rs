@@ -109,6 +109,16 @@ pub fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
     Ok(out)
 }
 
+/// The over-relaxation factor a message records: 0 — not recorded (a message from before the
+/// field existed, or a zeroed header) — is plain projected Gauss-Seidel, 1.
+pub fn recorded_relaxation(value: f32) -> f32 {
+    if value > 0.0 {
+        value
+    } else {
+        1.0
+    }
+}
+
 /// Identifies the simulation step a message belongs to, so nodes can match streams and drop stale data.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Pod, Zeroable, ZeroCopySend, Serialize, Deserialize)]

@@ -74,8 +74,8 @@ pub struct ProblemHeader {
     /// absent in recordings made before it existed).
     #[serde(default)]
     pub compliance: f32,
-    /// Over-relaxation factor the step was solved with (1: projected Gauss-Seidel; 0 stands for
-    /// 1: not recorded, as in recordings made before it existed).
+    /// Over-relaxation factor the step was solved with (1: projected Gauss-Seidel; 0: not
+    /// recorded, see [`crate::recorded_relaxation`]).
     #[serde(default)]
     pub relaxation: f32,
 }

@@ -25,13 +25,10 @@ struct SimInfo {
 }
 
 /// `PGS, tolerance 0.0001, cap 1000`, or with `projected SOR 1.4` and `compliance 0.01` where
-/// the run used them (a relaxation of 0 is an older run's: not recorded, plain PGS).
+/// the run used them.
 fn solver_in_words(p: &msgs::RunParams) -> String {
-    let mut words = if p.relaxation > 0.0 && p.relaxation != 1.0 {
-        format!("projected SOR {}", p.relaxation)
-    } else {
-        "PGS".to_string()
-    };
+    let relaxation = msgs::recorded_relaxation(p.relaxation);
+    let mut words = if relaxation != 1.0 { format!("projected SOR {relaxation}") } else { "PGS".to_string() };
     if p.compliance > 0.0 {
         words += &format!(", compliance {}", p.compliance);
     }

@@ -63,7 +63,7 @@ impl Problem {
             tolerance: self.header.tolerance,
             max_sweeps: self.header.max_sweeps,
             compliance: self.header.compliance,
-            relaxation: if self.header.relaxation > 0.0 { self.header.relaxation } else { 1.0 },
+            relaxation: msgs::recorded_relaxation(self.header.relaxation),
         }
     }
 
