@@ -169,6 +169,150 @@ pub struct AccuracyRow {
     /// Sweeps of every late-phase step, and relative to builtin's.
     pub late_sweeps: u64,
     pub late_sweeps_vs_builtin: Option<f64>,
+    /// Total sweeps over builtin's on the very same step problems (None unless every step
+    /// measured builtin alongside).
+    pub same_states_vs_builtin: Option<f64>,
+    /// Where the model sits on the oracle ablation curve `blend:F` of the same run: the F whose
+    /// blend leaves the same late-phase error, and the F whose blend needs as many sweeps (see
+    /// [`BlendPlacement`]).
+    pub blend_by_error: Option<BlendFraction>,
+    pub blend_by_sweeps: Option<BlendFraction>,
+    /// Whether `blend_by_sweeps` (and the accuracy plot) compare sweeps on the same states (every
+    /// model of the table measured them) or over whole runs.
+    pub placed_on_same_states: bool,
+}
+
+impl AccuracyRow {
+    /// The sweeps ratio the placement and the accuracy plot use (same states or whole runs).
+    pub fn placement_sweeps(&self) -> Option<f64> {
+        if self.placed_on_same_states {
+            self.same_states_vs_builtin
+        } else {
+            self.sweeps_vs_builtin
+        }
+    }
+}
+
+/// How far apart (in F) a model's two places on the blend curve must be before the report calls
+/// its sweeps cheaper or dearer than its accuracy suggests.
+pub const PLACEMENT_MARGIN: f64 = 0.02;
+
+/// One sentence per model off the curve (not builtin, not a blend or copy) placed both ways: where
+/// it sits on the oracle ablation curve, and what the gap between its two places says.
+pub fn placement_notes(rows: &[AccuracyRow]) -> Vec<String> {
+    rows.iter()
+        .filter(|r| r.model != "builtin" && blend_fraction_of(&r.model).is_none())
+        .filter_map(|r| {
+            let (by_error, by_sweeps) = (r.blend_by_error?, r.blend_by_sweeps?);
+            let (error, sweeps) = (r.error_vs_builtin?, r.placement_sweeps()?);
+            let basis = if r.placed_on_same_states { "on the same states" } else { "over whole runs" };
+            let why = if by_sweeps.fraction < by_error.fraction - PLACEMENT_MARGIN {
+                "its sweeps buy less than its accuracy suggests: the error it removes is error PGS removes cheaply"
+            } else if by_sweeps.fraction > by_error.fraction + PLACEMENT_MARGIN {
+                "its sweeps buy more than its accuracy suggests: the error it leaves is error PGS removes cheaply"
+            } else {
+                "on the curve: its sweeps are what its accuracy predicts"
+            };
+            Some(format!(
+                "`{}`: late-phase error {error:.3}x builtin's, as blend:{} leaves; sweeps {basis} {sweeps:.3}x, \
+                 as blend:{} needs — {why}.",
+                r.model,
+                by_error.label(),
+                by_sweeps.label()
+            ))
+        })
+        .collect()
+}
+
+/// A fraction F of the oracle ablation `blend:F` (builtin + F (oracle - builtin)); `extrapolated`
+/// when the value lies outside the blends the run measured (from the nearest segment of the
+/// curve: a model worse than builtin gets F < 0).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct BlendFraction {
+    pub fraction: f64,
+    pub extrapolated: bool,
+}
+
+impl BlendFraction {
+    /// `0.12`, or `~-0.03` when extrapolated.
+    pub fn label(&self) -> String {
+        format!("{}{:.2}", if self.extrapolated { "~" } else { "" }, self.fraction)
+    }
+}
+
+/// The oracle ablation curve of one run — builtin at F = 0, each `blend:F` (0 < F <= 1), and
+/// `copy` (the oracle itself) at F = 1 — as (F, late-phase error vs builtin, sweeps vs builtin)
+/// points, and its inverse: which F matches a given error or sweeps ratio.
+///
+/// Placing a model twice on it says *why* its sweeps are what they are: a model whose sweeps
+/// match a smaller F than its error does removes error PGS would have removed cheaply anyway.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlendPlacement {
+    /// (F, error ratio, sweeps ratio), sorted by F, one per F.
+    pub points: Vec<(f64, f64, f64)>,
+}
+
+/// F of an oracle ablation name: `blend:F` with 0 < F <= 1, `copy` (the oracle) 1.
+pub fn blend_fraction_of(model: &str) -> Option<f64> {
+    if model == "copy" {
+        return Some(1.0);
+    }
+    let f: f64 = model.strip_prefix("blend:")?.trim().parse().ok()?;
+    (f > 0.0 && f <= 1.0).then_some(f)
+}
+
+impl BlendPlacement {
+    /// The curve from `(model, error ratio, sweeps ratio)` rows: builtin at (0, 1, 1), the blends
+    /// and copy with both ratios known; a `blend:1` wins over `copy`. None with no blend measured.
+    pub fn from_rows<'a>(rows: impl IntoIterator<Item = (&'a str, Option<f64>, Option<f64>)>) -> Option<Self> {
+        let mut points = vec![(0.0, 1.0, 1.0)];
+        for (model, error, sweeps) in rows {
+            if let (Some(f), Some(e), Some(s)) = (blend_fraction_of(model), error, sweeps) {
+                if e.is_finite() && s.is_finite() && (model != "copy" || !points.iter().any(|p| p.0 == 1.0)) {
+                    points.retain(|p| p.0 != f);
+                    points.push((f, e, s));
+                }
+            }
+        }
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
+        (points.len() >= 2).then_some(BlendPlacement { points })
+    }
+
+    /// The F whose blend leaves this late-phase error (relative to builtin's).
+    pub fn by_error(&self, error_vs_builtin: f64) -> Option<BlendFraction> {
+        inverse(self.points.iter().map(|p| (p.0, p.1)), error_vs_builtin)
+    }
+
+    /// The F whose blend needs this many sweeps (relative to builtin's).
+    pub fn by_sweeps(&self, sweeps_vs_builtin: f64) -> Option<BlendFraction> {
+        inverse(self.points.iter().map(|p| (p.0, p.2)), sweeps_vs_builtin)
+    }
+}
+
+/// The x where the piecewise-linear curve through `points` (sorted by x) takes the value y: the
+/// first bracketing segment from the start, else the nearer end segment extended.
+fn inverse(points: impl Iterator<Item = (f64, f64)>, y: f64) -> Option<BlendFraction> {
+    let points: Vec<(f64, f64)> = points.collect();
+    if !y.is_finite() || points.len() < 2 {
+        return None;
+    }
+    let on = |(x0, y0): (f64, f64), (x1, y1): (f64, f64)| -> Option<f64> {
+        (y1 != y0).then(|| x0 + (y - y0) * (x1 - x0) / (y1 - y0)).filter(|x| x.is_finite())
+    };
+    for w in points.windows(2) {
+        let (lo, hi) = (w[0].1.min(w[1].1), w[0].1.max(w[1].1));
+        if (lo..=hi).contains(&y) {
+            if let Some(fraction) = on(w[0], w[1]) {
+                return Some(BlendFraction { fraction, extrapolated: false });
+            }
+            return Some(BlendFraction { fraction: w[0].0, extrapolated: false });
+        }
+    }
+    let (first, last) = (points[0].1, points[points.len() - 1].1);
+    let n = points.len();
+    let segment =
+        if (y - first).abs() <= (y - last).abs() { (points[0], points[1]) } else { (points[n - 2], points[n - 1]) };
+    on(segment.0, segment.1).map(|fraction| BlendFraction { fraction, extrapolated: true })
 }
 
 fn ratio(value: f64, reference: Option<f64>) -> Option<f64> {
@@ -301,12 +445,18 @@ impl Aggregate {
                     sweeps_vs_builtin: None,
                     late_sweeps: self.in_range(&model, late).map(|r| r.sweeps as u64).sum(),
                     late_sweeps_vs_builtin: None,
+                    same_states_vs_builtin: crate::aggregate::same_states_totals(self.records(&model))
+                        .and_then(|(own, builtin)| ratio(own as f64, Some(builtin as f64))),
+                    blend_by_error: None,
+                    blend_by_sweeps: None,
+                    placed_on_same_states: false,
                     model,
                 }
             })
             .collect();
         let builtin = rows.iter().find(|r| r.model == "builtin").cloned();
-        rows.into_iter()
+        let rows: Vec<AccuracyRow> = rows
+            .into_iter()
             .map(|r| {
                 let b = builtin.as_ref();
                 AccuracyRow {
@@ -316,6 +466,20 @@ impl Aggregate {
                     late_sweeps_vs_builtin: ratio(r.late_sweeps as f64, b.map(|b| b.late_sweeps as f64)),
                     ..r
                 }
+            })
+            .collect();
+        // Same states when every model measured them: whole-run sweeps mix in the trajectory.
+        let same_states = rows.iter().all(|r| r.same_states_vs_builtin.is_some());
+        let rows: Vec<AccuracyRow> =
+            rows.into_iter().map(|r| AccuracyRow { placed_on_same_states: same_states, ..r }).collect();
+        let curve = BlendPlacement::from_rows(
+            rows.iter().map(|r| (r.model.as_str(), r.error_vs_builtin, r.placement_sweeps())),
+        );
+        rows.into_iter()
+            .map(|r| AccuracyRow {
+                blend_by_error: curve.as_ref().zip(r.error_vs_builtin).and_then(|(c, e)| c.by_error(e)),
+                blend_by_sweeps: curve.as_ref().zip(r.placement_sweeps()).and_then(|(c, s)| c.by_sweeps(s)),
+                ..r
             })
             .collect()
     }
@@ -343,6 +507,44 @@ mod tests {
         assert_eq!(parse_boundaries("").unwrap(), Vec::<u32>::new());
         assert!(parse_boundaries("150,100").is_err());
         assert!(parse_boundaries("10,x").unwrap_err().contains("`x`"));
+    }
+
+    #[test]
+    fn blend_curve_is_inverted_piecewise_linearly_and_extended_at_its_ends() {
+        let rows = [
+            ("builtin", Some(1.0), Some(1.0)),
+            ("blend:0.5", Some(0.25), Some(0.8)),
+            ("copy", Some(0.0), Some(0.01)),
+            ("gnn", Some(0.5), Some(1.0)),
+            ("blend:1.5", Some(0.1), Some(0.1)),
+            ("blend:0.75", None, Some(0.5)),
+        ];
+        let c = BlendPlacement::from_rows(rows).unwrap();
+        assert_eq!(
+            c.points,
+            [(0.0, 1.0, 1.0), (0.5, 0.25, 0.8), (1.0, 0.0, 0.01)],
+            "blends out of 0..1 or unmeasured left out"
+        );
+        let exact = |fraction| Some(BlendFraction { fraction, extrapolated: false });
+        assert_eq!(c.by_error(0.25), exact(0.5));
+        assert_eq!(c.by_error(1.0), exact(0.0));
+        assert_eq!(c.by_sweeps(0.9), exact(0.25));
+        assert!((c.by_sweeps(0.405).unwrap().fraction - 0.75).abs() < 1e-12);
+        // Worse than builtin: the first segment extended below F = 0.
+        let worse = c.by_sweeps(1.1).unwrap();
+        assert!(worse.extrapolated && (worse.fraction + 0.25).abs() < 1e-12, "{worse:?}");
+        assert_eq!(worse.label(), "~-0.25");
+        assert_eq!(exact(0.123).unwrap().label(), "0.12");
+        assert_eq!(c.by_sweeps(f64::NAN), None);
+        // A blend:1 takes copy's place; nothing but builtin: no curve.
+        let c =
+            BlendPlacement::from_rows([("copy", Some(0.0), Some(0.01)), ("blend:1", Some(0.01), Some(0.02))]).unwrap();
+        assert_eq!(c.points, [(0.0, 1.0, 1.0), (1.0, 0.01, 0.02)]);
+        assert_eq!(BlendPlacement::from_rows([("gnn", Some(0.5), Some(0.9))]), None);
+        assert_eq!(blend_fraction_of("blend: 0.25"), Some(0.25));
+        assert_eq!(blend_fraction_of("blend:0"), None);
+        assert_eq!(blend_fraction_of("blend"), None);
+        assert_eq!(blend_fraction_of("copy-new"), None);
     }
 
     #[test]

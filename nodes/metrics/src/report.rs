@@ -222,7 +222,7 @@ impl PhaseTable {
 }
 
 /// Columns of the accuracy -> sweeps table (markdown and HTML).
-pub const ACCURACY_COLUMNS: [&str; 8] = [
+pub const ACCURACY_COLUMNS: [&str; 11] = [
     "model",
     "late steps (persisting)",
     "warm err n (late median MSE)",
@@ -231,6 +231,9 @@ pub const ACCURACY_COLUMNS: [&str; 8] = [
     "total sweeps",
     "sweeps vs builtin",
     "late sweeps vs builtin",
+    "same states vs builtin",
+    "blend F by error",
+    "blend F by sweeps",
 ];
 
 /// The accuracy -> sweeps table as formatted cells, one row per model.
@@ -254,6 +257,9 @@ impl AccuracyTable {
                     r.total_sweeps.to_string(),
                     fmt_ratio(r.sweeps_vs_builtin),
                     fmt_ratio(r.late_sweeps_vs_builtin),
+                    fmt_ratio(r.same_states_vs_builtin),
+                    r.blend_by_error.map_or_else(|| "-".into(), |f| f.label()),
+                    r.blend_by_sweeps.map_or_else(|| "-".into(), |f| f.label()),
                 ]
             })
             .collect();
@@ -282,10 +288,18 @@ pub fn phases_markdown(rows: &[PhaseRow]) -> String {
 /// The markdown of the accuracy -> sweeps table with a heading and what its columns mean.
 pub fn accuracy_markdown(rows: &[AccuracyRow]) -> String {
     let late = rows.first().map(|r| r.late_phase.label()).unwrap_or_else(|| "-".into());
-    format!(
+    let mut md = format!(
         "## Accuracy -> sweeps (late phase: steps {late})\n\n{}\n{ACCURACY_NOTE}\n",
         AccuracyTable::new(rows).to_markdown()
-    )
+    );
+    let notes = crate::phases::placement_notes(rows);
+    if !notes.is_empty() {
+        md.push_str("\nOn the ablation curve:\n\n");
+        for n in notes {
+            let _ = writeln!(md, "- {n}");
+        }
+    }
+    md
 }
 
 const SUMMARY_NOTE: &str = "*vs builtin* compares whole runs: once a warm start differs from builtin's, \
@@ -302,7 +316,12 @@ share of the model's total; the warm-start error is the median over the phase's 
 
 const ACCURACY_NOTE: &str = "Per model: the median (and mean) warm-start MSE of the normal impulse over the \
 late phase's steps with persisting contacts, and total sweeps over the whole run, each also relative to \
-builtin's (builtin: 1.000x).";
+builtin's (builtin: 1.000x). *blend F*: where the model sits on the run's oracle ablation curve `blend:F` \
+(builtin + F x (oracle - builtin); builtin is F = 0, `copy` F = 1): the F whose blend leaves the same late \
+error, and the F whose blend needs as many sweeps (on the same states when every model measured them, else over \
+whole runs); `~` marks a value outside the blends measured, extended from the nearest segment (F < 0: worse \
+than builtin). A model placed lower by sweeps than by error removes error PGS removes cheaply anyway. Run \
+blends (e.g. `blend:0.1,blend:0.5`) beside the models to place them.";
 
 fn csv_file<R: IntoIterator<Item = Vec<String>>>(path: &Path, header: &[&str], rows: R) -> Result<(), ReportError> {
     let e = |source| ReportError::Csv { path: path.display().to_string(), source };
@@ -487,6 +506,10 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
             "sweeps_vs_builtin",
             "late_sweeps",
             "late_sweeps_vs_builtin",
+            "same_states_vs_builtin",
+            "blend_fraction_by_error",
+            "blend_fraction_by_sweeps",
+            "blend_placed_on_same_states",
         ],
         accuracy.iter().map(|r| {
             vec![
@@ -500,6 +523,10 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
                 opt(r.sweeps_vs_builtin),
                 r.late_sweeps.to_string(),
                 opt(r.late_sweeps_vs_builtin),
+                opt(r.same_states_vs_builtin),
+                opt(r.blend_by_error.map(|f| f.fraction)),
+                opt(r.blend_by_sweeps.map(|f| f.fraction)),
+                r.placed_on_same_states.to_string(),
             ]
         }),
     )?;
@@ -571,7 +598,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
             .iter()
             .map(|r| Series {
                 name: r.model.clone(),
-                points: r.error_vs_builtin.zip(r.sweeps_vs_builtin).into_iter().collect(),
+                points: r.error_vs_builtin.zip(r.placement_sweeps()).into_iter().collect(),
                 band: None,
             })
             .collect();
@@ -581,14 +608,24 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
             let x_scale = spread_scale(located().map(|p| p.0));
             let y_scale = spread_scale(located().map(|p| p.1));
             let x_label = format!("median warm-start MSE of the normal impulse, steps {late} (× builtin's)");
+            let same_states = accuracy[0].placed_on_same_states;
+            let y_label = if same_states {
+                "total sweeps on the same states (× builtin's)"
+            } else {
+                "total sweeps, whole runs (× builtin's)"
+            };
             let panel = Panel::new(
                 Axis::linear(&x_label).with_scale(x_scale).from_zero(),
-                Axis::linear("total sweeps (× builtin's)").with_scale(y_scale).from_zero(),
+                Axis::linear(y_label).with_scale(y_scale).from_zero(),
                 &points,
                 Mark::LabelledPoints,
             )
             .guides(&[1.0], &[1.0]);
-            let caption = "Accuracy -> sweeps: late-phase warm-start error and total sweeps, relative to builtin";
+            let caption = if same_states {
+                "Accuracy -> sweeps: late-phase warm-start error and total sweeps on the same states, relative to builtin"
+            } else {
+                "Accuracy -> sweeps: late-phase warm-start error and total sweeps, relative to builtin"
+            };
             let path = dir.join("accuracy_vs_sweeps.png");
             chart(&path, caption, &[panel])?;
             accuracy_plots.push((caption.into(), path));
@@ -753,6 +790,14 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
             "<p>{} In the accuracy plot a model whose error is 0 sits at the left end of a log axis (tick 0, label marked (0)); the scatter plot leaves out steps whose error or sweeps are 0 (log axes).</p>",
             escape(ACCURACY_NOTE)
         );
+        let notes = crate::phases::placement_notes(&accuracy);
+        if !notes.is_empty() {
+            html.push_str("<p>On the ablation curve:</p><ul>");
+            for n in &notes {
+                let _ = write!(html, "<li>{}</li>", escape(n));
+            }
+            html.push_str("</ul>");
+        }
         img(&mut html, &accuracy_plots);
     }
     for (caption, path) in &plots {

@@ -220,15 +220,84 @@ fn accuracy_table_puts_builtin_at_one_and_half_the_sweeps_at_half() {
     assert_eq!(half.error_vs_builtin, Some(0.05f32 as f64 / 0.2f32 as f64));
     let table = AccuracyTable::new(&acc);
     let cells = |m: &str| table.rows.iter().find(|r| r[0] == m).unwrap().to_vec();
-    assert_eq!(cells("builtin"), ["builtin", "90", "0.2000", "1.000x", "0.2000", "1800", "1.000x", "1.000x"]);
+    assert_eq!(
+        cells("builtin"),
+        ["builtin", "90", "0.2000", "1.000x", "0.2000", "1800", "1.000x", "1.000x", "-", "-", "-"],
+        "no same states measured, no blend to place on"
+    );
     assert_eq!(cells("half")[3], "0.250x");
     assert_eq!(cells("half")[6], "0.500x");
     let md = table.to_markdown();
     assert_eq!(md.lines().next().unwrap(), format!("| {} |", ACCURACY_COLUMNS.join(" | ")));
-    assert_eq!(md.lines().nth(1).unwrap(), "|---|---:|---:|---:|---:|---:|---:|---:|");
+    assert_eq!(md.lines().nth(1).unwrap(), "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let html = table.to_html();
     assert!(html.contains("<tr><td>half</td><td>90</td><td>0.0500</td><td>0.250x</td>"), "{html}");
     assert_eq!(html.matches("<tr>").count(), 1 + 3);
+}
+
+/// A step that also measured builtin's sweeps on its own problem (`--shadow-builtin`).
+fn shadowed(model: &str, simulation: u32, k: u32, sweeps: u32, builtin_sweeps: u32, error: f32) -> StepRecord {
+    let h = SolveStatsHeader {
+        step: StepHeader { run_id: 7, simulation, step: k },
+        model: name16(model),
+        used_model: name16(model),
+        contacts: 20,
+        persisting_contacts: 10,
+        sweeps,
+        converged: 1,
+        warm_error_normal_mse: error,
+        builtin_sweeps,
+        builtin_measured: 1,
+        ..Default::default()
+    };
+    StepRecord::from_msg(&h, &[])
+}
+
+/// builtin needs 100 sweeps a step at late error 0.4; blend:0.5 80 at 0.1; `cheap` (error 0.1,
+/// a quarter of builtin's, like blend:0.5) needs 95 on its own states where builtin needs 100 —
+/// its sweeps are what blend:0.125 needs; `right` needs 96 where builtin needs 120: on the curve.
+#[test]
+fn accuracy_places_models_on_the_blend_curve_and_says_why() {
+    let mut a = Aggregate::new();
+    for sim in 0..2 {
+        for k in 0..200 {
+            a.add(shadowed("builtin", sim, k, 100, 100, 0.4));
+            a.add(shadowed("blend:0.5", sim, k, 80, 100, 0.1));
+            a.add(shadowed("cheap", sim, k, 95, 100, 0.1));
+            // Its run meets harder states (builtin needs 125 there): whole runs would say 0.96x.
+            a.add(shadowed("right", sim, k, 96, 120, 0.1));
+        }
+    }
+    let acc = a.accuracy();
+    let row = |m: &str| acc.iter().find(|r| r.model == m).unwrap().clone();
+    assert!(acc.iter().all(|r| r.placed_on_same_states));
+    let cheap = row("cheap");
+    assert_eq!(cheap.same_states_vs_builtin, Some(0.95));
+    assert_eq!(cheap.blend_by_error.unwrap().fraction, 0.5);
+    assert!((cheap.blend_by_sweeps.unwrap().fraction - 0.125).abs() < 1e-12, "{cheap:?}");
+    let right = row("right");
+    assert!((right.same_states_vs_builtin.unwrap() - 0.8).abs() < 1e-12);
+    assert!((right.blend_by_sweeps.unwrap().fraction - 0.5).abs() < 1e-12, "same states, not whole runs");
+    assert_eq!(row("builtin").blend_by_sweeps.unwrap().fraction, 0.0);
+
+    let notes = metrics::phases::placement_notes(&acc);
+    assert_eq!(notes.len(), 2, "builtin and the blend are the curve: {notes:?}");
+    assert!(notes[0].starts_with("`cheap`: late-phase error 0.250x builtin's, as blend:0.50 leaves; sweeps on the same states 0.950x, as blend:0.13 needs"), "{}", notes[0]);
+    assert!(notes[0].contains("error PGS removes cheaply"));
+    assert!(notes[1].contains("on the curve"), "{}", notes[1]);
+
+    let table = AccuracyTable::new(&acc);
+    let cells = table.rows.iter().find(|r| r[0] == "cheap").unwrap();
+    assert_eq!(cells[8..], ["0.950x".to_string(), "0.50".into(), "0.13".into()]);
+    let md = report::accuracy_markdown(&acc);
+    assert!(md.contains(&format!("- {}", notes[0])), "{md}");
+
+    // One model without same-states measurements: every model is placed on whole runs.
+    a.add(step("unshadowed", 0, 0, 50, true, 0.4, 10));
+    let acc = a.accuracy();
+    assert!(acc.iter().all(|r| !r.placed_on_same_states));
+    let right = acc.iter().find(|r| r.model == "right").unwrap();
+    assert_eq!(right.placement_sweeps(), right.sweeps_vs_builtin);
 }
 
 #[test]
