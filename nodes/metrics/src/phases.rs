@@ -175,8 +175,8 @@ pub struct AccuracyRow {
     /// Where the model sits on the oracle ablation curve `blend:F` of the same run: the F whose
     /// blend leaves the same late-phase error, and the F whose blend needs as many sweeps (see
     /// [`BlendPlacement`]).
-    pub blend_by_error: Option<BlendFraction>,
-    pub blend_by_sweeps: Option<BlendFraction>,
+    pub blend_by_error: Option<BlendPlace>,
+    pub blend_by_sweeps: Option<BlendPlace>,
     /// Whether `blend_by_sweeps` (and the accuracy plot) compare sweeps on the same states (every
     /// model of the table measured them) or over whole runs.
     pub placed_on_same_states: bool,
@@ -197,46 +197,83 @@ impl AccuracyRow {
 /// its sweeps cheaper or dearer than its accuracy suggests.
 pub const PLACEMENT_MARGIN: f64 = 0.02;
 
-/// One sentence per model off the curve (not builtin, not a blend or copy) placed both ways: where
-/// it sits on the oracle ablation curve, and what the gap between its two places says.
+/// Sweep ratios the report translates into the blend they need: the learned warm start's
+/// milestone (0.85x builtin's sweeps) and target (0.5x).
+pub const REFERENCE_SWEEP_RATIOS: [f64; 2] = [0.85, 0.5];
+
+/// One sentence per reference sweep ratio the curve reaches (which blend it needs), then one per
+/// model off the curve (not builtin, not a blend or copy) placed both ways: where it sits on the
+/// oracle ablation curve, and what the gap between its two places says.
 pub fn placement_notes(rows: &[AccuracyRow]) -> Vec<String> {
-    rows.iter()
-        .filter(|r| r.model != "builtin" && blend_fraction_of(&r.model).is_none())
-        .filter_map(|r| {
+    let Some(first) = rows.first() else { return Vec::new() };
+    let basis = if first.placed_on_same_states { "on the same states" } else { "over whole runs" };
+    let curve =
+        BlendPlacement::from_rows(rows.iter().map(|r| (r.model.as_str(), r.error_vs_builtin, r.placement_sweeps())));
+    let needs: Vec<String> = REFERENCE_SWEEP_RATIOS
+        .iter()
+        .filter_map(|&target| Some(format!("{target}x needs blend F {}", curve.as_ref()?.by_sweeps(target)?.label())))
+        .collect();
+    let reference = (!needs.is_empty()).then(|| format!("Of builtin's sweeps {basis}, {}.", needs.join(", ")));
+    let models =
+        rows.iter().filter(|r| r.model != "builtin" && blend_fraction_of(&r.model).is_none()).filter_map(|r| {
             let (by_error, by_sweeps) = (r.blend_by_error?, r.blend_by_sweeps?);
             let (error, sweeps) = (r.error_vs_builtin?, r.placement_sweeps()?);
-            let basis = if r.placed_on_same_states { "on the same states" } else { "over whole runs" };
-            let why = if by_sweeps.fraction < by_error.fraction - PLACEMENT_MARGIN {
+            let (e, s) = (by_error.position(), by_sweeps.position());
+            let why = if e <= PLACEMENT_MARGIN && s <= PLACEMENT_MARGIN {
+                "no gain over builtin by either measure"
+            } else if s < e - PLACEMENT_MARGIN {
                 "its sweeps buy less than its accuracy suggests: the error it removes is error PGS removes cheaply"
-            } else if by_sweeps.fraction > by_error.fraction + PLACEMENT_MARGIN {
+            } else if s > e + PLACEMENT_MARGIN {
                 "its sweeps buy more than its accuracy suggests: the error it leaves is error PGS removes cheaply"
             } else {
                 "on the curve: its sweeps are what its accuracy predicts"
             };
             Some(format!(
-                "`{}`: late-phase error {error:.3}x builtin's, as blend:{} leaves; sweeps {basis} {sweeps:.3}x, \
-                 as blend:{} needs — {why}.",
+                "`{}`: sweeps {basis} {sweeps:.3}x builtin's (blend F {}), late-phase error {error:.3}x builtin's \
+             (blend F {}) — {why}.",
                 r.model,
-                by_error.label(),
-                by_sweeps.label()
+                by_sweeps.label(),
+                by_error.label()
             ))
-        })
-        .collect()
+        });
+    reference.into_iter().chain(models).collect()
 }
 
-/// A fraction F of the oracle ablation `blend:F` (builtin + F (oracle - builtin)); `extrapolated`
-/// when the value lies outside the blends the run measured (from the nearest segment of the
-/// curve: a model worse than builtin gets F < 0).
+/// Where a value sits on the blend curve `blend:F` (builtin + F (oracle - builtin)).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct BlendFraction {
-    pub fraction: f64,
-    pub extrapolated: bool,
+pub enum BlendPlace {
+    /// At this F, between two blends the run measured (builtin: F = 0).
+    At(f64),
+    /// Worse than builtin (F would be negative).
+    BelowBuiltin,
+    /// Better than the largest blend measured (its F given).
+    Beyond(f64),
 }
 
-impl BlendFraction {
-    /// `0.12`, or `~-0.03` when extrapolated.
+impl BlendPlace {
+    /// `0.12`, `< 0`, `> 0.75`.
     pub fn label(&self) -> String {
-        format!("{}{:.2}", if self.extrapolated { "~" } else { "" }, self.fraction)
+        match self {
+            BlendPlace::At(f) => format!("{f:.2}"),
+            BlendPlace::BelowBuiltin => "< 0".into(),
+            BlendPlace::Beyond(f) => format!("> {f:.2}"),
+        }
+    }
+
+    /// F for comparing two places, with a place outside the measured curve at its nearer end.
+    pub fn position(&self) -> f64 {
+        match *self {
+            BlendPlace::At(f) | BlendPlace::Beyond(f) => f,
+            BlendPlace::BelowBuiltin => 0.0,
+        }
+    }
+
+    /// F when inside the measured curve.
+    pub fn fraction(&self) -> Option<f64> {
+        match *self {
+            BlendPlace::At(f) => Some(f),
+            _ => None,
+        }
     }
 }
 
@@ -279,40 +316,33 @@ impl BlendPlacement {
     }
 
     /// The F whose blend leaves this late-phase error (relative to builtin's).
-    pub fn by_error(&self, error_vs_builtin: f64) -> Option<BlendFraction> {
+    pub fn by_error(&self, error_vs_builtin: f64) -> Option<BlendPlace> {
         inverse(self.points.iter().map(|p| (p.0, p.1)), error_vs_builtin)
     }
 
     /// The F whose blend needs this many sweeps (relative to builtin's).
-    pub fn by_sweeps(&self, sweeps_vs_builtin: f64) -> Option<BlendFraction> {
+    pub fn by_sweeps(&self, sweeps_vs_builtin: f64) -> Option<BlendPlace> {
         inverse(self.points.iter().map(|p| (p.0, p.2)), sweeps_vs_builtin)
     }
 }
 
-/// The x where the piecewise-linear curve through `points` (sorted by x) takes the value y: the
-/// first bracketing segment from the start, else the nearer end segment extended.
-fn inverse(points: impl Iterator<Item = (f64, f64)>, y: f64) -> Option<BlendFraction> {
+/// Where the piecewise-linear curve through `points` (sorted by x, starting at builtin's (0, 1))
+/// takes the value y: the first bracketing segment from the start; outside them, below builtin
+/// when y is nearer the start (worse than builtin), else beyond the last point.
+fn inverse(points: impl Iterator<Item = (f64, f64)>, y: f64) -> Option<BlendPlace> {
     let points: Vec<(f64, f64)> = points.collect();
     if !y.is_finite() || points.len() < 2 {
         return None;
     }
-    let on = |(x0, y0): (f64, f64), (x1, y1): (f64, f64)| -> Option<f64> {
-        (y1 != y0).then(|| x0 + (y - y0) * (x1 - x0) / (y1 - y0)).filter(|x| x.is_finite())
-    };
     for w in points.windows(2) {
-        let (lo, hi) = (w[0].1.min(w[1].1), w[0].1.max(w[1].1));
-        if (lo..=hi).contains(&y) {
-            if let Some(fraction) = on(w[0], w[1]) {
-                return Some(BlendFraction { fraction, extrapolated: false });
-            }
-            return Some(BlendFraction { fraction: w[0].0, extrapolated: false });
+        let ((x0, y0), (x1, y1)) = (w[0], w[1]);
+        if (y0.min(y1)..=y0.max(y1)).contains(&y) {
+            let x = if y1 == y0 { x0 } else { x0 + (y - y0) * (x1 - x0) / (y1 - y0) };
+            return Some(BlendPlace::At(x));
         }
     }
-    let (first, last) = (points[0].1, points[points.len() - 1].1);
-    let n = points.len();
-    let segment =
-        if (y - first).abs() <= (y - last).abs() { (points[0], points[1]) } else { (points[n - 2], points[n - 1]) };
-    on(segment.0, segment.1).map(|fraction| BlendFraction { fraction, extrapolated: true })
+    let (first, last) = (points[0], points[points.len() - 1]);
+    Some(if (y - first.1).abs() <= (y - last.1).abs() { BlendPlace::BelowBuiltin } else { BlendPlace::Beyond(last.0) })
 }
 
 fn ratio(value: f64, reference: Option<f64>) -> Option<f64> {
@@ -510,35 +540,38 @@ mod tests {
     }
 
     #[test]
-    fn blend_curve_is_inverted_piecewise_linearly_and_extended_at_its_ends() {
+    fn blend_curve_is_inverted_piecewise_linearly() {
         let rows = [
             ("builtin", Some(1.0), Some(1.0)),
             ("blend:0.5", Some(0.25), Some(0.8)),
-            ("copy", Some(0.0), Some(0.01)),
+            ("blend:0.75", Some(0.0625), Some(0.5)),
             ("gnn", Some(0.5), Some(1.0)),
             ("blend:1.5", Some(0.1), Some(0.1)),
-            ("blend:0.75", None, Some(0.5)),
+            ("blend:0.9", None, Some(0.5)),
         ];
         let c = BlendPlacement::from_rows(rows).unwrap();
         assert_eq!(
             c.points,
-            [(0.0, 1.0, 1.0), (0.5, 0.25, 0.8), (1.0, 0.0, 0.01)],
+            [(0.0, 1.0, 1.0), (0.5, 0.25, 0.8), (0.75, 0.0625, 0.5)],
             "blends out of 0..1 or unmeasured left out"
         );
-        let exact = |fraction| Some(BlendFraction { fraction, extrapolated: false });
-        assert_eq!(c.by_error(0.25), exact(0.5));
-        assert_eq!(c.by_error(1.0), exact(0.0));
-        assert_eq!(c.by_sweeps(0.9), exact(0.25));
-        assert!((c.by_sweeps(0.405).unwrap().fraction - 0.75).abs() < 1e-12);
-        // Worse than builtin: the first segment extended below F = 0.
-        let worse = c.by_sweeps(1.1).unwrap();
-        assert!(worse.extrapolated && (worse.fraction + 0.25).abs() < 1e-12, "{worse:?}");
-        assert_eq!(worse.label(), "~-0.25");
-        assert_eq!(exact(0.123).unwrap().label(), "0.12");
+        assert_eq!(c.by_error(0.25), Some(BlendPlace::At(0.5)));
+        assert_eq!(c.by_error(1.0), Some(BlendPlace::At(0.0)));
+        assert_eq!(c.by_sweeps(0.9), Some(BlendPlace::At(0.25)));
+        assert!((c.by_sweeps(0.65).unwrap().fraction().unwrap() - 0.625).abs() < 1e-12);
+        // Outside the measured blends: worse than builtin, or better than the best blend.
+        assert_eq!(c.by_sweeps(1.1), Some(BlendPlace::BelowBuiltin));
+        assert_eq!(c.by_error(0.01), Some(BlendPlace::Beyond(0.75)));
         assert_eq!(c.by_sweeps(f64::NAN), None);
-        // A blend:1 takes copy's place; nothing but builtin: no curve.
+        let labels = [BlendPlace::At(0.123), BlendPlace::BelowBuiltin, BlendPlace::Beyond(0.75)].map(|p| p.label());
+        assert_eq!(labels, ["0.12", "< 0", "> 0.75"]);
+        assert_eq!(BlendPlace::BelowBuiltin.position(), 0.0);
+        assert_eq!(BlendPlace::Beyond(0.75).fraction(), None);
+        // copy is blend:1 unless a blend:1 was run; nothing but builtin: no curve.
+        let c = BlendPlacement::from_rows([("copy", Some(0.0), Some(0.01))]).unwrap();
+        assert_eq!(c.points, [(0.0, 1.0, 1.0), (1.0, 0.0, 0.01)]);
         let c =
-            BlendPlacement::from_rows([("copy", Some(0.0), Some(0.01)), ("blend:1", Some(0.01), Some(0.02))]).unwrap();
+            BlendPlacement::from_rows([("blend:1", Some(0.01), Some(0.02)), ("copy", Some(0.0), Some(0.01))]).unwrap();
         assert_eq!(c.points, [(0.0, 1.0, 1.0), (1.0, 0.01, 0.02)]);
         assert_eq!(BlendPlacement::from_rows([("gnn", Some(0.5), Some(0.9))]), None);
         assert_eq!(blend_fraction_of("blend: 0.25"), Some(0.25));

@@ -319,9 +319,9 @@ late phase's steps with persisting contacts, and total sweeps over the whole run
 builtin's (builtin: 1.000x). *blend F*: where the model sits on the run's oracle ablation curve `blend:F` \
 (builtin + F x (oracle - builtin); builtin is F = 0, `copy` F = 1): the F whose blend leaves the same late \
 error, and the F whose blend needs as many sweeps (on the same states when every model measured them, else over \
-whole runs); `~` marks a value outside the blends measured, extended from the nearest segment (F < 0: worse \
-than builtin). A model placed lower by sweeps than by error removes error PGS removes cheaply anyway. Run \
-blends (e.g. `blend:0.1,blend:0.5`) beside the models to place them.";
+whole runs), linear between the blends measured; `< 0`: worse than builtin, `> F`: better than the best blend \
+measured. A model placed lower by sweeps than by error removes error PGS removes cheaply anyway. Run blends \
+(e.g. `blend:0.1,blend:0.25,blend:0.5,blend:0.75`) beside the models to place them.";
 
 fn csv_file<R: IntoIterator<Item = Vec<String>>>(path: &Path, header: &[&str], rows: R) -> Result<(), ReportError> {
     let e = |source| ReportError::Csv { path: path.display().to_string(), source };
@@ -524,8 +524,8 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
                 r.late_sweeps.to_string(),
                 opt(r.late_sweeps_vs_builtin),
                 opt(r.same_states_vs_builtin),
-                opt(r.blend_by_error.map(|f| f.fraction)),
-                opt(r.blend_by_sweeps.map(|f| f.fraction)),
+                r.blend_by_error.map(|f| f.label()).unwrap_or_default(),
+                r.blend_by_sweeps.map(|f| f.label()).unwrap_or_default(),
                 r.placed_on_same_states.to_string(),
             ]
         }),

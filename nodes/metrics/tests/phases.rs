@@ -2,7 +2,7 @@
 //! builtin-relative sweeps, custom phase boundaries, the sweeps histogram, the accuracy -> sweeps
 //! table, and the report's phase / accuracy files and plots.
 
-use metrics::phases::StepRange;
+use metrics::phases::{BlendPlace, StepRange};
 use metrics::report::{self, AccuracyTable, PhaseTable, ACCURACY_COLUMNS, PHASE_COLUMNS};
 use metrics::{Aggregate, StepRecord};
 use msgs::{name16, SolveStatsHeader, StepHeader};
@@ -266,6 +266,7 @@ fn accuracy_places_models_on_the_blend_curve_and_says_why() {
             a.add(shadowed("cheap", sim, k, 95, 100, 0.1));
             // Its run meets harder states (builtin needs 125 there): whole runs would say 0.96x.
             a.add(shadowed("right", sim, k, 96, 120, 0.1));
+            a.add(shadowed("worse", sim, k, 110, 100, 0.5));
         }
     }
     let acc = a.accuracy();
@@ -273,24 +274,31 @@ fn accuracy_places_models_on_the_blend_curve_and_says_why() {
     assert!(acc.iter().all(|r| r.placed_on_same_states));
     let cheap = row("cheap");
     assert_eq!(cheap.same_states_vs_builtin, Some(0.95));
-    assert_eq!(cheap.blend_by_error.unwrap().fraction, 0.5);
-    assert!((cheap.blend_by_sweeps.unwrap().fraction - 0.125).abs() < 1e-12, "{cheap:?}");
+    assert_eq!(cheap.blend_by_error, Some(BlendPlace::At(0.5)));
+    assert!((cheap.blend_by_sweeps.unwrap().fraction().unwrap() - 0.125).abs() < 1e-12, "{cheap:?}");
     let right = row("right");
     assert!((right.same_states_vs_builtin.unwrap() - 0.8).abs() < 1e-12);
-    assert!((right.blend_by_sweeps.unwrap().fraction - 0.5).abs() < 1e-12, "same states, not whole runs");
-    assert_eq!(row("builtin").blend_by_sweeps.unwrap().fraction, 0.0);
+    assert!((right.blend_by_sweeps.unwrap().fraction().unwrap() - 0.5).abs() < 1e-12, "same states, not whole runs");
+    assert_eq!(row("builtin").blend_by_sweeps, Some(BlendPlace::At(0.0)));
+    assert_eq!(row("worse").blend_by_sweeps, Some(BlendPlace::BelowBuiltin));
 
     let notes = metrics::phases::placement_notes(&acc);
-    assert_eq!(notes.len(), 2, "builtin and the blend are the curve: {notes:?}");
-    assert!(notes[0].starts_with("`cheap`: late-phase error 0.250x builtin's, as blend:0.50 leaves; sweeps on the same states 0.950x, as blend:0.13 needs"), "{}", notes[0]);
-    assert!(notes[0].contains("error PGS removes cheaply"));
-    assert!(notes[1].contains("on the curve"), "{}", notes[1]);
+    assert_eq!(notes.len(), 4, "the reference line, then every model but builtin and the blend: {notes:?}");
+    assert_eq!(
+        notes[0],
+        "Of builtin's sweeps on the same states, 0.85x needs blend F 0.38, 0.5x needs blend F > 0.50."
+    );
+    let cheap_note = "`cheap`: sweeps on the same states 0.950x builtin's (blend F 0.13), late-phase error 0.250x \
+                      builtin's (blend F 0.50) — its sweeps buy less than its accuracy suggests";
+    assert!(notes[1].starts_with(cheap_note), "{}", notes[1]);
+    assert!(notes[2].contains("on the curve"), "{}", notes[2]);
+    assert!(notes[3].contains("(blend F < 0)") && notes[3].contains("no gain over builtin"), "{}", notes[3]);
 
     let table = AccuracyTable::new(&acc);
     let cells = table.rows.iter().find(|r| r[0] == "cheap").unwrap();
     assert_eq!(cells[8..], ["0.950x".to_string(), "0.50".into(), "0.13".into()]);
     let md = report::accuracy_markdown(&acc);
-    assert!(md.contains(&format!("- {}", notes[0])), "{md}");
+    assert!(md.contains(&format!("- {}", notes[1])), "{md}");
 
     // One model without same-states measurements: every model is placed on whole runs.
     a.add(step("unshadowed", 0, 0, 50, true, 0.4, 10));

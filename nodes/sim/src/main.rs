@@ -24,15 +24,14 @@ fn positive_f32(s: &str) -> Result<f32, String> {
     f32_where(s, |v| v.is_finite() && v > 0.0, "a finite number > 0")
 }
 
-/// A relative compliance: finite, in [0, 10] (10: contacts eleven times softer than their
-/// effective mass says; more is not a contact any more).
+/// A relative compliance (`SolveParams::valid_compliance`).
 fn compliance(s: &str) -> Result<f32, String> {
-    f32_where(s, |v| v.is_finite() && (0.0..=10.0).contains(&v), "a number in [0, 10]")
+    f32_where(s, SolveParams::valid_compliance, &format!("a number {}", SolveParams::COMPLIANCE_RANGE))
 }
 
-/// An over-relaxation factor: finite, in (0, 2) (outside, projected SOR does not converge).
+/// An over-relaxation factor (`SolveParams::valid_relaxation`).
 fn relaxation(s: &str) -> Result<f32, String> {
-    f32_where(s, |v| v.is_finite() && v > 0.0 && v < 2.0, "a number in (0, 2)")
+    f32_where(s, SolveParams::valid_relaxation, &format!("a number {}", SolveParams::RELAXATION_RANGE))
 }
 
 fn required_duration(s: &str) -> Result<Duration, String> {

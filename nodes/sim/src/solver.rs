@@ -98,6 +98,22 @@ impl Default for SolveParams {
     }
 }
 
+impl SolveParams {
+    /// What a compliance must be: in [0, 10] (10: contacts eleven times softer than their effective
+    /// mass says; more is not a contact any more).
+    pub const COMPLIANCE_RANGE: &str = "in [0, 10]";
+    /// What a relaxation must be: in (0, 2) (outside, projected SOR does not converge).
+    pub const RELAXATION_RANGE: &str = "in (0, 2)";
+
+    pub fn valid_compliance(gamma: f32) -> bool {
+        gamma.is_finite() && (0.0..=10.0).contains(&gamma)
+    }
+
+    pub fn valid_relaxation(omega: f32) -> bool {
+        omega.is_finite() && omega > 0.0 && omega < 2.0
+    }
+}
+
 /// Outcome of one velocity solve; the impulses and residuals stay in the solver's buffers.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SolveReport {

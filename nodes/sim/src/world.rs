@@ -83,13 +83,13 @@ impl WorldParams {
             return bad("max-sweeps", "0".into(), "must be >= 1");
         }
         for c in [self.solve.compliance, self.oracle.compliance] {
-            if !(c.is_finite() && (0.0..=10.0).contains(&c)) {
-                return bad("compliance", c.to_string(), "must be in [0, 10]");
+            if !SolveParams::valid_compliance(c) {
+                return bad("compliance", c.to_string(), &format!("must be {}", SolveParams::COMPLIANCE_RANGE));
             }
         }
         for w in [self.solve.relaxation, self.oracle.relaxation] {
-            if !(w > 0.0 && w < 2.0) {
-                return bad("relaxation", w.to_string(), "must be in (0, 2)");
+            if !SolveParams::valid_relaxation(w) {
+                return bad("relaxation", w.to_string(), &format!("must be {}", SolveParams::RELAXATION_RANGE));
             }
         }
         if !(self.oracle.tolerance.is_finite() && self.oracle.tolerance > 0.0) || self.oracle.max_sweeps == 0 {
