@@ -337,6 +337,11 @@ fn opt(v: Option<f64>) -> String {
     v.map(|v| v.to_string()).unwrap_or_default()
 }
 
+/// Whether an accuracy point (error, sweeps relative to builtin) belongs in the zoom on builtin.
+fn near_builtin(error: f64, sweeps: f64) -> bool {
+    (0.0..=2.0).contains(&error) && (0.5..=1.5).contains(&sweeps)
+}
+
 /// Log scale when the positive values span more than a decade.
 fn spread_scale(values: impl Iterator<Item = f64>) -> Scale {
     let positive: Vec<f64> = values.filter(|v| *v > 0.0 && v.is_finite()).collect();
@@ -626,8 +631,27 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
             } else {
                 "Accuracy -> sweeps: late-phase warm-start error and total sweeps, relative to builtin"
             };
+            // Beside it, the models near builtin on linear axes: the oracle's point (error ~0,
+            // sweeps ~0.01x) otherwise squeezes every warm start worth comparing into one corner.
+            let near: Vec<Series> = points
+                .iter()
+                .map(|s| Series {
+                    name: s.name.clone(),
+                    points: s.points.iter().copied().filter(|&(e, w)| near_builtin(e, w)).collect(),
+                    band: None,
+                })
+                .collect();
+            let inside = near.iter().map(|s| s.points.len()).sum::<usize>();
+            let zoom =
+                Panel::new(Axis::linear(&x_label).from_zero(), Axis::linear(y_label), &near, Mark::LabelledPoints)
+                    .titled("near builtin (error <= 2x, sweeps 0.5x-1.5x)")
+                    .guides(&[1.0], &[1.0]);
             let path = dir.join("accuracy_vs_sweeps.png");
-            chart(&path, caption, &[panel])?;
+            if inside >= 2 && inside < located().count() {
+                chart(&path, caption, &[panel.titled("all models"), zoom])?;
+            } else {
+                chart(&path, caption, &[panel])?;
+            }
             accuracy_plots.push((caption.into(), path));
         }
 
