@@ -23,16 +23,18 @@ pub struct StepData {
     body_features: Vec<f32>,
     pairs: Vec<(u32, u32)>,
     /// Per contact: normal (2), ra (2), rb (2), masses (2), previous in velocity units (2),
-    /// velocity after builtin (2), sticking (1).
+    /// velocity after builtin (2), sticking (1), the reference in velocity units (2).
     per_contact: Vec<f32>,
     /// Per body: inverse mass, inverse mass, inverse inertia.
     per_body: Vec<f32>,
     weight: f32,
+    /// The problem's relative compliance (0: rigid): a row then asks `v + gamma lambda / m = 0`.
+    compliance: f32,
     /// The step's problem for the solver in the loop (an index into the training problems).
     pub problem: usize,
 }
 
-const PER_CONTACT: usize = 13;
+const PER_CONTACT: usize = 15;
 
 impl StepData {
     pub fn new(problem: &sim::problem::Problem, index: usize, weight: f32) -> Option<StepData> {
@@ -59,11 +61,23 @@ impl StepData {
                 x[9],
                 x[10],
                 sticking as u32 as f32,
+                if k[0] > 0.0 { rn / k[0] } else { 0.0 },
+                if k[1] > 0.0 { rt / k[1] } else { 0.0 },
             ]);
         }
         let per_body = problem.bodies.iter().flat_map(|b| [b.inv_mass, b.inv_mass, b.inv_inertia]).collect();
         let pairs = problem.contacts.iter().map(|c| (c.body_a, c.body_b)).collect();
-        Some(StepData { contact_features: xc, body_features: xb, pairs, per_contact, per_body, weight, problem: index })
+        let compliance = problem.header.compliance;
+        Some(StepData {
+            contact_features: xc,
+            body_features: xb,
+            pairs,
+            per_contact,
+            per_body,
+            weight,
+            compliance,
+            problem: index,
+        })
     }
 }
 
@@ -83,10 +97,10 @@ pub fn loss(model: &GnnNet, step: &StepData, device: &Device) -> Tensor<1> {
     let (nx, ny, rax, ray, rbx, rby) =
         (column(&c, 0), column(&c, 1), column(&c, 2), column(&c, 3), column(&c, 4), column(&c, 5));
     let (kn, kt) = (column(&c, 6), column(&c, 7));
-    let (pn, v0n, v0t, stick) = (column(&c, 8), column(&c, 10), column(&c, 11), column(&c, 12));
+    let (pn, pt, v0n, v0t, stick) = (column(&c, 8), column(&c, 9), column(&c, 10), column(&c, 11), column(&c, 12));
     let (on, ot) = (column(&out, 0), column(&out, 1));
     // The correction's impulse in world coordinates (tangent = (ny, -nx)).
-    let (dn, dt) = (on.clone() * kn, ot * kt);
+    let (dn, dt) = (on.clone() * kn, ot.clone() * kt);
     let px = dn.clone() * nx.clone() + dt.clone() * ny.clone();
     let py = dn * ny.clone() - dt * nx.clone();
     let on_b = Tensor::cat(vec![px.clone(), py.clone(), rbx.clone() * py.clone() - rby.clone() * px.clone()], 1);
@@ -98,13 +112,31 @@ pub fn loss(model: &GnnNet, step: &StepData, device: &Device) -> Tensor<1> {
     let (da, db) = (delta.clone().select(0, graph.body_a.clone()), delta.select(0, graph.body_b.clone()));
     let rel_x = column(&db, 0) - column(&db, 2) * rby - column(&da, 0) + column(&da, 2) * ray;
     let rel_y = column(&db, 1) + column(&db, 2) * rbx - column(&da, 1) - column(&da, 2) * rax;
-    let vn = v0n + rel_x.clone() * nx.clone() + rel_y.clone() * ny.clone();
-    let vt = v0t + rel_x * ny - rel_y * nx;
+    let mut vn = v0n + rel_x.clone() * nx.clone() + rel_y.clone() * ny.clone();
+    let mut vt = v0t + rel_x * ny - rel_y * nx;
+    let x = pn + on.clone();
+    if step.compliance > 0.0 {
+        // A compliant row's "velocity" carries its own impulse: v + gamma lambda / m (in velocity
+        // units lambda / m is builtin's plus the output).
+        vn = vn + x.clone().mul_scalar(step.compliance);
+        vt = vt + (pt + ot).mul_scalar(step.compliance);
+    }
     // Fischer-Burmeister on (lambda_n / m_n, v_n); the square root kept away from 0.
-    let x = pn + on;
     let fb = x.clone() + vn.clone() - (x.clone() * x + vn.clone() * vn + 1e-10).sqrt();
     let per_contact = fb.clone() * fb + stick * vt.clone() * vt;
     per_contact.mean().mul_scalar(step.weight)
+}
+
+/// The weighted squared distance of one step's warm start (builtin + output) to its reference
+/// solution, in each row's velocity units.
+pub fn mse_loss(model: &GnnNet, step: &StepData, device: &Device) -> Tensor<1> {
+    let graph = GraphInput::new(&step.contact_features, &step.body_features, &step.pairs, device);
+    let out = model.forward(&graph);
+    let nc = step.pairs.len();
+    let c = Tensor::<2>::from_data(TensorData::new(step.per_contact.clone(), [nc, PER_CONTACT]), device);
+    let dn = column(&c, 8) + column(&out, 0) - column(&c, 13);
+    let dt = column(&c, 9) + column(&out, 1) - column(&c, 14);
+    (dn.clone() * dn + dt.clone() * dt).mean().mul_scalar(step.weight)
 }
 
 /// The solver-in-the-loop loss of one step (see [`crate::unroll`]): the network's output is read,
@@ -148,6 +180,26 @@ pub enum Objective {
     Residual,
     /// The residual left after this many PGS sweeps from the warm start.
     Unrolled { sweeps: usize, power: f64 },
+    /// The squared distance to the recorded reference solution (velocity units): the supervised
+    /// loss, well posed only where the solution is unique (compliant contacts).
+    Mse,
+}
+
+/// The mean loss of `net` as it is over `steps` (None for the solver-in-the-loop objective,
+/// whose value needs the problems): where the epochs' mean losses start from.
+pub fn mean_loss(net: &Net, steps: &[StepData], objective: Objective) -> Option<f64> {
+    let device = Device::flex();
+    let model = GnnNet::from_net(net, &device);
+    let one = |s: &StepData| -> Option<f64> {
+        let l = match objective {
+            Objective::Residual => loss(&model, s, &device),
+            Objective::Mse => mse_loss(&model, s, &device),
+            Objective::Unrolled { .. } => return None,
+        };
+        Some(l.into_scalar::<f32>() as f64)
+    };
+    let values: Option<Vec<f64>> = steps.iter().map(one).collect();
+    values.map(|v| v.iter().filter(|x| x.is_finite()).sum::<f64>() / v.len().max(1) as f64)
 }
 
 /// Trains `net` for `epochs` passes over `train` (shuffled by `seed`), calling `validate` after
@@ -178,6 +230,11 @@ pub fn train(
             let (l, value) = match objective {
                 Objective::Residual => {
                     let l = loss(&model, &train[i], &device);
+                    let value = l.clone().into_scalar::<f32>() as f64;
+                    (l, value)
+                }
+                Objective::Mse => {
+                    let l = mse_loss(&model, &train[i], &device);
                     let value = l.clone().into_scalar::<f32>() as f64;
                     (l, value)
                 }
@@ -247,6 +304,28 @@ mod tests {
         // At the solution (previous = 0.2: v_n = 0, x = 0.1) the residual vanishes.
         let step = StepData::new(&ball_on_floor(0.2), 0, 1.0).unwrap();
         assert!(loss(&model, &step, &device).into_scalar::<f32>() < 1e-8);
+    }
+
+    #[test]
+    fn compliant_rows_carry_their_impulse_in_the_residual_and_mse_measures_the_reference() {
+        let device = Device::flex();
+        let model = GnnNet::from_net(&Net::new(NetConfig::default(), 1), &device);
+        let compliant = |previous: f32, gamma: f32| {
+            let mut p = ball_on_floor(previous);
+            p.header.compliance = gamma;
+            p
+        };
+        // v_n + gamma x = 0 with v_n = -0.1 + x: x = 0.1 / (1 + gamma), the impulse twice that.
+        let solution = 2.0 * 0.1 / 1.1;
+        let at = |previous, gamma| loss(&model, &StepData::new(&compliant(previous, gamma), 0, 1.0).unwrap(), &device);
+        assert!(at(solution, 0.1).into_scalar::<f32>() < 1e-8, "the compliant solution");
+        assert!(at(0.2, 0.1).into_scalar::<f32>() > 1e-5, "the rigid solution is not the compliant one");
+        assert!(at(0.2, 0.0).into_scalar::<f32>() < 1e-8);
+        // The reference is 0.2 (x = 0.1): the untrained warm start is `previous`.
+        let mse = |previous| mse_loss(&model, &StepData::new(&ball_on_floor(previous), 0, 1.0).unwrap(), &device);
+        assert!(mse(0.2).into_scalar::<f32>() < 1e-12);
+        let got: f32 = mse(0.6).into_scalar();
+        assert!((got - 0.2f32.powi(2)).abs() < 1e-6, "((0.6 - 0.2) / 2)^2 on the normal, 0 on the tangent: {got}");
     }
 
     #[test]

@@ -50,9 +50,10 @@ struct Args {
     /// Ridge strengths tried (relative to each input's own scale).
     #[arg(long, value_delimiter = ',', default_value = "1e-4,1e-3,1e-2,1e-1,1")]
     ridge: Vec<f64>,
-    /// What is minimised: `residual` (the step's velocity residual at the warm start), `mse`
-    /// (the reference solution's correction; readout only) or `unrolled` (the residual after
-    /// --sweeps PGS sweeps from the warm start; backprop only).
+    /// What is minimised: `residual` (the step's velocity residual at the warm start; with
+    /// compliant contacts in `backprop` the compliant one), `mse` (the distance to the reference
+    /// solution: a well-posed target only where it is unique, i.e. compliant contacts) or
+    /// `unrolled` (the residual after --sweeps PGS sweeps from the warm start; backprop only).
     #[arg(long, default_value = "residual", value_parser = ["residual", "mse", "unrolled"])]
     loss: String,
     /// With `--loss unrolled`: the PGS sweeps unrolled before the residual is taken (0: per step,
@@ -254,7 +255,8 @@ fn train_end_to_end(
     let objective = match args.loss.as_str() {
         "residual" => backprop::Objective::Residual,
         "unrolled" => backprop::Objective::Unrolled { sweeps: args.sweeps, power: args.power },
-        other => bail!("--loss {other} is for --method readout"),
+        "mse" => backprop::Objective::Mse,
+        other => bail!("unknown --loss {other}"),
     };
     let builtin: u64 = validation.iter().map(|(_, s)| *s as u64).sum();
     let untrained = validation_sweeps(net, validation);
@@ -263,13 +265,27 @@ fn train_end_to_end(
         args.loss,
         data.len()
     );
+    // The loss on the validation steps too (weighted by the training steps' mean sweeps), so a
+    // loss that falls can be told from one that generalises.
+    let validation_data: Vec<backprop::StepData> = validation
+        .iter()
+        .enumerate()
+        .filter_map(|(i, (p, s))| backprop::StepData::new(p, i, (*s as f64 / mean_sweeps) as f32))
+        .collect();
+    let validation_loss = |n: &Net| {
+        backprop::mean_loss(n, &validation_data, objective).map_or(String::new(), |l| format!(" (validation {l:.4e})"))
+    };
+    if let Some(loss) = backprop::mean_loss(net, &data, objective) {
+        println!("  untrained: mean loss {loss:.4e}{}", validation_loss(net));
+    }
     let mut best = (untrained, 0usize, net.clone());
     let started = std::time::Instant::now();
     backprop::train(net, &data, train, objective, args.epochs, args.lr, args.seed, |epoch, candidate, loss| {
         let sweeps = validation_sweeps(candidate, validation);
         println!(
-            "  epoch {}: mean loss {loss:.4e}, validation {sweeps} sweeps ({:.3}x builtin), {:.0} s",
+            "  epoch {}: mean loss {loss:.4e}{}, validation {sweeps} sweeps ({:.3}x builtin), {:.0} s",
             epoch + 1,
+            validation_loss(candidate),
             sweeps as f64 / builtin as f64,
             started.elapsed().as_secs_f64()
         );
