@@ -30,6 +30,11 @@ struct Args {
     /// empty: one phase).
     #[arg(long, value_parser = parse_phases, default_value = "100,150")]
     phases: Phases,
+    /// Build the report from an earlier report's `steps.csv` instead of listening on the bus (its
+    /// tables and plots as this version makes them; the convergence plot needs the per-sweep
+    /// residuals, which the file does not keep).
+    #[arg(long, value_name = "STEPS_CSV")]
+    from_steps: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone)]
@@ -46,6 +51,9 @@ fn main() -> std::process::ExitCode {
 fn try_main() -> Result<()> {
     let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
+    if let Some(steps) = &args.from_steps {
+        return report_from_steps(&args, steps);
+    }
     let node = runtime::Node::from_env("dc-metrics")?;
     let mut stats = node.subscriber(topics::SOLVE_STATS)?;
     let mut control = node.subscriber(topics::CONTROL)?;
@@ -53,10 +61,7 @@ fn try_main() -> Result<()> {
     if !node.ready()? {
         return Ok(());
     }
-    let out = args.out.clone().unwrap_or_else(|| {
-        let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
-        PathBuf::from(format!("reports/metrics-{secs}"))
-    });
+    let out = args.out.clone().unwrap_or_else(default_out);
 
     let mut aggregate = Aggregate::new();
     aggregate.settle_speed = args.settle_speed;
@@ -124,15 +129,43 @@ fn try_main() -> Result<()> {
     let solvers = completeness.solvers();
     let title =
         if solvers.is_empty() { args.title.clone() } else { format!("{} ({})", args.title, solvers.join("; ")) };
-    let written = report::write(&aggregate, &out, &title, &missing)?;
+    write_and_print(&aggregate, &out, &title, &missing)?;
+    if stats.decode_errors() > 0 {
+        tracing::warn!(errors = stats.decode_errors(), "undecodable statistics payloads were skipped");
+    }
+    Ok(())
+}
+
+fn default_out() -> PathBuf {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    PathBuf::from(format!("reports/metrics-{secs}"))
+}
+
+/// Writes the report and prints its tables.
+fn write_and_print(aggregate: &Aggregate, out: &std::path::Path, title: &str, missing: &[String]) -> Result<()> {
+    let written = report::write(aggregate, out, title, missing)?;
     println!("{}", report::summary_markdown(&written.summaries));
     if !aggregate.is_empty() {
         println!("{}", report::phases_markdown(&written.phases));
         println!("{}", report::accuracy_markdown(&written.accuracy));
     }
     println!("report: {}", written.dir.join("report.html").display());
-    if stats.decode_errors() > 0 {
-        tracing::warn!(errors = stats.decode_errors(), "undecodable statistics payloads were skipped");
-    }
     Ok(())
+}
+
+/// `--from-steps`: the report of an earlier run's steps, without the bus.
+fn report_from_steps(args: &Args, steps: &std::path::Path) -> Result<()> {
+    let records = report::read_steps(steps)?;
+    let out = args.out.clone().unwrap_or_else(default_out);
+    let mut aggregate = Aggregate::new();
+    aggregate.settle_speed = args.settle_speed;
+    aggregate.phase_boundaries = args.phases.0.clone();
+    for r in records {
+        aggregate.add(r);
+    }
+    let missing = [format!(
+        "{}: per-sweep residuals are not kept in steps.csv, so the convergence plot is empty",
+        steps.display()
+    )];
+    write_and_print(&aggregate, &out, &args.title, &missing)
 }

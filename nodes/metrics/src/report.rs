@@ -357,7 +357,20 @@ fn spread_scale(values: impl Iterator<Item = f64>) -> Scale {
 /// At most this many points per model in the sweeps-vs-error scatter plot.
 pub const SCATTER_POINTS_PER_MODEL: usize = 3000;
 
-/// Writes the report for `aggregate` into `dir`; `missing` lists what a partial run lacks.
+/// The steps of a report's `steps.csv` (what [`write`] puts there), to build a report again — with
+/// newer tables, or other phases — without running the simulations again. The per-sweep residuals
+/// are not in the file: the records come back without them.
+pub fn read_steps(path: &Path) -> Result<Vec<crate::StepRecord>, ReportError> {
+    let e = |source| ReportError::Csv { path: path.display().to_string(), source };
+    let mut reader = csv::Reader::from_path(path).map_err(e)?;
+    reader
+        .deserialize::<msgs::StepStats>()
+        .map(|row| row.map(|stats| crate::StepRecord { stats, residuals: Vec::new() }).map_err(e))
+        .collect()
+}
+
+/// Writes the report for `aggregate` into `dir`; `missing` lists what the data lacks (a partial
+/// run's missing steps, a rebuilt report's residuals).
 pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String]) -> Result<Written, ReportError> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let mut files = Vec::new();
@@ -544,7 +557,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
         let _ = write!(md, "\n{}\n{}", phases_markdown(&phases), accuracy_markdown(&accuracy));
     }
     if !missing.is_empty() {
-        md.push_str("\n## Missing data (partial run)\n\n");
+        md.push_str("\n## Missing data\n\n");
         for m in missing {
             let _ = writeln!(md, "- {m}");
         }
@@ -782,7 +795,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
          <h1>{title}</h1>"
     );
     if !missing.is_empty() {
-        html.push_str("<h2>Missing data (partial run)</h2><ul>");
+        html.push_str("<h2>Missing data</h2><ul>");
         for m in missing {
             let _ = write!(html, "<li>{}</li>", escape(m));
         }

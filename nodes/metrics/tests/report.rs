@@ -86,5 +86,68 @@ fn empty_run_writes_a_report_that_says_so() {
     assert!(html.contains("No solver statistics arrived"));
     assert!(html.contains("no run end"));
     let md = std::fs::read_to_string(dir.join("summary.md")).unwrap();
-    assert!(md.contains("Missing data (partial run)"));
+    assert!(md.contains("## Missing data"));
+}
+
+/// A report rebuilt from an earlier report's `steps.csv` (`dc-metrics --from-steps`) has the same
+/// tables: every statistic but the per-sweep residuals survives the file.
+#[test]
+fn a_report_rebuilt_from_its_steps_csv_has_the_same_tables() {
+    let mut a = Aggregate::new();
+    for sim in 0..2 {
+        for step in 0..160 {
+            for (model, sweeps) in [("builtin", 20 + step % 7), ("blend:0.5", 12 + step % 5), ("gnn", 21 + step % 3)] {
+                let mut r = stats(model, sim, step, sweeps);
+                r.stats.builtin_sweeps = 20 + step % 7;
+                r.stats.builtin_measured = true;
+                a.add(r);
+            }
+        }
+    }
+    let first = scratch("from-steps-a");
+    let written = report::write(&a, &first, "first", &[]).unwrap();
+    let records = report::read_steps(&first.join("steps.csv")).unwrap();
+    assert_eq!(records.len(), 3 * 2 * 160);
+    assert!(records.iter().all(|r| r.residuals.is_empty()), "residuals are not in the file");
+    let mut b = Aggregate::new();
+    for r in records {
+        b.add(r);
+    }
+    assert_eq!(report::summary_markdown(&b.summaries()), report::summary_markdown(&a.summaries()));
+    assert_eq!(b.phase_rows(), written.phases);
+    assert_eq!(b.accuracy(), written.accuracy);
+
+    // The binary does the same and says what the file cannot give back.
+    let second = scratch("from-steps-b");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_dc-metrics"))
+        .arg("--from-steps")
+        .arg(first.join("steps.csv"))
+        .arg("--out")
+        .arg(&second)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains(&report::accuracy_markdown(&written.accuracy)), "{stdout}");
+    let summary = std::fs::read_to_string(second.join("summary.md")).unwrap();
+    assert!(summary.contains("per-sweep residuals are not kept in steps.csv"), "{summary}");
+    assert_eq!(std::fs::read(second.join("steps.csv")).unwrap(), std::fs::read(first.join("steps.csv")).unwrap());
+
+    // A damaged file: the error names it and the record.
+    let bad = first.join("bad.csv");
+    let text = std::fs::read_to_string(first.join("steps.csv")).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines[5] = "1,2,three";
+    std::fs::write(&bad, lines.join("\n")).unwrap();
+    let e = report::read_steps(&bad).unwrap_err().to_string();
+    assert!(e.contains("bad.csv") && e.contains("record 5"), "{e}");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_dc-metrics"))
+        .arg("--from-steps")
+        .arg(&bad)
+        .arg("--out")
+        .arg(scratch("from-steps-c"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("bad.csv"), "{}", String::from_utf8_lossy(&out.stderr));
 }
