@@ -49,8 +49,10 @@ pub struct StepStats {
     /// solved on scratch velocities; the step's own sweeps when builtin was the model used).
     /// Paired with `sweeps`, it separates what a warm start saves on the states it meets from
     /// how its run's trajectory differs from builtin's.
+    #[serde(default)]
     pub builtin_sweeps: u32,
-    /// Whether `builtin_sweeps` was measured.
+    /// Whether `builtin_sweeps` was measured (absent in statistics written before it existed).
+    #[serde(default)]
     pub builtin_measured: bool,
 }
 

@@ -198,8 +198,12 @@ pub fn mean_loss(net: &Net, steps: &[StepData], objective: Objective) -> Option<
         };
         Some(l.into_scalar::<f32>() as f64)
     };
-    let values: Option<Vec<f64>> = steps.iter().map(one).collect();
-    values.map(|v| v.iter().filter(|x| x.is_finite()).sum::<f64>() / v.len().max(1) as f64)
+    let values: Vec<f64> = steps.iter().map(one).collect::<Option<_>>()?;
+    let finite: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if finite.len() < values.len() {
+        tracing::warn!(skipped = values.len() - finite.len(), "non-finite losses left out of the mean");
+    }
+    Some(finite.iter().sum::<f64>() / finite.len().max(1) as f64)
 }
 
 /// Trains `net` for `epochs` passes over `train` (shuffled by `seed`), calling `validate` after
@@ -321,6 +325,22 @@ mod tests {
         assert!(at(solution, 0.1).into_scalar::<f32>() < 1e-8, "the compliant solution");
         assert!(at(0.2, 0.1).into_scalar::<f32>() > 1e-5, "the rigid solution is not the compliant one");
         assert!(at(0.2, 0.0).into_scalar::<f32>() < 1e-8);
+        // Sliding along the floor at 0.05 m/s, held sticking: the tangent row's effective mass is
+        // 1, so a compliant stick needs lambda_t = -0.05 / (1 + gamma).
+        let sliding = |tangent: f32, gamma: f32| {
+            let mut p = compliant(solution, gamma);
+            p.bodies[1].v[0] = 0.05;
+            p.contacts[0].previous[1] = tangent;
+            p.contacts[0].reference = [solution, -0.05 / 1.1];
+            StepData::new(&p, 0, 1.0).unwrap()
+        };
+        let residual = |tangent, gamma| loss(&model, &sliding(tangent, gamma), &device).into_scalar::<f32>();
+        assert!(residual(-0.05 / 1.1, 0.1) < 1e-8, "the compliant stick");
+        assert!(residual(-0.05, 0.1) > 1e-6, "the rigid stick is not it");
+        let at_reference: f32 = mse_loss(&model, &sliding(-0.05 / 1.1, 0.1), &device).into_scalar();
+        assert!(at_reference < 1e-12, "{at_reference}");
+        let off: f32 = mse_loss(&model, &sliding(0.0, 0.1), &device).into_scalar();
+        assert!((off - (0.05f32 / 1.1).powi(2)).abs() < 1e-7, "tangent off by 0.05 / 1.1: {off}");
         // The reference is 0.2 (x = 0.1): the untrained warm start is `previous`.
         let mse = |previous| mse_loss(&model, &StepData::new(&ball_on_floor(previous), 0, 1.0).unwrap(), &device);
         assert!(mse(0.2).into_scalar::<f32>() < 1e-12);

@@ -255,7 +255,14 @@ fn train_end_to_end(
     let objective = match args.loss.as_str() {
         "residual" => backprop::Objective::Residual,
         "unrolled" => backprop::Objective::Unrolled { sweeps: args.sweeps, power: args.power },
-        "mse" => backprop::Objective::Mse,
+        "mse" => {
+            if train.iter().any(|(p, _)| p.header.compliance == 0.0) {
+                tracing::warn!(
+                    "--loss mse on rigid problems: their reference is one of many solutions (record with --compliance)"
+                );
+            }
+            backprop::Objective::Mse
+        }
         other => bail!("unknown --loss {other}"),
     };
     let builtin: u64 = validation.iter().map(|(_, s)| *s as u64).sum();

@@ -163,9 +163,9 @@ fn report_from_steps(args: &Args, steps: &std::path::Path) -> Result<()> {
     for r in records {
         aggregate.add(r);
     }
-    let missing = [format!(
-        "{}: per-sweep residuals are not kept in steps.csv, so the convergence plot is empty",
-        steps.display()
-    )];
+    let missing = [
+        format!("{}: per-sweep residuals are not kept in steps.csv, so the convergence plot is empty", steps.display()),
+        "the solver settings the runs announced are not kept in steps.csv either: the title is --title's".to_string(),
+    ];
     write_and_print(&aggregate, &out, &args.title, &missing)
 }

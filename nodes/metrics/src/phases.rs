@@ -201,8 +201,8 @@ pub const PLACEMENT_MARGIN: f64 = 0.02;
 /// milestone (0.85x builtin's sweeps) and target (0.5x).
 pub const REFERENCE_SWEEP_RATIOS: [f64; 2] = [0.85, 0.5];
 
-/// One sentence per reference sweep ratio the curve reaches (which blend it needs), then one per
-/// model off the curve (not builtin, not a blend or copy) placed both ways: where it sits on the
+/// One sentence saying which blend each reference sweep ratio needs (`> F` beyond the blends
+/// measured), then one per model off the curve (not builtin, not a blend or copy) placed both ways: where it sits on the
 /// oracle ablation curve, and what the gap between its two places says.
 pub fn placement_notes(rows: &[AccuracyRow]) -> Vec<String> {
     let Some(first) = rows.first() else { return Vec::new() };
@@ -219,7 +219,10 @@ pub fn placement_notes(rows: &[AccuracyRow]) -> Vec<String> {
             let (by_error, by_sweeps) = (r.blend_by_error?, r.blend_by_sweeps?);
             let (error, sweeps) = (r.error_vs_builtin?, r.placement_sweeps()?);
             let (e, s) = (by_error.position(), by_sweeps.position());
-            let why = if e <= PLACEMENT_MARGIN && s <= PLACEMENT_MARGIN {
+            let beyond = |p: BlendPlace| matches!(p, BlendPlace::Beyond(_));
+            let why = if beyond(by_error) && beyond(by_sweeps) {
+                "beyond every blend measured by both measures"
+            } else if e <= PLACEMENT_MARGIN && s <= PLACEMENT_MARGIN {
                 "no gain over builtin by either measure"
             } else if s < e - PLACEMENT_MARGIN {
                 "its sweeps buy less than its accuracy suggests: the error it removes is error PGS removes cheaply"
@@ -300,7 +303,8 @@ pub fn blend_fraction_of(model: &str) -> Option<f64> {
 
 impl BlendPlacement {
     /// The curve from `(model, error ratio, sweeps ratio)` rows: builtin at (0, 1, 1), the blends
-    /// and copy with both ratios known; a `blend:1` wins over `copy`. None with no blend measured.
+    /// and copy with both ratios known; a `blend:1` wins over `copy`. None without a blend
+    /// strictly between builtin and the oracle.
     pub fn from_rows<'a>(rows: impl IntoIterator<Item = (&'a str, Option<f64>, Option<f64>)>) -> Option<Self> {
         let mut points = vec![(0.0, 1.0, 1.0)];
         for (model, error, sweeps) in rows {
@@ -312,12 +316,16 @@ impl BlendPlacement {
             }
         }
         points.sort_by(|a, b| a.0.total_cmp(&b.0));
-        (points.len() >= 2).then_some(BlendPlacement { points })
+        // builtin and the oracle alone are no curve: the sweeps between them are far from a line.
+        points.iter().any(|p| p.0 > 0.0 && p.0 < 1.0).then_some(BlendPlacement { points })
     }
 
-    /// The F whose blend leaves this late-phase error (relative to builtin's).
+    /// The F whose blend leaves this late-phase error (relative to builtin's). A blend leaves
+    /// (1 - F)^2 of builtin's squared error, so the curve is interpolated in the error's square
+    /// root, where it is a line.
     pub fn by_error(&self, error_vs_builtin: f64) -> Option<BlendPlace> {
-        inverse(self.points.iter().map(|p| (p.0, p.1)), error_vs_builtin)
+        let root = |e: f64| e.max(0.0).sqrt();
+        inverse(self.points.iter().map(|p| (p.0, root(p.1))), root(error_vs_builtin))
     }
 
     /// The F whose blend needs this many sweeps (relative to builtin's).
@@ -567,12 +575,16 @@ mod tests {
         assert_eq!(labels, ["0.12", "< 0", "> 0.75"]);
         assert_eq!(BlendPlace::BelowBuiltin.position(), 0.0);
         assert_eq!(BlendPlace::Beyond(0.75).fraction(), None);
-        // copy is blend:1 unless a blend:1 was run; nothing but builtin: no curve.
-        let c = BlendPlacement::from_rows([("copy", Some(0.0), Some(0.01))]).unwrap();
-        assert_eq!(c.points, [(0.0, 1.0, 1.0), (1.0, 0.0, 0.01)]);
+        // The error is interpolated in its square root: halfway in F leaves a quarter.
         let c =
-            BlendPlacement::from_rows([("blend:1", Some(0.01), Some(0.02)), ("copy", Some(0.0), Some(0.01))]).unwrap();
-        assert_eq!(c.points, [(0.0, 1.0, 1.0), (1.0, 0.01, 0.02)]);
+            BlendPlacement::from_rows([("blend:0.5", Some(0.25), Some(0.8)), ("copy", Some(0.0), Some(0.01))]).unwrap();
+        assert_eq!(c.by_error(0.5625), Some(BlendPlace::At(0.25)));
+        // copy is blend:1 unless a blend:1 was run; builtin and the oracle alone are no curve.
+        let rows =
+            [("blend:1", Some(0.01), Some(0.02)), ("copy", Some(0.0), Some(0.01)), ("blend:0.5", Some(0.3), Some(0.8))];
+        let c = BlendPlacement::from_rows(rows).unwrap();
+        assert_eq!(c.points, [(0.0, 1.0, 1.0), (0.5, 0.3, 0.8), (1.0, 0.01, 0.02)]);
+        assert_eq!(BlendPlacement::from_rows([("copy", Some(0.0), Some(0.01))]), None);
         assert_eq!(BlendPlacement::from_rows([("gnn", Some(0.5), Some(0.9))]), None);
         assert_eq!(blend_fraction_of("blend: 0.25"), Some(0.25));
         assert_eq!(blend_fraction_of("blend:0"), None);

@@ -526,7 +526,9 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
             "late_sweeps_vs_builtin",
             "same_states_vs_builtin",
             "blend_fraction_by_error",
+            "blend_place_by_error",
             "blend_fraction_by_sweeps",
+            "blend_place_by_sweeps",
             "blend_placed_on_same_states",
         ],
         accuracy.iter().map(|r| {
@@ -542,7 +544,9 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
                 r.late_sweeps.to_string(),
                 opt(r.late_sweeps_vs_builtin),
                 opt(r.same_states_vs_builtin),
+                opt(r.blend_by_error.and_then(|f| f.fraction())),
                 r.blend_by_error.map(|f| f.label()).unwrap_or_default(),
+                opt(r.blend_by_sweeps.and_then(|f| f.fraction())),
                 r.blend_by_sweeps.map(|f| f.label()).unwrap_or_default(),
                 r.placed_on_same_states.to_string(),
             ]

@@ -26,12 +26,12 @@ fn positive_f32(s: &str) -> Result<f32, String> {
 
 /// A relative compliance (`SolveParams::valid_compliance`).
 fn compliance(s: &str) -> Result<f32, String> {
-    f32_where(s, SolveParams::valid_compliance, &format!("a number {}", SolveParams::COMPLIANCE_RANGE))
+    f32_where(s, SolveParams::valid_compliance, &format!("a number {}", SolveParams::compliance_range()))
 }
 
 /// An over-relaxation factor (`SolveParams::valid_relaxation`).
 fn relaxation(s: &str) -> Result<f32, String> {
-    f32_where(s, SolveParams::valid_relaxation, &format!("a number {}", SolveParams::RELAXATION_RANGE))
+    f32_where(s, SolveParams::valid_relaxation, &format!("a number {}", SolveParams::relaxation_range()))
 }
 
 fn required_duration(s: &str) -> Result<Duration, String> {

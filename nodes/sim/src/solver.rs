@@ -99,18 +99,28 @@ impl Default for SolveParams {
 }
 
 impl SolveParams {
-    /// What a compliance must be: in [0, 10] (10: contacts eleven times softer than their effective
-    /// mass says; more is not a contact any more).
-    pub const COMPLIANCE_RANGE: &str = "in [0, 10]";
-    /// What a relaxation must be: in (0, 2) (outside, projected SOR does not converge).
-    pub const RELAXATION_RANGE: &str = "in (0, 2)";
+    /// The largest compliance: contacts eleven times softer than their effective mass says; more
+    /// is not a contact any more.
+    pub const MAX_COMPLIANCE: f32 = 10.0;
+    /// Relaxation lies strictly between 0 and this: outside, projected SOR does not converge.
+    pub const RELAXATION_LIMIT: f32 = 2.0;
 
     pub fn valid_compliance(gamma: f32) -> bool {
-        gamma.is_finite() && (0.0..=10.0).contains(&gamma)
+        gamma.is_finite() && (0.0..=Self::MAX_COMPLIANCE).contains(&gamma)
     }
 
     pub fn valid_relaxation(omega: f32) -> bool {
-        omega.is_finite() && omega > 0.0 && omega < 2.0
+        omega.is_finite() && omega > 0.0 && omega < Self::RELAXATION_LIMIT
+    }
+
+    /// What a compliance must be, in words: `in [0, 10]`.
+    pub fn compliance_range() -> String {
+        format!("in [0, {}]", Self::MAX_COMPLIANCE)
+    }
+
+    /// What a relaxation must be, in words: `in (0, 2)`.
+    pub fn relaxation_range() -> String {
+        format!("in (0, {})", Self::RELAXATION_LIMIT)
     }
 }
 

@@ -84,12 +84,12 @@ impl WorldParams {
         }
         for c in [self.solve.compliance, self.oracle.compliance] {
             if !SolveParams::valid_compliance(c) {
-                return bad("compliance", c.to_string(), &format!("must be {}", SolveParams::COMPLIANCE_RANGE));
+                return bad("compliance", c.to_string(), &format!("must be {}", SolveParams::compliance_range()));
             }
         }
         for w in [self.solve.relaxation, self.oracle.relaxation] {
             if !SolveParams::valid_relaxation(w) {
-                return bad("relaxation", w.to_string(), &format!("must be {}", SolveParams::RELAXATION_RANGE));
+                return bad("relaxation", w.to_string(), &format!("must be {}", SolveParams::relaxation_range()));
             }
         }
         if !(self.oracle.tolerance.is_finite() && self.oracle.tolerance > 0.0) || self.oracle.max_sweeps == 0 {
