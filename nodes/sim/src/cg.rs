@@ -13,7 +13,7 @@
 //! would have to approximate to pay.
 
 use crate::solver::{row_masses, ContactRow, Impulse, SolverBody};
-use crate::subspace::{apply, dot, project_to_cone, relative, step_residual};
+use crate::subspace::{apply, builtin_step, dot, relative, BuiltinStep};
 use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
 
 /// Regularisation of a rigid problem, relative to each row's `W_ii` (the best of the uncounted
@@ -31,8 +31,12 @@ pub struct ConjugateGradient {
     velocities: Vec<[f64; 3]>,
     residual: Vec<[f64; 2]>,
     /// Per row `W_ii` of its normal and tangent on the active rows, 0 elsewhere (the mask of the
-    /// system, and with `extra` its diagonal shift and its Jacobi preconditioner).
+    /// system).
     weights: Vec<[f64; 2]>,
+    /// Per row the system's diagonal shift (the compliance's `C_ii`, or the rigid problem's
+    /// regularisation) and its whole diagonal (the Jacobi preconditioner), on the active rows.
+    shift: Vec<[f64; 2]>,
+    diagonal: Vec<[f64; 2]>,
     correction: Vec<[f64; 2]>,
     direction: Vec<[f64; 2]>,
     product: Vec<[f64; 2]>,
@@ -48,6 +52,8 @@ impl ConjugateGradient {
             velocities: Vec::new(),
             residual: Vec::new(),
             weights: Vec::new(),
+            shift: Vec::new(),
+            diagonal: Vec::new(),
             correction: Vec::new(),
             direction: Vec::new(),
             product: Vec::new(),
@@ -55,20 +61,17 @@ impl ConjugateGradient {
         }
     }
 
-    /// `product = (W + extra W_ii) x` on the active rows.
-    fn multiply(&mut self, rows: &[ContactRow], bodies: &[SolverBody], extra: f64, x: &[[f64; 2]]) {
+    /// `product = (W + shift) x` on the active rows.
+    fn multiply(&mut self, rows: &[ContactRow], bodies: &[SolverBody], x: &[[f64; 2]]) {
         self.velocities.clear();
         self.velocities.resize(bodies.len(), [0.0; 3]);
         for (row, xi) in rows.iter().zip(x) {
             apply(&mut self.velocities, bodies, row, *xi);
         }
         self.product.clear();
-        self.product.extend(rows.iter().zip(x).zip(&self.weights).map(|((row, xi), w)| {
+        self.product.extend(rows.iter().zip(x).zip(self.weights.iter().zip(&self.shift)).map(|((row, xi), (w, c))| {
             let [vn, vt] = relative(&self.velocities, row);
-            [
-                if w[0] > 0.0 { vn + w[0] * extra * xi[0] } else { 0.0 },
-                if w[1] > 0.0 { vt + w[1] * extra * xi[1] } else { 0.0 },
-            ]
+            [if w[0] > 0.0 { vn + c[0] * xi[0] } else { 0.0 }, if w[1] > 0.0 { vt + c[1] * xi[1] } else { 0.0 }]
         }));
     }
 }
@@ -79,41 +82,52 @@ impl WarmStartModel for ConjugateGradient {
     }
 
     fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-        input.history.fill_previous(input.contacts, out);
-        let (rows, bodies) = (input.rows, input.bodies);
-        if rows.len() != out.len() || rows.is_empty() || self.iterations == 0 {
+        if self.iterations == 0 {
+            input.history.fill_previous(input.contacts, out);
             return Ok(());
         }
-        let active = project_to_cone(rows, out);
-        step_residual(bodies, rows, out, &active, &mut self.velocities, &mut self.residual);
-        let gamma = input.compliance as f64;
-        let extra = if gamma > 0.0 { gamma } else { RIGID_REGULARISATION };
-        // Per row: W_ii (1 / effective mass) where active; the compliance's C_ii = gamma W_ii and
-        // the regularisation's are `extra` W_ii; the residual also owes C lambda_builtin.
+        let Some(BuiltinStep { active, compliance }) =
+            builtin_step(input, out, &mut self.velocities, &mut self.residual)
+        else {
+            return Ok(());
+        };
+        let (rows, bodies) = (input.rows, input.bodies);
+        // Per active row: W_ii (1 / effective mass); the shift is the compliance's C_ii or, for a
+        // rigid problem, the regularisation's RIGID_REGULARISATION W_ii; rows the system leaves
+        // out (inactive, or between fixed bodies) owe nothing.
         self.weights.clear();
-        for (((row, act), o), r) in rows.iter().zip(&active).zip(out.iter()).zip(self.residual.iter_mut()) {
+        self.shift.clear();
+        self.diagonal.clear();
+        for (i, (row, act)) in rows.iter().zip(&active).enumerate() {
             let (mn, mt) = row_masses(row, bodies);
-            let w = [if mn > 0.0 { 1.0 / mn as f64 } else { 0.0 }, if mt > 0.0 { 1.0 / mt as f64 } else { 0.0 }];
-            let on = [act[0] && w[0] > 0.0, act[1] && w[1] > 0.0];
-            self.weights.push([if on[0] { w[0] } else { 0.0 }, if on[1] { w[1] } else { 0.0 }]);
-            r[0] = if on[0] { r[0] - gamma * w[0] * o.normal as f64 } else { 0.0 };
-            r[1] = if on[1] { r[1] - gamma * w[1] * o.tangent as f64 } else { 0.0 };
+            let (mut w, mut shift, mut diagonal) = ([0.0; 2], [0.0; 2], [0.0; 2]);
+            for (k, m) in [mn, mt].into_iter().enumerate() {
+                if act[k] && m > 0.0 {
+                    w[k] = 1.0 / m as f64;
+                    (shift[k], diagonal[k]) = match &compliance {
+                        Some(c) => (c[i][k], w[k] + c[i][k]),
+                        None => (w[k] * RIGID_REGULARISATION, w[k] * (1.0 + RIGID_REGULARISATION)),
+                    };
+                } else {
+                    self.residual[i][k] = 0.0;
+                }
+            }
+            self.weights.push(w);
+            self.shift.push(shift);
+            self.diagonal.push(diagonal);
         }
 
-        // Jacobi-preconditioned CG from y = 0; the diagonal is (1 + extra) W_ii.
-        let precondition = |r: &[[f64; 2]], weights: &[[f64; 2]], z: &mut Vec<[f64; 2]>| {
+        // Jacobi-preconditioned CG from y = 0.
+        let precondition = |r: &[[f64; 2]], diagonal: &[[f64; 2]], z: &mut Vec<[f64; 2]>| {
             z.clear();
-            z.extend(r.iter().zip(weights).map(|(r, w)| {
-                [
-                    if w[0] > 0.0 { r[0] / (w[0] * (1.0 + extra)) } else { 0.0 },
-                    if w[1] > 0.0 { r[1] / (w[1] * (1.0 + extra)) } else { 0.0 },
-                ]
+            z.extend(r.iter().zip(diagonal).map(|(r, d)| {
+                [if d[0] > 0.0 { r[0] / d[0] } else { 0.0 }, if d[1] > 0.0 { r[1] / d[1] } else { 0.0 }]
             }));
         };
         self.correction.clear();
         self.correction.resize(rows.len(), [0.0; 2]);
         let mut z = std::mem::take(&mut self.preconditioned);
-        precondition(&self.residual, &self.weights, &mut z);
+        precondition(&self.residual, &self.diagonal, &mut z);
         self.direction.clone_from(&z);
         let mut rz = dot(&self.residual, &z);
         let start = rz;
@@ -123,7 +137,7 @@ impl WarmStartModel for ConjugateGradient {
                 break;
             }
             let direction = std::mem::take(&mut self.direction);
-            self.multiply(rows, bodies, extra, &direction);
+            self.multiply(rows, bodies, &direction);
             self.direction = direction;
             let curvature = dot(&self.direction, &self.product);
             if curvature.is_nan() || curvature <= 0.0 {
@@ -138,7 +152,7 @@ impl WarmStartModel for ConjugateGradient {
                     r[k] -= step * q[k];
                 }
             }
-            precondition(&self.residual, &self.weights, &mut z);
+            precondition(&self.residual, &self.diagonal, &mut z);
             let next = dot(&self.residual, &z);
             let beta = next / rz;
             for (p, zi) in self.direction.iter_mut().zip(&z) {
