@@ -148,7 +148,6 @@ impl Completeness {
         self.runs.values().filter(|r| r.ended).count()
     }
 
-    /// Everything announced but not received, one sentence each; empty for a complete run.
     /// The solvers the runs announced, in words, each once (a report compares models only under
     /// one solver; more than one is worth a reader's notice).
     pub fn solvers(&self) -> Vec<String> {
@@ -156,6 +155,7 @@ impl Completeness {
         set.into_iter().cloned().collect()
     }
 
+    /// Everything announced but not received, one sentence each; empty for a complete run.
     pub fn missing(&self) -> Vec<String> {
         let mut out = Vec::new();
         let label = |id: &u64| match self.runs.get(id).and_then(|r| r.model.clone()) {

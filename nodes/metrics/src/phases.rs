@@ -207,8 +207,7 @@ pub const REFERENCE_SWEEP_RATIOS: [f64; 2] = [0.85, 0.5];
 pub fn placement_notes(rows: &[AccuracyRow]) -> Vec<String> {
     let Some(first) = rows.first() else { return Vec::new() };
     let basis = if first.placed_on_same_states { "on the same states" } else { "over whole runs" };
-    let curve =
-        BlendPlacement::from_rows(rows.iter().map(|r| (r.model.as_str(), r.error_vs_builtin, r.placement_sweeps())));
+    let curve = BlendPlacement::of_table(rows);
     let needs: Vec<String> = REFERENCE_SWEEP_RATIOS
         .iter()
         .filter_map(|&target| Some(format!("{target}x needs blend F {}", curve.as_ref()?.by_sweeps(target)?.label())))
@@ -318,6 +317,11 @@ impl BlendPlacement {
         points.sort_by(|a, b| a.0.total_cmp(&b.0));
         // builtin and the oracle alone are no curve: the sweeps between them are far from a line.
         points.iter().any(|p| p.0 > 0.0 && p.0 < 1.0).then_some(BlendPlacement { points })
+    }
+
+    /// The curve of an accuracy table's rows (their placement sweeps: same states or whole runs).
+    pub fn of_table(rows: &[AccuracyRow]) -> Option<Self> {
+        Self::from_rows(rows.iter().map(|r| (r.model.as_str(), r.error_vs_builtin, r.placement_sweeps())))
     }
 
     /// The F whose blend leaves this late-phase error (relative to builtin's). A blend leaves
@@ -510,9 +514,7 @@ impl Aggregate {
         let same_states = rows.iter().all(|r| r.same_states_vs_builtin.is_some());
         let rows: Vec<AccuracyRow> =
             rows.into_iter().map(|r| AccuracyRow { placed_on_same_states: same_states, ..r }).collect();
-        let curve = BlendPlacement::from_rows(
-            rows.iter().map(|r| (r.model.as_str(), r.error_vs_builtin, r.placement_sweeps())),
-        );
+        let curve = BlendPlacement::of_table(&rows);
         rows.into_iter()
             .map(|r| AccuracyRow {
                 blend_by_error: curve.as_ref().zip(r.error_vs_builtin).and_then(|(c, e)| c.by_error(e)),

@@ -61,7 +61,7 @@ impl Default for WorldParams {
             dt: 1.0 / 100.0,
             gravity: [0.0, -9.81],
             solve: SolveParams::default(),
-            oracle: SolveParams { tolerance: 2e-6, max_sweeps: 10_000, compliance: 0.0, relaxation: 1.0 },
+            oracle: SolveParams { tolerance: 2e-6, max_sweeps: 10_000, ..SolveParams::default() },
             position: PositionParams::default(),
             prediction: 0.02,
             contact_margin: 0.0,
