@@ -66,8 +66,13 @@ enum Command {
 
 #[derive(clap::Args, Debug)]
 struct EvalArgs {
-    /// Warm-start models to compare.
-    #[arg(long, value_delimiter = ',', default_value = "none,builtin,copy,copy2,bad,random,grid,copy-grid,unet")]
+    /// Warm-start models to compare, `name` or `name:param`.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "none,builtin,copy,copy2,bad,random,grid,copy-grid,unet",
+        long_help = models_help("Warm-start models to compare, `name` or `name:param` (`blend:0.75`).")
+    )]
     models: Vec<String>,
     /// Model file of the `unet` model (`dc train` writes one; the repository ships a demo model).
     #[arg(long, default_value = "models/unet-demo.dcu")]
@@ -624,4 +629,9 @@ mod tests {
         assert!(train_command(args("--model transformer")).unwrap_err().to_string().contains("unknown model"));
         assert!(train_command(args("--model")).is_err());
     }
+}
+
+/// A `--models` help text followed by the models in their groups.
+fn models_help(what: &str) -> String {
+    format!("{what}\n{}", msgs::models::groups_help())
 }

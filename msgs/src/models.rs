@@ -3,10 +3,39 @@
 
 use crate::topics;
 
+/// The three rooms of the models: what a user runs, what the evaluation measures with, what
+/// research tried.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum ModelGroup {
+    /// What a simulator user runs: computed from what a simulator has.
+    Product,
+    /// Instruments of the evaluation: built from the step's exact solution (the oracle) or
+    /// deliberately poor; they bound and map what a model can gain.
+    Reference,
+    /// Experiments on where the sweeps are (history extrapolation, Galerkin and CG corrections).
+    Probe,
+}
+
+impl ModelGroup {
+    /// Every group, in the order help texts list them.
+    pub const ALL: [ModelGroup; 3] = [ModelGroup::Product, ModelGroup::Reference, ModelGroup::Probe];
+
+    /// The group's heading in help texts.
+    pub fn title(self) -> &'static str {
+        match self {
+            ModelGroup::Product => "product (what a simulator runs)",
+            ModelGroup::Reference => "references (evaluation instruments; need the oracle)",
+            ModelGroup::Probe => "probes (research experiments)",
+        }
+    }
+}
+
 /// One warm-start model.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ModelInfo {
     pub name: &'static str,
+    /// Which room the model belongs to.
+    pub group: ModelGroup,
     /// The topic another node answers this model's warm starts on: a grid topic for the
     /// grid-based models, `warm/gnn` for `gnn-node`; None: computed in the simulator.
     pub served_on: Option<&'static str>,
@@ -42,97 +71,109 @@ pub fn served_on(spec: &str) -> Option<&'static str> {
     parse(spec).ok().and_then(|(m, _)| m.served_on)
 }
 
-const fn plain(name: &'static str, about: &'static str) -> ModelInfo {
-    ModelInfo { name, served_on: None, param: None, about }
+const fn plain(name: &'static str, group: ModelGroup, about: &'static str) -> ModelInfo {
+    ModelInfo { name, group, served_on: None, param: None, about }
 }
 
 /// Every model: the thesis's table, then the oracle ablations and baselines of the accuracy ->
 /// sweeps curve, then the grid-based models.
 pub const MODELS: &[ModelInfo] = &[
-    plain("none", "cold start: zero impulses"),
-    plain("builtin", "the previous step's impulse of each persisting contact, 0 on new ones"),
-    plain("copy", "oracle: the step's problem solved from builtin's warm start to the oracle tolerance"),
-    plain("copy0", "oracle rounded to 0 decimals"),
-    plain("copy2", "oracle rounded to 2 decimals"),
-    plain("bad", "a deliberately wrong warm start (50 everywhere)"),
-    plain("random", "random impulses of the solution's scale"),
+    plain("none", ModelGroup::Product, "cold start: zero impulses"),
+    plain("builtin", ModelGroup::Product, "the previous step's impulse of each persisting contact, 0 on new ones"),
+    plain("copy", ModelGroup::Reference, "oracle: the step's problem solved from builtin's warm start to the oracle tolerance"),
+    plain("copy0", ModelGroup::Reference, "oracle rounded to 0 decimals"),
+    plain("copy2", ModelGroup::Reference, "oracle rounded to 2 decimals"),
+    plain("bad", ModelGroup::Reference, "a deliberately wrong warm start (50 everywhere)"),
+    plain("random", ModelGroup::Reference, "random impulses of the solution's scale"),
     ModelInfo {
         name: "extrapolate",
+        group: ModelGroup::Probe,
         served_on: None,
         param: Some(Param { what: "beta: l1 + beta (l1 - l2)", default: 1.0, min: 0.0, max: 2.0 }),
         about: "damped extrapolation of the last two steps (beta 1: linear)",
     },
     ModelInfo {
         name: "continue",
+        group: ModelGroup::Probe,
         served_on: None,
         param: Some(Param { what: "G: builtin + G x the last solve's remaining distance", default: 1.0, min: 0.0, max: 4.0 }),
         about: "builtin plus G times where the previous solve was still going: its last sweep's change times rate / (1 - rate)",
     },
     ModelInfo {
         name: "subspace",
+        group: ModelGroup::Probe,
         served_on: None,
         param: Some(Param { what: "K: the previous solve's last K sweeps span the correction", default: 2.0, min: 1.0, max: 4.0 }),
         about: "builtin corrected, by the step's own K x K Galerkin system, along the previous solve's last K sweep changes (its slowest modes)",
     },
     ModelInfo {
         name: "coarse",
+        group: ModelGroup::Probe,
         served_on: None,
         param: Some(Param { what: "S: side of a cell in metres", default: 2.0, min: 0.25, max: 1000.0 }),
         about: "builtin plus a coarse-grid correction: the step's own problem solved (Galerkin) within piecewise-uniform stress fields over cells of side S",
     },
     ModelInfo {
         name: "cg",
+        group: ModelGroup::Probe,
         served_on: None,
         param: Some(Param { what: "K: conjugate-gradient iterations (each about a sweep's work)", default: 50.0, min: 0.0, max: 10000.0 }),
         about: "builtin plus K Jacobi-preconditioned CG iterations on the step's own linear problem on builtin's active set (with the solver's compliance; rigid problems regularised by 1e-4 W_ii)",
     },
-    plain("builtin-reappear", "builtin, and a contact new this step that existed two steps ago gets that impulse"),
-    plain("copy-persisting", "oracle on persisting contacts, 0 on new ones"),
-    plain("copy-new", "builtin on persisting contacts, the oracle on new ones"),
-    plain("copy-previous", "the previous step's oracle on persisting contacts, 0 on new: builtin if every solve were finished"),
+    plain("builtin-reappear", ModelGroup::Probe, "builtin, and a contact new this step that existed two steps ago gets that impulse"),
+    plain("copy-persisting", ModelGroup::Reference, "oracle on persisting contacts, 0 on new ones"),
+    plain("copy-new", ModelGroup::Reference, "builtin on persisting contacts, the oracle on new ones"),
+    plain("copy-previous", ModelGroup::Reference, "the previous step's oracle on persisting contacts, 0 on new: builtin if every solve were finished"),
     ModelInfo {
         name: "blend",
+        group: ModelGroup::Reference,
         served_on: None,
         param: Some(Param { what: "F: builtin + F (oracle - builtin)", default: 0.5, min: 0.0, max: 1.0 }),
         about: "a fraction F of builtin's error removed",
     },
     ModelInfo {
         name: "noise",
+        group: ModelGroup::Reference,
         served_on: None,
         param: Some(Param { what: "S: noise of S x builtin's RMS error", default: 1.0, min: 0.0, max: 100.0 }),
         about: "the oracle plus Gaussian noise of S times builtin's RMS error (per step)",
     },
-    plain("smooth-error", "the oracle plus the smooth part of builtin's error (averaged over the contact graph)"),
-    plain("rough-error", "the oracle plus the rest of builtin's error (its local, high-frequency part)"),
-    plain("gnn", "the contact-graph network's correction to builtin (in the simulator, `--gnn-model FILE`)"),
+    plain("smooth-error", ModelGroup::Reference, "the oracle plus the smooth part of builtin's error (averaged over the contact graph)"),
+    plain("rough-error", ModelGroup::Reference, "the oracle plus the rest of builtin's error (its local, high-frequency part)"),
+    plain("gnn", ModelGroup::Product, "the contact-graph network's correction to builtin (in the simulator, `--gnn-model FILE`)"),
     ModelInfo {
         name: "gnn-subspace",
+        group: ModelGroup::Probe,
         served_on: None,
         param: Some(Param { what: "K: the previous solve's last K sweeps beside the network's direction", default: 2.0, min: 0.0, max: 4.0 }),
         about: "the network's correction as a direction only: builtin plus the amplitudes of it and the previous solve's last K sweeps that the step's own Galerkin system picks (`--gnn-model FILE`)",
     },
     ModelInfo {
         name: "gnn-node",
+        group: ModelGroup::Product,
         served_on: Some(topics::WARM_GNN.name),
         param: None,
         about: "the contact-graph network served over the bus by a `dc-gnn` node, builtin when late or down",
     },
-    plain("copy-grid", "oracle through the value-preserving grid transfer and back"),
-    plain("copy-grid-sph", "oracle through the thesis's grid transfer and back"),
+    plain("copy-grid", ModelGroup::Reference, "oracle through the value-preserving grid transfer and back"),
+    plain("copy-grid-sph", ModelGroup::Reference, "oracle through the thesis's grid transfer and back"),
     ModelInfo {
         name: "grid",
+        group: ModelGroup::Product,
         served_on: Some(topics::GRID_CONTACTS.name),
         param: None,
         about: "the previous step's impulses through the SPH node's grid",
     },
     ModelInfo {
         name: "unet",
+        group: ModelGroup::Product,
         served_on: Some(topics::GRID_UNET.name),
         param: None,
         about: "the U-Net's predicted impulse grid",
     },
     ModelInfo {
         name: "unet-delta",
+        group: ModelGroup::Product,
         served_on: Some(topics::GRID_UNET.name),
         param: None,
         about: "builtin plus the U-Net's predicted change on persisting contacts, its value on new ones",
@@ -179,6 +220,18 @@ pub fn spec_name(info: &ModelInfo, param: Option<f32>) -> String {
     }
 }
 
+/// The models by group, one line per group (`product: none, builtin, ...`), for help texts.
+pub fn groups_help() -> String {
+    ModelGroup::ALL
+        .iter()
+        .map(|g| {
+            let names: Vec<&str> = MODELS.iter().filter(|m| m.group == *g).map(|m| m.name).collect();
+            format!("{}: {}", g.title(), names.join(", "))
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
 /// Every model name, comma-separated (for help texts and errors).
 pub fn names_list() -> String {
     MODELS.iter().map(|m| m.name).collect::<Vec<_>>().join(", ")
@@ -203,6 +256,20 @@ mod tests {
         let gnn_node = model("gnn-node").unwrap();
         assert!(!gnn_node.is_grid_based() && gnn_node.served_on == Some(topics::WARM_GNN.name));
         assert!(model("nope").is_none());
+    }
+
+    #[test]
+    fn every_group_is_listed_in_the_help_and_references_are_never_product() {
+        let help = groups_help();
+        assert_eq!(help.lines().count(), 3, "{help}");
+        assert!(help.lines().next().unwrap().contains("builtin") && help.contains("gnn-node"));
+        for m in MODELS {
+            assert!(help.contains(m.name), "{} missing from the help", m.name);
+            // A model that reads the oracle can never be what a simulator runs.
+            if m.about.starts_with("oracle") || m.name.starts_with("copy") {
+                assert_eq!(m.group, ModelGroup::Reference, "{}", m.name);
+            }
+        }
     }
 
     #[test]

@@ -6,7 +6,7 @@
 
 use crate::error::SimError;
 use crate::scene::{BodyKind, Scene, SceneConfig, ShapeSpec};
-use crate::warm::{ModelKind, WarmStarter};
+use crate::warm::ModelKind;
 use crate::world::{World, WorldParams};
 use rapier2d::math::{Pose, Vec2};
 use rapier2d::prelude::{ColliderBuilder, PhysicsWorld, RigidBodyBuilder};
@@ -96,7 +96,7 @@ pub fn rapier_ms_per_step(scene: &Scene, params: &WorldParams, steps: u32) -> f6
 /// filled in by [`run`]).
 pub fn measure(config: &SceneConfig, params: WorldParams, model: ModelKind, steps: u32) -> Result<BenchRow, SimError> {
     let mut world = World::new(config, params)?;
-    let mut warm = WarmStarter::local(model, config.seed)?;
+    let mut warm = model.starter(config.seed)?;
     warm.begin_simulation(0, config.seed);
     let mut sweeps = Vec::with_capacity(steps as usize);
     let (mut solve_us, mut contacts, mut unconverged) = (0.0f64, 0u64, 0u32);

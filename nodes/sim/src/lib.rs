@@ -7,34 +7,30 @@
 //! and narrow phase ([`rapier2d::pipeline::CollisionPipeline`] only), and [`world::World`] moves the
 //! bodies with [`solver::ContactSolver`].
 //!
-//! Modules:
+//! Three rooms, and what they stand on:
+//! - [`solver`]: the contact solver — rows and their algebra, PGS to a tolerance, Box2D's
+//!   position pass; plain data in, impulses out;
+//! - [`world`]: one step as named stages (collide, external forces, warm start, solve,
+//!   integrate, correct positions), measurement in its own module;
+//! - [`warm`]: the warm-start trait and registry, and the models in three groups: product,
+//!   references (need the oracle), probes;
 //! - [`scene`]: ball-box (thesis), drum, mixed; numpy-exact or native sampling;
-//! - [`solver`]: velocity solve (PGS to tolerance) and Box2D's position pass;
 //! - [`contact`]: contact keys and points, the impulse history across steps;
-//! - [`warm`]: the [`warm::WarmStartModel`] trait and its models, fallback handling;
 //! - [`problem`]: the step's velocity problem as data (`problem/*` topics), re-solved exactly;
-//! - [`oracle`]: ablations built from the exact solution and builtin's guess (the accuracy ->
-//!   sweeps curve);
-//! - [`world`]: one step = detect, warm start, solve, integrate, correct;
 //! - [`run`]: the step loop of a run, its control messages, a sink for each step's outputs;
 //! - [`source`]: grids from another node as warm starts, with the producer's fault handling;
 //! - [`bench`]: ms/step against rapier's full pipeline;
 //! - [`rng`]: MT19937 / numpy legacy `RandomState`, xoshiro256++.
 
 pub mod bench;
-pub mod cg;
-pub mod coarse;
 pub mod contact;
 pub mod error;
-pub mod learned;
-pub mod oracle;
 pub mod problem;
 pub mod rng;
 pub mod run;
 pub mod scene;
 pub mod solver;
 pub mod source;
-pub mod subspace;
 pub mod warm;
 pub mod world;
 

@@ -61,9 +61,13 @@ struct Args {
     /// Steps per simulation.
     #[arg(long, default_value_t = 250)]
     steps: u32,
-    /// Warm-start model, `name` or `name:param` (see `msgs::models::MODELS`): none, builtin,
-    /// copy, extrapolate:0.5, blend:0.75, noise:1, grid, unet, ...
-    #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelSpec>())]
+    /// Warm-start model, `name` or `name:param` (`blend:0.75`).
+    #[arg(
+        long,
+        default_value = "builtin",
+        value_parser = |s: &str| s.parse::<ModelSpec>(),
+        long_help = format!("Warm-start model, `name` or `name:param` (`blend:0.75`).\n{}", msgs::models::groups_help())
+    )]
     model: ModelSpec,
     /// Several models, each run in turn as its own run (`none,builtin,copy`); overrides --model.
     #[arg(long, value_delimiter = ',', value_parser = |s: &str| s.parse::<ModelSpec>())]
@@ -256,7 +260,7 @@ fn check(args: &Args) -> Result<()> {
     let files = sim::ModelFiles { gnn: args.gnn_model.clone() };
     for m in if args.models.is_empty() { std::slice::from_ref(&args.model) } else { args.models.as_slice() } {
         if m.served_on().is_none() {
-            m.build_with(args.seed, None, &files)?;
+            m.build_with(args.seed, sim::warm::Served::default(), &files)?;
         }
     }
     sim::Scene::build(&args.scene_config(seeds[0])).context("building the scene")?;
@@ -406,30 +410,32 @@ fn run(args: &Args, node: &runtime::Node, pubs: &mut Publishers, model_kind: Mod
     };
     let simulations: Vec<u32> = spec.seeds.iter().map(|&s| s as u32).collect();
     let files = sim::ModelFiles { gnn: args.gnn_model.clone() };
-    let (model, source): (Box<dyn sim::WarmStartModel>, Option<Box<dyn Drain>>) = match model_kind.grid_topic() {
-        Some(topic) => {
-            let source = std::rc::Rc::new(std::cell::RefCell::new(BusSource::new(
-                BusInbox::open(node, node.subscriber(topic)?)?,
+    // The models another node serves read the bus through a source that the run drains.
+    macro_rules! open_source {
+        ($topic:expr) => {
+            std::rc::Rc::new(std::cell::RefCell::new(BusSource::new(
+                BusInbox::open(node, node.subscriber($topic)?)?,
                 waits,
                 simulations,
-            )));
-            let model = model_kind.build_with(args.seed, Some(Box::new(SourceHandle(source.clone()))), &files)?;
-            (model, Some(Box::new(source)))
+            )))
+        };
+    }
+    let (served, source): (sim::warm::Served, Option<Box<dyn Drain>>) = match (model_kind.grid_topic(), model_kind.kind) {
+        (Some(topic), _) => {
+            let source = open_source!(topic);
+            (sim::warm::Served { grid: Some(Box::new(SourceHandle(source.clone()))), contact: None }, Some(Box::new(source)))
         }
-        None if model_kind.kind == ModelKind::GnnNode => {
-            let source = std::rc::Rc::new(std::cell::RefCell::new(BusSource::new(
-                BusInbox::open(node, node.subscriber(msgs::topics::WARM_GNN)?)?,
-                waits,
-                simulations,
-            )));
+        (None, ModelKind::GnnNode) => {
+            let source = open_source!(msgs::topics::WARM_GNN);
             let pubs = pubs.problem.clone().expect("opened for gnn-node");
-            let send: sim::learned::ProblemSender =
+            let send: sim::warm::ProblemSender =
                 Box::new(move |p| publish_problem(&mut pubs.borrow_mut(), p).map_err(|e| e.to_string()));
-            let model = Box::new(sim::learned::GnnNodeModel::new(send, Box::new(SourceHandle(source.clone()))));
-            (model, Some(Box::new(source)))
+            let contact = Some((send, Box::new(SourceHandle(source.clone())) as Box<dyn sim::warm::ContactWarmSource>));
+            (sim::warm::Served { grid: None, contact }, Some(Box::new(source)))
         }
-        None => (model_kind.build_with(args.seed, None, &files)?, None),
+        (None, _) => (sim::warm::Served::default(), None),
     };
+    let model = model_kind.build_with(args.seed, served, &files)?;
     let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
     let publish_problem = args.publish_problem && model_kind.kind != ModelKind::GnnNode;
     let mut sink = BusSink { pubs, node, source, run_id: spec.run_id, publish_problem };

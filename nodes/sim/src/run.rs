@@ -198,7 +198,7 @@ mod tests {
 
     #[test]
     fn a_run_announces_itself_and_sums_its_steps() {
-        let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+        let mut warm = ModelKind::Builtin.starter(0).unwrap();
         let mut sink = Collect::default();
         let summary = run(&spec(vec![3, 5], 30), &mut warm, &mut sink).unwrap();
         let kinds: Vec<_> = sink.controls.iter().map(|c| c.header.kind().unwrap()).collect();
@@ -220,7 +220,7 @@ mod tests {
 
     #[test]
     fn a_sink_can_stop_the_run() {
-        let mut warm = WarmStarter::local(ModelKind::None, 0).unwrap();
+        let mut warm = ModelKind::None.starter(0).unwrap();
         let mut sink = Collect { stop_at: Some((0, 10)), ..Collect::default() };
         let summary = run(&spec(vec![0, 1], 30), &mut warm, &mut sink).unwrap();
         assert_eq!((summary.steps, sink.steps.len()), (10, 10));

@@ -5,7 +5,7 @@ use sim::{ModelKind, Scene, SceneConfig, SolveParams, WarmStarter, World, WorldP
 use std::time::Instant;
 
 fn run(world: &mut World, model: ModelKind, steps: u32) -> WarmStarter {
-    let mut warm = WarmStarter::local(model, 0).unwrap();
+    let mut warm = model.starter(0).unwrap();
     warm.begin_simulation(0, world.scene().config.seed);
     for _ in 0..steps {
         world.step(&mut warm);
@@ -24,7 +24,7 @@ fn single_ball_world() -> World {
 fn resting_ball_does_not_sink() {
     let mut world = single_ball_world();
     let slop = world.params().position.slop;
-    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+    let mut warm = ModelKind::Builtin.starter(0).unwrap();
     let mut max_speed_early = 0.0f32;
     let mut max_speed_late = 0.0f32;
     let mut lowest = f32::MAX;
@@ -55,7 +55,7 @@ fn resting_ball_does_not_sink() {
 #[test]
 fn pile_settles_and_total_energy_decays() {
     let mut world = World::new(&SceneConfig { seed: 0, ..Default::default() }, WorldParams::default()).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+    let mut warm = ModelKind::Builtin.starter(0).unwrap();
     let e0 = world.energy();
     let mut energies = vec![e0];
     for _ in 0..400 {
@@ -104,7 +104,7 @@ fn nothing_tunnels_out_of_the_box_in_1000_steps_at_n_1000() {
         ..Default::default()
     };
     let mut world = World::new(&SceneConfig { n: 1000, seed: 4, ..Default::default() }, params).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+    let mut warm = ModelKind::Builtin.starter(0).unwrap();
     let mut sweeps = 0u64;
     for k in 0..1000 {
         sweeps += world.step(&mut warm).sweeps as u64;

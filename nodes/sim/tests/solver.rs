@@ -2,7 +2,7 @@
 //! oracle warm start, and the ordering of warm-start models by total sweeps.
 
 use sim::solver::{relative_velocity, row_masses};
-use sim::{ModelKind, SceneConfig, SolveParams, WarmStarter, World, WorldParams};
+use sim::{ModelKind, SceneConfig, SolveParams, World, WorldParams};
 
 /// Checks the velocity-level LCP of the last step to tolerance; returns the number of contacts checked.
 ///
@@ -44,7 +44,7 @@ fn complementarity_conditions_hold_at_convergence_for_every_contact() {
     for (seed, model) in [(1u64, ModelKind::None), (2, ModelKind::Builtin), (3, ModelKind::Random)] {
         let params = WorldParams::default();
         let mut world = World::new(&SceneConfig { seed, ..Default::default() }, params).unwrap();
-        let mut warm = WarmStarter::local(model, 0).unwrap();
+        let mut warm = model.starter(0).unwrap();
         warm.begin_simulation(0, seed);
         let mut checked = 0;
         for _ in 0..250 {
@@ -64,7 +64,7 @@ fn over_relaxed_solves_satisfy_the_same_complementarity_conditions() {
     let solve = SolveParams { relaxation: 1.4, ..Default::default() };
     let params = WorldParams { solve, ..Default::default() };
     let mut world = World::new(&SceneConfig { seed: 4, ..Default::default() }, params).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+    let mut warm = ModelKind::Builtin.starter(0).unwrap();
     warm.begin_simulation(0, 4);
     let (mut checked, mut converged) = (0, 0);
     for _ in 0..250 {
@@ -86,7 +86,7 @@ fn over_relaxed_solves_satisfy_the_same_complementarity_conditions() {
 fn copy_warm_start_converges_in_two_sweeps() {
     let config = SceneConfig { seed: 4, friction: 0.0, ..Default::default() };
     let mut world = World::new(&config, WorldParams::default()).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::Copy, 0).unwrap();
+    let mut warm = ModelKind::Copy.starter(0).unwrap();
     let mut checked = 0;
     for _ in 0..250 {
         let s = world.step(&mut warm).clone();
@@ -108,7 +108,7 @@ fn copy_warm_start_converges_in_two_sweeps() {
 #[test]
 fn copy_with_friction_restarts_from_a_converged_solution_cheaply() {
     let mut world = World::new(&SceneConfig { seed: 4, ..Default::default() }, WorldParams::default()).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::Copy, 0).unwrap();
+    let mut warm = ModelKind::Copy.starter(0).unwrap();
     let (mut restart_sweeps, mut oracle_sweeps, mut margin_steps) = (0u64, 0u64, 0);
     for _ in 0..250 {
         let s = world.step(&mut warm).clone();
@@ -131,7 +131,7 @@ fn unconverged_solves_are_reported_as_such() {
         ..Default::default()
     };
     let mut world = World::new(&SceneConfig { seed: 4, ..Default::default() }, params).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::None, 0).unwrap();
+    let mut warm = ModelKind::None.starter(0).unwrap();
     let mut capped = 0;
     for _ in 0..150 {
         let s = world.step(&mut warm);
@@ -149,7 +149,7 @@ fn total_sweeps(model: ModelKind) -> u64 {
     let mut total = 0;
     for seed in 0..10u64 {
         let mut world = World::new(&SceneConfig { seed, ..Default::default() }, WorldParams::default()).unwrap();
-        let mut warm = WarmStarter::local(model, 0).unwrap();
+        let mut warm = model.starter(0).unwrap();
         warm.begin_simulation(seed as u32, seed);
         for _ in 0..250 {
             total += world.step(&mut warm).sweeps as u64;

@@ -68,7 +68,7 @@ fn late_grid_falls_back_to_the_named_model_and_is_counted() {
 #[test]
 fn builtin_reuses_persisting_impulses_and_counts_them() {
     let mut world = World::new(&SceneConfig { seed: 6, ..Default::default() }, WorldParams::default()).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+    let mut warm = ModelKind::Builtin.starter(0).unwrap();
     let mut previous: Vec<(sim::ContactKey, sim::Impulse)> = Vec::new();
     let mut persisting_seen = 0;
     for _ in 0..200 {
@@ -176,7 +176,7 @@ fn an_untrained_contact_graph_network_is_builtin_exactly() {
     assert!(err.contains("--gnn-model"), "{err}");
     let files = sim::ModelFiles { gnn: Some(path) };
     let run = |spec: &ModelSpec| -> Vec<u32> {
-        let mut warm = WarmStarter::new(spec.build_with(0, None, &files).unwrap(), ModelKind::None.build(0).unwrap());
+        let mut warm = WarmStarter::new(spec.build_with(0, sim::warm::Served::default(), &files).unwrap(), ModelKind::None.build(0).unwrap());
         warm.begin_simulation(0, 0);
         let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
         (0..150)

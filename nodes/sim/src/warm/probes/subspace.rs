@@ -12,9 +12,11 @@
 //! `J M^-1 J^T`: a K x K Galerkin system. It costs K + 1 passes over the rows, about as much
 //! work as K + 1 sweeps. Not learned: the solver's own history is the basis.
 
+use super::galerkin::{builtin_step, BuiltinStep};
 use crate::contact::ContactPoint;
-use crate::solver::{tangent_of, ContactRow, Impulse, SolverBody, TRAIL_SWEEPS};
-use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
+use crate::solver::rows::{apply, axpy, dot, relative, Impulse};
+use crate::solver::TRAIL_SWEEPS;
+use crate::warm::model::{Needs, Unavailable, WarmStartInput, WarmStartModel};
 
 /// The most basis vectors: the solver's kept sweeps and one model's direction.
 pub const MAX_DIMENSIONS: usize = TRAIL_SWEEPS + 1;
@@ -74,23 +76,23 @@ impl WarmStartModel for Subspace {
         &self.name
     }
 
-    fn wants_problem(&self) -> bool {
-        self.direction.as_ref().is_some_and(|m| m.wants_problem())
+    fn needs(&self) -> Needs {
+        let own = Needs { rows: true, ..Needs::default() };
+        self.direction.as_ref().map_or(own, |m| own.union(m.needs()))
     }
 
-    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+    fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
         if let Some(model) = &mut self.direction {
             self.guess.clear();
             self.guess.resize(out.len(), Impulse::default());
             model.warm_start(input, &mut self.guess)?;
         }
         // Nothing to correct against (no rows given): builtin as it is.
-        let Some(BuiltinStep { active, compliance }) =
+        let Some(BuiltinStep { rows, bodies, active, compliance }) =
             builtin_step(input, out, &mut self.velocities, &mut self.residual)
         else {
             return Ok(());
         };
-        let (rows, bodies) = (input.rows, input.bodies);
 
         // The basis: the model's direction, then the previous solve's last sweeps, on the active
         // rows, orthonormalised.
@@ -166,99 +168,6 @@ impl WarmStartModel for Subspace {
     }
 }
 
-/// builtin's guess for a Galerkin correction to start from: its active set and the solver's
-/// per-row compliance (`None`: rigid).
-pub(crate) struct BuiltinStep {
-    pub active: Vec<[bool; 2]>,
-    pub compliance: Option<Vec<[f64; 2]>>,
-}
-
-/// Writes builtin's guess into `out`, projected onto the friction cone, and into `residual` what
-/// the step's own problem (with its compliance) still asks on the guess's active rows; `None`,
-/// with builtin's guess as it is, when the input carries no solver rows.
-pub(crate) fn builtin_step(
-    input: &WarmStartInput<'_>,
-    out: &mut [Impulse],
-    velocities: &mut Vec<[f64; 3]>,
-    residual: &mut Vec<[f64; 2]>,
-) -> Option<BuiltinStep> {
-    input.history.fill_previous(input.contacts, out);
-    let (rows, bodies) = (input.rows, input.bodies);
-    if rows.len() != out.len() || rows.is_empty() {
-        return None;
-    }
-    let active = project_to_cone(rows, out);
-    step_residual(bodies, rows, out, &active, velocities, residual);
-    let compliance = row_compliance(rows, bodies, input.compliance);
-    if let Some(c) = &compliance {
-        add_compliance_residual(c, out, &active, residual);
-    }
-    Some(BuiltinStep { active, compliance })
-}
-
-/// Projects a guess onto the friction cone as the solver will, and says which rows are active
-/// there: `[normal closed, tangent sticking]`. A Galerkin correction moves only active rows.
-pub(crate) fn project_to_cone(rows: &[ContactRow], out: &mut [Impulse]) -> Vec<[bool; 2]> {
-    rows.iter()
-        .zip(out.iter_mut())
-        .map(|(row, o)| {
-            o.normal = o.normal.max(0.0);
-            let t_max = row.friction * o.normal;
-            o.tangent = o.tangent.clamp(-t_max, t_max);
-            let closed = o.normal > 0.0;
-            [closed, closed && o.tangent.abs() < 0.999 * row.friction * o.normal]
-        })
-        .collect()
-}
-
-/// What the step's problem still asks after the guess `out`: minus the relative velocity of the
-/// active rows (0 on the others). `velocities` is scratch.
-pub(crate) fn step_residual(
-    bodies: &[SolverBody],
-    rows: &[ContactRow],
-    out: &[Impulse],
-    active: &[[bool; 2]],
-    velocities: &mut Vec<[f64; 3]>,
-    residual: &mut Vec<[f64; 2]>,
-) {
-    velocities.clear();
-    velocities.extend(bodies.iter().map(|b| [b.v.x as f64, b.v.y as f64, b.w as f64]));
-    for (row, o) in rows.iter().zip(out.iter()) {
-        apply(velocities, bodies, row, [o.normal as f64, o.tangent as f64]);
-    }
-    residual.clear();
-    residual.extend(rows.iter().zip(active).map(|(row, act)| {
-        let [vn, vt] = relative(velocities, row);
-        [if act[0] { -vn } else { 0.0 }, if act[1] { -vt } else { 0.0 }]
-    }));
-}
-
-/// Per row the compliance term `[C_nn, C_tt]` of the solver (`gamma W_ii`: the row asks
-/// `u + C lambda = 0`), or `None` for rigid contacts.
-fn row_compliance(rows: &[ContactRow], bodies: &[SolverBody], gamma: f32) -> Option<Vec<[f64; 2]>> {
-    (gamma > 0.0).then(|| {
-        rows.iter()
-            .map(|row| {
-                let (mn, mt) = crate::solver::row_masses(row, bodies);
-                let c = |m: f32| if m > 0.0 { gamma as f64 / m as f64 } else { 0.0 };
-                [c(mn), c(mt)]
-            })
-            .collect()
-    })
-}
-
-/// With compliance, the step still asks `-C lambda` of the guess's active rows.
-fn add_compliance_residual(compliance: &[[f64; 2]], out: &[Impulse], active: &[[bool; 2]], residual: &mut [[f64; 2]]) {
-    for (((c, o), act), r) in compliance.iter().zip(out).zip(active).zip(residual.iter_mut()) {
-        if act[0] {
-            r[0] -= c[0] * o.normal as f64;
-        }
-        if act[1] {
-            r[1] -= c[1] * o.tangent as f64;
-        }
-    }
-}
-
 /// Sweep `-j` of the previous solve's trail per contact, `[normal, tangent]`, zero on inactive
 /// rows and new contacts.
 fn fill_trail(
@@ -277,49 +186,6 @@ fn fill_trail(
     }));
 }
 
-/// The generalised impulse `J^T [normal, tangent]` of a row on each of its two bodies: per body
-/// its index and `(x, y, torque)`.
-pub(crate) fn body_impulses(row: &ContactRow, [n, t]: [f64; 2]) -> [(usize, [f64; 3]); 2] {
-    let (normal, tangent) = (row.normal, tangent_of(row.normal));
-    let p = [normal.x as f64 * n + tangent.x as f64 * t, normal.y as f64 * n + tangent.y as f64 * t];
-    [(row.body_a as usize, row.ra, -1.0), (row.body_b as usize, row.rb, 1.0)].map(|(body, r, sign)| {
-        let torque = r.x as f64 * p[1] - r.y as f64 * p[0];
-        (body, [sign * p[0], sign * p[1], sign * torque])
-    })
-}
-
-/// Adds the velocity change of impulse `[normal, tangent]` at `row` to `v` (per body vx, vy, w).
-pub(crate) fn apply(v: &mut [[f64; 3]], bodies: &[SolverBody], row: &ContactRow, impulse: [f64; 2]) {
-    for (body, j) in body_impulses(row, impulse) {
-        let (im, ii) = (bodies[body].inv_mass as f64, bodies[body].inv_inertia as f64);
-        v[body][0] += im * j[0];
-        v[body][1] += im * j[1];
-        v[body][2] += ii * j[2];
-    }
-}
-
-/// Relative velocity of b with respect to a at the row's point: `[normal, tangent]`.
-pub(crate) fn relative(v: &[[f64; 3]], row: &ContactRow) -> [f64; 2] {
-    let at = |body: usize, r: rapier2d::math::Vec2| {
-        let [vx, vy, w] = v[body];
-        [vx - w * r.y as f64, vy + w * r.x as f64]
-    };
-    let (a, b) = (at(row.body_a as usize, row.ra), at(row.body_b as usize, row.rb));
-    let d = [b[0] - a[0], b[1] - a[1]];
-    let (n, t) = (row.normal, tangent_of(row.normal));
-    [d[0] * n.x as f64 + d[1] * n.y as f64, d[0] * t.x as f64 + d[1] * t.y as f64]
-}
-
-pub(crate) fn dot(a: &[[f64; 2]], b: &[[f64; 2]]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1]).sum()
-}
-
-fn axpy(z: &mut [[f64; 2]], a: f64, x: &[[f64; 2]]) {
-    for (zi, xi) in z.iter_mut().zip(x) {
-        zi[0] += a * xi[0];
-        zi[1] += a * xi[1];
-    }
-}
 
 /// Solves the symmetric positive semi-definite `n x n` system by Cholesky, with a ridge of 1e-10
 /// of its trace (a direction the step's problem cannot see gets no correction). `None` when the
@@ -384,8 +250,9 @@ mod tests {
     }
 
     use crate::contact::{ImpulseHistory, SolveTrail};
-    use crate::solver::tests::{ball, floor_row};
-    use crate::warm::tests::{floor_contact, guess_on_rows};
+    use crate::solver::rows::fixtures::{ball, floor_row};
+    use crate::solver::rows::SolverBody;
+    use crate::warm::model::harness::{floor_contact, guess_on_rows};
     use rapier2d::math::Vec2;
 
     /// Ground (fixed) and two balls falling at 1 and 2 (velocity after gravity), each on one
@@ -431,7 +298,7 @@ mod tests {
         fn name(&self) -> &str {
             "nudge"
         }
-        fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
             input.history.fill_previous(input.contacts, out);
             for o in out.iter_mut() {
                 (o.normal, o.tangent) = (o.normal + self.0.normal, o.tangent + self.0.tangent);

@@ -12,9 +12,9 @@
 //! Not learned: it measures what a global linear solve from builtin buys, which a learned model
 //! would have to approximate to pay.
 
-use crate::solver::{row_masses, ContactRow, Impulse, SolverBody};
-use crate::subspace::{apply, builtin_step, dot, relative, BuiltinStep};
-use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
+use super::galerkin::{builtin_step, BuiltinStep};
+use crate::solver::rows::{apply, dot, relative, row_masses, ContactRow, Impulse, SolverBody};
+use crate::warm::model::{Needs, Unavailable, WarmStartInput, WarmStartModel};
 
 /// Regularisation of a rigid problem, relative to each row's `W_ii` (the best of the uncounted
 /// probe's 1e-4 / 1e-3).
@@ -81,17 +81,20 @@ impl WarmStartModel for ConjugateGradient {
         &self.name
     }
 
-    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+    fn needs(&self) -> Needs {
+        Needs { rows: true, ..Needs::default() }
+    }
+
+    fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
         if self.iterations == 0 {
             input.history.fill_previous(input.contacts, out);
             return Ok(());
         }
-        let Some(BuiltinStep { active, compliance }) =
+        let Some(BuiltinStep { rows, bodies, active, compliance }) =
             builtin_step(input, out, &mut self.velocities, &mut self.residual)
         else {
             return Ok(());
         };
-        let (rows, bodies) = (input.rows, input.bodies);
         // Per active row: W_ii (1 / effective mass); the shift is the compliance's C_ii or, for a
         // rigid problem, the regularisation's RIGID_REGULARISATION W_ii; rows the system leaves
         // out (inactive, or between fixed bodies) owe nothing.
@@ -177,8 +180,8 @@ impl WarmStartModel for ConjugateGradient {
 mod tests {
     use super::*;
     use crate::contact::ImpulseHistory;
-    use crate::solver::tests::{ball, floor_row};
-    use crate::warm::tests::{floor_contact, guess_on_rows};
+    use crate::solver::rows::fixtures::{ball, floor_row};
+    use crate::warm::model::harness::{floor_contact, guess_on_rows};
     use rapier2d::math::Vec2;
 
     /// Ground and a unit-mass ball falling at 1 on two contact rows at the same point; builtin

@@ -5,8 +5,8 @@
 
 use crate::contact::{ContactKey, ContactPoint};
 use crate::rng::{Sampler, Xoshiro};
-use crate::solver::Impulse;
-use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
+use crate::solver::rows::Impulse;
+use crate::warm::model::{exact_solution, Needs, Unavailable, WarmStartInput, WarmStartModel};
 
 /// What an ablation does with the oracle's solution and builtin's guess.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,6 +40,8 @@ pub struct OracleAblation {
     exact: Vec<Impulse>,
     error: Vec<Impulse>,
     smooth: Vec<Impulse>,
+    /// Per body: infinite mass (static or kinematic), from the step's solver bodies.
+    fixed: Vec<bool>,
     /// The previous step's exact solution, sorted by key (`copy-previous`).
     previous_exact: Vec<(ContactKey, Impulse)>,
 }
@@ -54,6 +56,7 @@ impl OracleAblation {
             exact: Vec::new(),
             error: Vec::new(),
             smooth: Vec::new(),
+            fixed: Vec::new(),
             previous_exact: Vec::new(),
         }
     }
@@ -64,17 +67,21 @@ impl WarmStartModel for OracleAblation {
         &self.name
     }
 
+    fn needs(&self) -> Needs {
+        // The smoothing links contacts through moving bodies: it reads which bodies are fixed.
+        Needs { exact: true, rows: true, ..Needs::default() }
+    }
+
     fn begin_simulation(&mut self, _simulation: u32, seed: u64) {
         // Its own stream per simulation, apart from the scene sampler's and `random`'s.
         self.rng = Xoshiro::new(self.seed ^ seed.wrapping_mul(0xd1b5_4a32_d192_ed03) ^ 0xab1a);
         self.previous_exact.clear();
     }
 
-    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+    fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
         let n = input.contacts.len();
         self.exact.clear();
-        self.exact.resize(n, Impulse::default());
-        (input.oracle)(&mut self.exact);
+        self.exact.extend_from_slice(exact_solution(input)?);
         input.history.fill_previous(input.contacts, out);
         // builtin's error, exact - builtin... stored as builtin - exact (what the guess adds).
         self.error.clear();
@@ -124,7 +131,11 @@ impl WarmStartModel for OracleAblation {
                 }
             }
             Ablation::SmoothError | Ablation::RoughError => {
-                smooth_over_contacts(input.contacts, input.fixed, &self.error, SMOOTHING_PASSES, &mut self.smooth);
+                self.fixed.clear();
+                if let Some(step) = input.rows {
+                    self.fixed.extend(step.bodies.iter().map(|b| b.inv_mass == 0.0));
+                }
+                smooth_over_contacts(input.contacts, &self.fixed, &self.error, SMOOTHING_PASSES, &mut self.smooth);
                 let rough = self.ablation == Ablation::RoughError;
                 for (((o, e), err), sm) in out.iter_mut().zip(&self.exact).zip(&self.error).zip(&self.smooth) {
                     let (dn, dt) = if rough {
@@ -229,7 +240,7 @@ mod tests {
         model.begin_simulation(0, 0);
         let mut history = ImpulseHistory::default();
         let mut step = |contacts: &[ContactPoint], exact: &[Impulse], history: &ImpulseHistory| {
-            crate::warm::tests::guess_with_oracle(&mut model, contacts, history, exact)
+            crate::warm::model::harness::guess_with_exact(&mut model, contacts, history, exact)
         };
         let first = [contact(0, 1), contact(0, 2)];
         assert_eq!(step(&first, &[imp(1.0), imp(2.0)], &history), [imp(0.0), imp(0.0)], "no past: zero");

@@ -15,9 +15,9 @@
 
 use std::collections::HashMap;
 
-use crate::solver::{tangent_of, ContactRow, Impulse};
-use crate::subspace::{body_impulses, builtin_step, BuiltinStep};
-use crate::warm::{Unavailable, WarmStartInput, WarmStartModel};
+use super::galerkin::{builtin_step, BuiltinStep};
+use crate::solver::rows::{body_impulses, tangent_of, ContactRow, Impulse};
+use crate::warm::model::{Needs, Unavailable, WarmStartInput, WarmStartModel};
 
 /// Basis vectors per cell: the stress components xx, yy, xy.
 const PER_CELL: usize = 3;
@@ -63,13 +63,16 @@ impl WarmStartModel for Coarse {
         &self.name
     }
 
-    fn warm_start(&mut self, input: &mut WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-        let Some(BuiltinStep { active, compliance }) =
+    fn needs(&self) -> Needs {
+        Needs { rows: true, ..Needs::default() }
+    }
+
+    fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        let Some(BuiltinStep { rows, bodies, active, compliance }) =
             builtin_step(input, out, &mut self.velocities, &mut self.residual)
         else {
             return Ok(());
         };
-        let (rows, bodies) = (input.rows, input.bodies);
 
         // Cells numbered in the order rows (sorted by contact key) first meet them: deterministic.
         let cells = &mut self.cells;
@@ -210,9 +213,9 @@ mod tests {
     }
 
     use crate::contact::ImpulseHistory;
-    use crate::solver::tests::{ball, floor_row};
-    use crate::solver::SolverBody;
-    use crate::warm::tests::{floor_contact, guess_on_rows};
+    use crate::solver::rows::fixtures::{ball, floor_row};
+    use crate::solver::rows::SolverBody;
+    use crate::warm::model::harness::{floor_contact, guess_on_rows};
     use rapier2d::math::Vec2;
 
     /// Ground (fixed) and two unit-mass balls falling at 1 and 2 (velocity after gravity), each

@@ -1,77 +1,19 @@
-//! The contact solver, in the style of Box2D 2.3 (sequential impulses), but iterated to a tolerance
-//! from any warm start and with its sweeps counted.
+//! Projected Gauss-Seidel, in the style of Box2D 2.3 (sequential impulses), but iterated to a
+//! tolerance from any warm start and with its sweeps counted.
 //!
-//! - Velocity phase ([`ContactSolver::solve`]): apply the warm-start impulses to the velocities
-//!   (Box2D's `WarmStart`), then projected Gauss-Seidel sweeps over the contact rows, each contact's
-//!   tangent row (bounded by `mu * lambda_n`) before its normal row (`lambda_n >= 0`). A sweep's
-//!   residual is the largest absolute impulse change it made; the solve has converged when that is
-//!   at most the tolerance. No Baumgarte bias enters the velocity solve (restitution 0), so the
-//!   converged impulses solve the plain velocity-level LCP and can be checked against it.
-//! - Position phase ([`correct_positions`]): Box2D 2.3's non-linear Gauss-Seidel pass after the
-//!   positions were integrated, pushing penetrations back to the linear slop.
+//! Apply the warm-start impulses to the velocities (Box2D's `WarmStart`), then projected
+//! Gauss-Seidel sweeps over the contact rows, each contact's tangent row (bounded by
+//! `mu * lambda_n`) before its normal row (`lambda_n >= 0`). A sweep's residual is the largest
+//! absolute impulse change it made; the solve has converged when that is at most the tolerance.
+//! No Baumgarte bias enters the velocity solve (restitution 0), so the converged impulses solve
+//! the plain velocity-level LCP and can be checked against it.
 //!
 //! No Box2D block solver for two-point manifolds: every point is its own row, which keeps the
 //! iteration count comparable across warm-start models and the complementarity check simple.
 //! The solver owns only reusable buffers; bodies and contact rows are passed in.
 
+use super::rows::{cross, cross_sv, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use rapier2d::math::Vec2;
-
-/// 2D cross product of two vectors (a scalar).
-#[inline]
-fn cross(a: Vec2, b: Vec2) -> f32 {
-    a.x * b.y - a.y * b.x
-}
-
-/// Cross product of a scalar (angular velocity) and a vector: `w x r`.
-#[inline]
-fn cross_sv(w: f32, r: Vec2) -> Vec2 {
-    Vec2::new(-w * r.y, w * r.x)
-}
-
-/// The tangent of a contact normal, Box2D's `b2Cross(normal, 1.0f)`.
-#[inline]
-pub fn tangent_of(n: Vec2) -> Vec2 {
-    Vec2::new(n.y, -n.x)
-}
-
-/// A contact impulse: along the normal and along the tangent ([`tangent_of`] the normal).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Impulse {
-    /// Normal impulse (>= 0 at a solution).
-    pub normal: f32,
-    /// Tangent (friction) impulse (`|t| <= mu * normal` at a solution).
-    pub tangent: f32,
-}
-
-/// The velocity state and inverse mass properties of one body, as the solver sees it.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct SolverBody {
-    /// Linear velocity of the centre of mass.
-    pub v: Vec2,
-    /// Angular velocity.
-    pub w: f32,
-    /// Inverse mass (0 for static and kinematic bodies).
-    pub inv_mass: f32,
-    /// Inverse moment of inertia about the centre of mass (0 for static and kinematic bodies).
-    pub inv_inertia: f32,
-}
-
-/// One contact point as the velocity solver needs it.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct ContactRow {
-    /// Index of body a in the solver's body slice.
-    pub body_a: u32,
-    /// Index of body b.
-    pub body_b: u32,
-    /// From body a's centre of mass to the contact point.
-    pub ra: Vec2,
-    /// From body b's centre of mass to the contact point.
-    pub rb: Vec2,
-    /// Unit normal from a to b.
-    pub normal: Vec2,
-    /// Friction coefficient.
-    pub friction: f32,
-}
 
 /// Stopping rule of the velocity solve.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -147,36 +89,6 @@ struct Prepared {
     mu: f32,
     normal_mass: f32,
     tangent_mass: f32,
-}
-
-/// Effective mass `1 / (J M^-1 J^T)` of a row with direction `d` (0 when both bodies are fixed).
-#[inline]
-fn effective_mass(a: &SolverBody, b: &SolverBody, ra: Vec2, rb: Vec2, d: Vec2) -> f32 {
-    let rda = cross(ra, d);
-    let rdb = cross(rb, d);
-    let k = a.inv_mass + b.inv_mass + a.inv_inertia * rda * rda + b.inv_inertia * rdb * rdb;
-    if k > 0.0 {
-        1.0 / k
-    } else {
-        0.0
-    }
-}
-
-/// Relative velocity of b with respect to a at a row's contact point: `(normal, tangent)` parts.
-#[inline]
-pub fn relative_velocity(row: &ContactRow, bodies: &[SolverBody]) -> (f32, f32) {
-    let a = &bodies[row.body_a as usize];
-    let b = &bodies[row.body_b as usize];
-    let dv = b.v + cross_sv(b.w, row.rb) - a.v - cross_sv(a.w, row.ra);
-    (dv.dot(row.normal), dv.dot(tangent_of(row.normal)))
-}
-
-/// Effective masses of a row's `(normal, tangent)` directions: a unit impulse change moves the
-/// row's relative velocity by `1 / mass`.
-pub fn row_masses(row: &ContactRow, bodies: &[SolverBody]) -> (f32, f32) {
-    let a = &bodies[row.body_a as usize];
-    let b = &bodies[row.body_b as usize];
-    (effective_mass(a, b, row.ra, row.rb, row.normal), effective_mass(a, b, row.ra, row.rb, tangent_of(row.normal)))
 }
 
 /// Sequential-impulse contact solver: reusable buffers only, no world state.
@@ -377,154 +289,11 @@ fn apply(bodies: &mut [SolverBody], c: &Prepared, p: Vec2) {
     b.w += b.inv_inertia * cross(c.rb, p);
 }
 
-/// How the position pass measures one contact's separation from the current poses.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum PositionGeometry {
-    /// Two discs centred on their bodies' origins (Box2D `e_circles`): the normal follows the centres.
-    Circles {
-        /// Radius of body a's disc.
-        radius_a: f32,
-        /// Radius of body b's disc.
-        radius_b: f32,
-    },
-    /// A reference face fixed in one body's frame and a clip point fixed in the other's (Box2D
-    /// `e_faceA` / `e_faceB`); a disc's clip point is its centre with its radius.
-    Face {
-        /// Whether body a carries the reference face (else body b).
-        reference_is_a: bool,
-        /// Outward normal of the reference face, in the reference body's frame.
-        local_normal: Vec2,
-        /// A point on the reference face, in the reference body's frame.
-        local_plane_point: Vec2,
-        /// The incident point, in the other body's frame.
-        local_clip_point: Vec2,
-        /// Radius around the clip point (a disc's radius, else 0).
-        clip_radius: f32,
-    },
-}
-
-/// One contact point as the position pass needs it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PositionRow {
-    /// Index of body a.
-    pub body_a: u32,
-    /// Index of body b.
-    pub body_b: u32,
-    /// How its separation is measured.
-    pub geometry: PositionGeometry,
-}
-
-/// Parameters of the position pass (Box2D 2.3's values by default).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PositionParams {
-    /// Fraction of the overlap removed per iteration (`b2_baumgarte`).
-    pub baumgarte: f32,
-    /// Overlap allowed to remain, so contacts persist (`b2_linearSlop`).
-    pub slop: f32,
-    /// Largest correction per point and iteration (`b2_maxLinearCorrection`).
-    pub max_correction: f32,
-    /// Iterations (`positionIterations`); stops early once every overlap is within 3 slops.
-    pub iterations: u32,
-}
-
-impl Default for PositionParams {
-    fn default() -> Self {
-        PositionParams { baumgarte: 0.2, slop: 0.0005, max_correction: 0.2, iterations: 3 }
-    }
-}
-
-/// A body's pose as the position pass moves it.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct PoseBody {
-    /// Position of the centre of mass.
-    pub x: Vec2,
-    /// Orientation, radians.
-    pub angle: f32,
-    /// Inverse mass (0: not moved).
-    pub inv_mass: f32,
-    /// Inverse moment of inertia.
-    pub inv_inertia: f32,
-}
-
-#[inline]
-pub(crate) fn rotate(angle: f32, v: Vec2) -> Vec2 {
-    let (s, c) = angle.sin_cos();
-    Vec2::new(c * v.x - s * v.y, s * v.x + c * v.y)
-}
-
-/// Normal (a to b), contact point and separation of a position row at the current poses.
-pub fn measure(row: &PositionRow, poses: &[PoseBody]) -> (Vec2, Vec2, f32) {
-    let a = &poses[row.body_a as usize];
-    let b = &poses[row.body_b as usize];
-    match row.geometry {
-        PositionGeometry::Circles { radius_a, radius_b } => {
-            let d = b.x - a.x;
-            let len = d.length();
-            let n = if len > f32::EPSILON { d / len } else { Vec2::Y };
-            let pa = a.x + n * radius_a;
-            let pb = b.x - n * radius_b;
-            (n, (pa + pb) * 0.5, len - radius_a - radius_b)
-        }
-        PositionGeometry::Face { reference_is_a, local_normal, local_plane_point, local_clip_point, clip_radius } => {
-            let (r, i) = if reference_is_a { (a, b) } else { (b, a) };
-            let n_ref = rotate(r.angle, local_normal);
-            let plane = r.x + rotate(r.angle, local_plane_point);
-            let clip = i.x + rotate(i.angle, local_clip_point);
-            let sep = (clip - plane).dot(n_ref) - clip_radius;
-            let point = clip - n_ref * clip_radius;
-            let n = if reference_is_a { n_ref } else { -n_ref };
-            (n, point, sep)
-        }
-    }
-}
-
-/// Box2D 2.3's position pass (`SolvePositionConstraints`): non-linear Gauss-Seidel on the
-/// separations, each point pushing its overlap beyond the slop back by a Baumgarte fraction.
-/// Returns the smallest separation seen in the last iteration.
-pub fn correct_positions(rows: &[PositionRow], poses: &mut [PoseBody], params: &PositionParams) -> f32 {
-    let mut min_separation = 0.0f32;
-    for _ in 0..params.iterations {
-        min_separation = 0.0;
-        for row in rows {
-            let (n, point, sep) = measure(row, poses);
-            let (ia, ib) = (row.body_a as usize, row.body_b as usize);
-            let (a, b) = (poses[ia], poses[ib]);
-            let ra = point - a.x;
-            let rb = point - b.x;
-            min_separation = min_separation.min(sep);
-            let c = (params.baumgarte * (sep + params.slop)).clamp(-params.max_correction, 0.0);
-            let rna = cross(ra, n);
-            let rnb = cross(rb, n);
-            let k = a.inv_mass + b.inv_mass + a.inv_inertia * rna * rna + b.inv_inertia * rnb * rnb;
-            let impulse = if k > 0.0 { -c / k } else { 0.0 };
-            let p = n * impulse;
-            let pa = &mut poses[ia];
-            pa.x -= p * pa.inv_mass;
-            pa.angle -= pa.inv_inertia * cross(ra, p);
-            let pb = &mut poses[ib];
-            pb.x += p * pb.inv_mass;
-            pb.angle += pb.inv_inertia * cross(rb, p);
-        }
-        if min_separation >= -3.0 * params.slop {
-            break;
-        }
-    }
-    min_separation
-}
-
 #[cfg(test)]
-pub(crate) mod tests {
+mod tests {
     use super::*;
-
-    /// A unit-mass ball moving at `v`.
-    pub(crate) fn ball(v: Vec2) -> SolverBody {
-        SolverBody { v, w: 0.0, inv_mass: 1.0, inv_inertia: 2.0 }
-    }
-
-    /// The contact row of ball `body` (radius 0.5) resting on body 0, the floor, below its centre.
-    pub(crate) fn floor_row(body: u32) -> ContactRow {
-        ContactRow { body_a: 0, body_b: body, ra: Vec2::ZERO, rb: Vec2::new(0.0, -0.5), normal: Vec2::Y, friction: 0.5 }
-    }
+    use crate::solver::rows::fixtures::{ball, floor_row};
+    use crate::solver::rows::relative_velocity;
 
     /// A ball (mass 1, falling at 1 after gravity) on two contact rows at the same point: the
     /// rigid problem only fixes their sum, the compliant one has a single answer.
@@ -629,19 +398,5 @@ pub(crate) mod tests {
         assert!(rep.converged);
         assert_eq!(s.impulses()[0], Impulse::default());
         assert!((bodies[1].v.y - 2.0).abs() < 1e-5);
-    }
-
-    #[test]
-    fn position_pass_pushes_overlap_back_to_the_slop() {
-        let mut poses = [
-            PoseBody { x: Vec2::ZERO, angle: 0.0, inv_mass: 0.0, inv_inertia: 0.0 },
-            PoseBody { x: Vec2::new(0.0, 0.9), angle: 0.0, inv_mass: 1.0, inv_inertia: 2.0 },
-        ];
-        let row =
-            PositionRow { body_a: 0, body_b: 1, geometry: PositionGeometry::Circles { radius_a: 0.5, radius_b: 0.5 } };
-        let params = PositionParams { iterations: 100, ..Default::default() };
-        correct_positions(&[row], &mut poses, &params);
-        let (_, _, sep) = measure(&row, &poses);
-        assert!(sep <= 0.0 && sep >= -3.0 * params.slop, "separation {sep}");
     }
 }

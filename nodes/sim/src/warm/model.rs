@@ -1,0 +1,226 @@
+//! What a warm-start model is: the [`WarmStartModel`] trait, what it may read
+//! ([`WarmStartInput`], only what its [`Needs`] ask for), why it may give no answer
+//! ([`Unavailable`]), and the [`WarmStarter`] that falls back to another model when it does.
+//!
+//! The world fills the input; a model never calls back into the world. Models that read a
+//! grid or a node's answer over the bus get it through a [`GridSource`] or a
+//! [`ContactWarmSource`], which own the deadline.
+
+use crate::contact::{ContactPoint, ImpulseHistory};
+use crate::problem::Problem;
+use crate::solver::rows::{ContactRow, Impulse, SolverBody};
+
+/// What a model reads beyond the step's contacts and their history; the world computes each
+/// part only for models that ask for it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Needs {
+    /// The step's velocity problem as data ([`WarmStartInput::problem`]).
+    pub problem: bool,
+    /// The solver's rows and bodies ([`WarmStartInput::rows`]).
+    pub rows: bool,
+    /// The step's exact solution ([`WarmStartInput::exact`]): only the evaluation's references.
+    pub exact: bool,
+}
+
+impl Needs {
+    /// Everything either asks for.
+    pub fn union(self, other: Needs) -> Needs {
+        Needs { problem: self.problem || other.problem, rows: self.rows || other.rows, exact: self.exact || other.exact }
+    }
+}
+
+/// The solver's view of the step: its rows, its bodies (velocities after external forces,
+/// inverse masses) and its relative compliance.
+#[derive(Debug, Clone, Copy)]
+pub struct StepRows<'a> {
+    /// One row per contact, in the contacts' order.
+    pub rows: &'a [ContactRow],
+    /// Per body id.
+    pub bodies: &'a [SolverBody],
+    /// `SolveParams::compliance` of the run (0: rigid).
+    pub compliance: f32,
+}
+
+/// What a model may look at to produce a warm start.
+pub struct WarmStartInput<'a> {
+    /// Run id of the graph.
+    pub run_id: u64,
+    /// Simulation index (its seed).
+    pub simulation: u32,
+    /// Step being solved.
+    pub step: u32,
+    /// The step's contacts, sorted by key; one impulse per contact is expected.
+    pub contacts: &'a [ContactPoint],
+    /// Final impulses of the two previous steps.
+    pub history: &'a ImpulseHistory,
+    /// The step's velocity problem, when the model needs it ([`Needs::problem`]).
+    pub problem: Option<&'a Problem>,
+    /// The solver's rows and bodies, when the model needs them ([`Needs::rows`]).
+    pub rows: Option<StepRows<'a>>,
+    /// The step's problem solved from builtin's warm start to the oracle's tolerance, one impulse
+    /// per contact, when the model needs it ([`Needs::exact`]). The oracle *is* the solve: only
+    /// the evaluation's reference models read it.
+    pub exact: Option<&'a [Impulse]>,
+}
+
+/// Why a model gave no warm start this step.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Unavailable(pub String);
+
+/// A source of warm starts. One implementation per model; adding one never touches the solver.
+pub trait WarmStartModel {
+    /// The model's name (in statistics).
+    fn name(&self) -> &str;
+
+    /// Called before the first step of every simulation.
+    fn begin_simulation(&mut self, _simulation: u32, _seed: u64) {}
+
+    /// What the model reads beyond contacts and history (nothing by default).
+    fn needs(&self) -> Needs {
+        Needs::default()
+    }
+
+    /// Writes one impulse per contact of `input` into `out` (zeroed beforehand), or says why it
+    /// cannot this step.
+    fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable>;
+}
+
+/// The exact solution of the step, or why a reference model has none.
+pub fn exact_solution<'a>(input: &WarmStartInput<'a>) -> Result<&'a [Impulse], Unavailable> {
+    input.exact.ok_or_else(|| Unavailable("no exact solution: the world was not asked for it".into()))
+}
+
+/// Delivers the impulse grid computed from step `step` of simulation `simulation`, or `None` when
+/// it is late (the source owns the deadline) or will never come.
+pub trait GridSource {
+    /// The grid of `(simulation, step)`, waiting up to the source's deadline.
+    fn grid(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Grid>;
+}
+
+impl<F> GridSource for F
+where
+    F: FnMut(u64, u32, u32) -> Option<msgs::Grid>,
+{
+    fn grid(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Grid> {
+        self(run_id, simulation, step)
+    }
+}
+
+/// Delivers the per-contact warm start a node computed from step `step`'s own problem, or `None`
+/// when it is late (the source owns the deadline) or will never come.
+pub trait ContactWarmSource {
+    /// The warm start of `(simulation, step)`, waiting up to the source's deadline.
+    fn warm(&mut self, run_id: u64, simulation: u32, step: u32) -> Option<msgs::Contacts>;
+}
+
+/// A model and the model that stands in when it is unavailable, with the fallback count.
+pub struct WarmStarter {
+    /// The model asked for.
+    pub model: Box<dyn WarmStartModel>,
+    /// The stand-in (a local model, never unavailable in practice).
+    pub fallback: Box<dyn WarmStartModel>,
+    fallbacks_total: u32,
+}
+
+impl WarmStarter {
+    /// `model`, falling back to `fallback`.
+    pub fn new(model: Box<dyn WarmStartModel>, fallback: Box<dyn WarmStartModel>) -> WarmStarter {
+        WarmStarter { model, fallback, fallbacks_total: 0 }
+    }
+
+    /// Resets per-simulation state (models and the fallback count).
+    pub fn begin_simulation(&mut self, simulation: u32, seed: u64) {
+        self.fallbacks_total = 0;
+        self.model.begin_simulation(simulation, seed);
+        self.fallback.begin_simulation(simulation, seed);
+    }
+
+    /// What the model and its fallback read.
+    pub fn needs(&self) -> Needs {
+        self.model.needs().union(self.fallback.needs())
+    }
+
+    /// Fallbacks in this simulation so far.
+    pub fn fallbacks_total(&self) -> u32 {
+        self.fallbacks_total
+    }
+
+    /// Runs the model, or the fallback when it is unavailable; returns whether it fell back.
+    pub fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> bool {
+        out.fill(Impulse::default());
+        match self.model.warm_start(input, out) {
+            Ok(()) => false,
+            Err(Unavailable(why)) => {
+                tracing::debug!(model = self.model.name(), step = input.step, "fallback: {why}");
+                self.fallbacks_total += 1;
+                out.fill(Impulse::default());
+                if let Err(Unavailable(why)) = self.fallback.warm_start(input, out) {
+                    // A fallback that fails too leaves the zero guess: still a valid start.
+                    tracing::warn!(model = self.fallback.name(), "fallback unavailable too: {why}");
+                    out.fill(Impulse::default());
+                }
+                true
+            }
+        }
+    }
+}
+
+/// Runs models on hand-made steps (step 2, body 0 fixed), for the models' unit tests.
+#[cfg(test)]
+pub(crate) mod harness {
+    use super::*;
+    use crate::contact::ContactKey;
+
+    /// Runs `model` on `contacts` after the given history; no rows, no exact solution.
+    pub(crate) fn guess(model: &mut dyn WarmStartModel, contacts: &[ContactPoint], history: &ImpulseHistory) -> Vec<Impulse> {
+        run_step(model, contacts, history, None, None)
+    }
+
+    /// Runs `model` on `contacts`; the step's exact solution is `exact`.
+    pub(crate) fn guess_with_exact(
+        model: &mut dyn WarmStartModel,
+        contacts: &[ContactPoint],
+        history: &ImpulseHistory,
+        exact: &[Impulse],
+    ) -> Vec<Impulse> {
+        run_step(model, contacts, history, Some(exact), None)
+    }
+
+    /// Runs `model` on `contacts` with the solver's `rows` and `bodies` and its `compliance`:
+    /// the models that solve the step's own problem.
+    pub(crate) fn guess_on_rows(
+        model: &mut dyn WarmStartModel,
+        contacts: &[ContactPoint],
+        history: &ImpulseHistory,
+        rows: &[ContactRow],
+        bodies: &[SolverBody],
+        compliance: f32,
+    ) -> Vec<Impulse> {
+        run_step(model, contacts, history, None, Some(StepRows { rows, bodies, compliance }))
+    }
+
+    /// The contact of ball `body_b` on the floor (body 0) at `x`, feature `feature`.
+    pub(crate) fn floor_contact(body_b: u32, feature: u32, x: f32) -> ContactPoint {
+        ContactPoint {
+            key: ContactKey { body_a: 0, body_b, feature },
+            point: rapier2d::math::Vec2::new(x, 0.0),
+            normal: rapier2d::math::Vec2::Y,
+            penetration: 0.0,
+            friction: 0.5,
+        }
+    }
+
+    fn run_step(
+        model: &mut dyn WarmStartModel,
+        contacts: &[ContactPoint],
+        history: &ImpulseHistory,
+        exact: Option<&[Impulse]>,
+        rows: Option<StepRows<'_>>,
+    ) -> Vec<Impulse> {
+        let input =
+            WarmStartInput { run_id: 0, simulation: 0, step: 2, contacts, history, problem: None, rows, exact };
+        let mut out = vec![Impulse::default(); contacts.len()];
+        model.warm_start(&input, &mut out).unwrap();
+        out
+    }
+}

@@ -1,0 +1,145 @@
+//! Measurement the world's stages call, apart from the simulation: none of it changes what the
+//! world computes.
+//!
+//! - the step's exact solution (the oracle), for the reference models that ask for it;
+//! - the shadow builtin solve: the same step solved from builtin's warm start on scratch
+//!   velocities (the report's *same states vs builtin*);
+//! - problem capture: the step's velocity problem as data (`problem/*`), optionally labelled
+//!   with a reference solution.
+//!
+//! All three solve on scratch copies of the solver bodies with their own solver.
+
+use crate::contact::{ContactPoint, ImpulseHistory};
+use crate::problem::{builtin_warm_start, Problem};
+use crate::solver::{ContactRow, ContactSolver, Impulse, SolveParams, SolveReport, SolverBody};
+use msgs::{ProblemBody, ProblemContact, ProblemHeader, StepHeader};
+
+/// The step as the instruments read it: its contacts, rows, bodies after external forces and the
+/// contacts' history.
+#[derive(Clone, Copy)]
+pub(crate) struct StepView<'a> {
+    pub header: StepHeader,
+    pub contacts: &'a [ContactPoint],
+    pub rows: &'a [ContactRow],
+    pub bodies: &'a [SolverBody],
+    pub history: &'a ImpulseHistory,
+}
+
+/// The instruments' solver, scratch and results.
+#[derive(Default)]
+pub(crate) struct Instruments {
+    solver: ContactSolver,
+    scratch_bodies: Vec<SolverBody>,
+    exact: Vec<Impulse>,
+    exact_report: Option<SolveReport>,
+    shadow_warm: Vec<Impulse>,
+    /// Whether to capture each step's problem, and the reference solve's stopping rule if labelled.
+    pub capture: Option<Option<SolveParams>>,
+    /// Whether to solve each step from builtin's warm start too.
+    pub shadow_builtin: bool,
+    problem: Problem,
+}
+
+impl Instruments {
+    /// Solves the step from builtin's warm start with `params` on scratch velocities; the
+    /// impulses are in the solver.
+    fn solve_from_builtin(&mut self, step: StepView<'_>, start: &mut Vec<Impulse>, params: &SolveParams) -> SolveReport {
+        start.clear();
+        start.resize(step.contacts.len(), Impulse::default());
+        step.history.fill_previous(step.contacts, start);
+        self.scratch_bodies.clear();
+        self.scratch_bodies.extend_from_slice(step.bodies);
+        self.solver.solve(step.rows, &mut self.scratch_bodies, start, params)
+    }
+
+    /// The step's exact solution: solved from builtin's warm start to the oracle's stopping rule.
+    pub(crate) fn solve_exact(&mut self, step: StepView<'_>, oracle: &SolveParams) -> &[Impulse] {
+        let mut start = std::mem::take(&mut self.exact);
+        self.exact_report = Some(self.solve_from_builtin(step, &mut start, oracle));
+        start.copy_from_slice(self.solver.impulses());
+        self.exact = start;
+        &self.exact
+    }
+
+    /// The last exact solution computed.
+    pub(crate) fn exact(&self) -> &[Impulse] {
+        &self.exact
+    }
+
+    /// Forgets the last step's exact solve (a step whose model asked for none).
+    pub(crate) fn clear_exact(&mut self) {
+        self.exact_report = None;
+    }
+
+    /// The report of the last step's exact solve, if one ran.
+    pub(crate) fn exact_report(&self) -> Option<SolveReport> {
+        self.exact_report
+    }
+
+    /// The sweeps builtin's warm start takes on this step with the run's stopping rule.
+    pub(crate) fn builtin_sweeps(&mut self, step: StepView<'_>, solve: &SolveParams) -> u32 {
+        let mut start = std::mem::take(&mut self.shadow_warm);
+        let sweeps = self.solve_from_builtin(step, &mut start, solve).sweeps;
+        self.shadow_warm = start;
+        sweeps
+    }
+
+    /// The last captured problem.
+    pub(crate) fn problem(&self) -> &Problem {
+        &self.problem
+    }
+
+    /// Fills the problem from the step, before anything changes the velocities; with
+    /// `reference`, labels it with the solution from builtin's warm start with those parameters.
+    pub(crate) fn capture_problem(&mut self, step: StepView<'_>, solve: &SolveParams, reference: Option<SolveParams>) {
+        let p = &mut self.problem;
+        p.bodies.clear();
+        p.bodies.extend(step.bodies.iter().map(|b| ProblemBody {
+            v: b.v.into(),
+            w: b.w,
+            inv_mass: b.inv_mass,
+            inv_inertia: b.inv_inertia,
+        }));
+        p.contacts.clear();
+        let history = step.history;
+        for (c, r) in step.contacts.iter().zip(step.rows) {
+            let pair = |i: Option<Impulse>| i.map_or([0.0; 2], |i| [i.normal, i.tangent]);
+            p.contacts.push(ProblemContact {
+                body_a: r.body_a,
+                body_b: r.body_b,
+                feature: c.key.feature,
+                age: history.age(&c.key),
+                ra: r.ra.into(),
+                rb: r.rb.into(),
+                normal: r.normal.into(),
+                friction: r.friction,
+                penetration: c.penetration,
+                previous: pair(history.previous(&c.key)),
+                before_previous: pair(history.before_previous(&c.key)),
+                reference: [f32::NAN; 2],
+            });
+        }
+        p.header = ProblemHeader {
+            step: step.header,
+            bodies: p.bodies.len() as u32,
+            tolerance: solve.tolerance,
+            max_sweeps: solve.max_sweeps,
+            compliance: solve.compliance,
+            relaxation: solve.relaxation,
+            ..ProblemHeader::default()
+        };
+        if let Some(params) = reference {
+            self.scratch_bodies.clear();
+            self.scratch_bodies.extend_from_slice(step.bodies);
+            let start = builtin_warm_start(&self.problem.contacts);
+            let report = self.solver.solve(step.rows, &mut self.scratch_bodies, &start, &params);
+            let p = &mut self.problem;
+            for (c, l) in p.contacts.iter_mut().zip(self.solver.impulses()) {
+                c.reference = [l.normal, l.tangent];
+            }
+            p.header.reference_tolerance = params.tolerance;
+            p.header.reference_sweeps = report.sweeps;
+            p.header.reference_converged = report.converged as u32;
+        }
+    }
+}
