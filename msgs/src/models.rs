@@ -24,7 +24,7 @@ impl ModelGroup {
     pub fn title(self) -> &'static str {
         match self {
             ModelGroup::Product => "product (what a simulator runs)",
-            ModelGroup::Reference => "references (evaluation instruments; need the oracle)",
+            ModelGroup::Reference => "references (evaluation instruments: the oracle and deliberately poor starts)",
             ModelGroup::Probe => "probes (research experiments)",
         }
     }

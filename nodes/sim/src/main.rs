@@ -420,10 +420,14 @@ fn run(args: &Args, node: &runtime::Node, pubs: &mut Publishers, model_kind: Mod
             )))
         };
     }
-    let (served, source): (sim::warm::Served, Option<Box<dyn Drain>>) = match (model_kind.grid_topic(), model_kind.kind) {
+    let (served, source): (sim::warm::Served, Option<Box<dyn Drain>>) = match (model_kind.grid_topic(), model_kind.kind)
+    {
         (Some(topic), _) => {
             let source = open_source!(topic);
-            (sim::warm::Served { grid: Some(Box::new(SourceHandle(source.clone()))), contact: None }, Some(Box::new(source)))
+            (
+                sim::warm::Served { grid: Some(Box::new(SourceHandle(source.clone()))), contact: None },
+                Some(Box::new(source)),
+            )
         }
         (None, ModelKind::GnnNode) => {
             let source = open_source!(msgs::topics::WARM_GNN);

@@ -23,9 +23,20 @@ pub struct Needs {
 }
 
 impl Needs {
+    /// The step's problem as data.
+    pub const PROBLEM: Needs = Needs { problem: true, rows: false, exact: false };
+    /// The solver's rows and bodies.
+    pub const ROWS: Needs = Needs { problem: false, rows: true, exact: false };
+    /// The step's exact solution.
+    pub const EXACT: Needs = Needs { problem: false, rows: false, exact: true };
+
     /// Everything either asks for.
     pub fn union(self, other: Needs) -> Needs {
-        Needs { problem: self.problem || other.problem, rows: self.rows || other.rows, exact: self.exact || other.exact }
+        Needs {
+            problem: self.problem || other.problem,
+            rows: self.rows || other.rows,
+            exact: self.exact || other.exact,
+        }
     }
 }
 
@@ -88,6 +99,11 @@ pub trait WarmStartModel {
 /// The exact solution of the step, or why a reference model has none.
 pub fn exact_solution<'a>(input: &WarmStartInput<'a>) -> Result<&'a [Impulse], Unavailable> {
     input.exact.ok_or_else(|| Unavailable("no exact solution: the world was not asked for it".into()))
+}
+
+/// The step's problem as data, or why a model that reads it has none.
+pub fn step_problem<'a>(input: &WarmStartInput<'a>) -> Result<&'a Problem, Unavailable> {
+    input.problem.ok_or_else(|| Unavailable("the world did not capture the step's problem".into()))
 }
 
 /// Delivers the impulse grid computed from step `step` of simulation `simulation`, or `None` when
@@ -172,7 +188,11 @@ pub(crate) mod harness {
     use crate::contact::ContactKey;
 
     /// Runs `model` on `contacts` after the given history; no rows, no exact solution.
-    pub(crate) fn guess(model: &mut dyn WarmStartModel, contacts: &[ContactPoint], history: &ImpulseHistory) -> Vec<Impulse> {
+    pub(crate) fn guess(
+        model: &mut dyn WarmStartModel,
+        contacts: &[ContactPoint],
+        history: &ImpulseHistory,
+    ) -> Vec<Impulse> {
         run_step(model, contacts, history, None, None)
     }
 
@@ -217,8 +237,7 @@ pub(crate) mod harness {
         exact: Option<&[Impulse]>,
         rows: Option<StepRows<'_>>,
     ) -> Vec<Impulse> {
-        let input =
-            WarmStartInput { run_id: 0, simulation: 0, step: 2, contacts, history, problem: None, rows, exact };
+        let input = WarmStartInput { run_id: 0, simulation: 0, step: 2, contacts, history, problem: None, rows, exact };
         let mut out = vec![Impulse::default(); contacts.len()];
         model.warm_start(&input, &mut out).unwrap();
         out

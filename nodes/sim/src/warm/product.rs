@@ -5,7 +5,9 @@
 
 use crate::problem::Problem;
 use crate::solver::rows::Impulse;
-use crate::warm::model::{ContactWarmSource, GridSource, Needs, Unavailable, WarmStartInput, WarmStartModel};
+use crate::warm::model::{
+    step_problem, ContactWarmSource, GridSource, Needs, Unavailable, WarmStartInput, WarmStartModel,
+};
 use sph::sample_bilinear;
 
 /// `none`: start from zero.
@@ -118,13 +120,11 @@ impl WarmStartModel for GnnModel {
     }
 
     fn needs(&self) -> Needs {
-        Needs { problem: true, ..Needs::default() }
+        Needs::PROBLEM
     }
 
     fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-        let Some(problem) = input.problem else {
-            return Err(Unavailable("the world did not capture the step's problem".into()));
-        };
+        let problem = step_problem(input)?;
         self.out.clear();
         self.out.resize(problem.contacts.len(), [0.0; 2]);
         self.predictor.warm_start(&problem.bodies, &problem.contacts, &mut self.out);
@@ -158,13 +158,11 @@ impl WarmStartModel for GnnNodeModel {
     }
 
     fn needs(&self) -> Needs {
-        Needs { problem: true, ..Needs::default() }
+        Needs::PROBLEM
     }
 
     fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-        let Some(problem) = input.problem else {
-            return Err(Unavailable("the world did not capture the step's problem".into()));
-        };
+        let problem = step_problem(input)?;
         (self.send)(problem).map_err(|e| Unavailable(format!("sending the problem: {e}")))?;
         let reply = self
             .source

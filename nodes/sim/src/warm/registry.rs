@@ -243,7 +243,9 @@ impl ModelSpec {
             // Product.
             ModelKind::None => Box::new(NoWarmStart),
             ModelKind::Builtin => Box::new(Builtin),
-            ModelKind::Grid | ModelKind::Unet => Box::new(GridModel::new(self.kind.name(), served.grid.ok_or_else(no_source)?)),
+            ModelKind::Grid | ModelKind::Unet => {
+                Box::new(GridModel::new(self.kind.name(), served.grid.ok_or_else(no_source)?))
+            }
             ModelKind::UnetDelta => Box::new(GridModel::delta(self.kind.name(), served.grid.ok_or_else(no_source)?)),
             ModelKind::Gnn => network()?,
             ModelKind::GnnNode => {
@@ -347,13 +349,15 @@ mod tests {
         let gnn_node = ModelSpec::of(ModelKind::GnnNode);
         let err = gnn_node.build(0).err().expect("gnn-node needs the bus").to_string();
         assert!(err.contains("gnn-node"), "{err}");
-        let served = Served { grid: None, contact: Some((Box::new(|_: &crate::problem::Problem| Ok(())), Box::new(Silent))) };
+        let served =
+            Served { grid: None, contact: Some((Box::new(|_: &crate::problem::Problem| Ok(())), Box::new(Silent))) };
         let model = gnn_node.build_with(0, served, &ModelFiles::default()).unwrap();
         assert_eq!(model.name(), "gnn-node");
         assert!(model.needs().problem);
         let err = ModelSpec::of(ModelKind::Gnn).build(0).err().expect("gnn needs its file").to_string();
         assert!(err.contains("gnn"), "{err}");
-        let unet = ModelSpec::of(ModelKind::UnetDelta).build_with_source(0, Some(Box::new(|_: u64, _: u32, _: u32| None)));
+        let unet =
+            ModelSpec::of(ModelKind::UnetDelta).build_with_source(0, Some(Box::new(|_: u64, _: u32, _: u32| None)));
         assert_eq!(unet.unwrap().name(), "unet-delta");
     }
 }

@@ -43,7 +43,12 @@ pub(crate) struct Instruments {
 impl Instruments {
     /// Solves the step from builtin's warm start with `params` on scratch velocities; the
     /// impulses are in the solver.
-    fn solve_from_builtin(&mut self, step: StepView<'_>, start: &mut Vec<Impulse>, params: &SolveParams) -> SolveReport {
+    fn solve_from_builtin(
+        &mut self,
+        step: StepView<'_>,
+        start: &mut Vec<Impulse>,
+        params: &SolveParams,
+    ) -> SolveReport {
         start.clear();
         start.resize(step.contacts.len(), Impulse::default());
         step.history.fill_previous(step.contacts, start);

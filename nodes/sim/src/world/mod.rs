@@ -32,8 +32,7 @@ use crate::problem::Problem;
 use crate::scene::{BodyKind, Scene, SceneConfig};
 use crate::solver::position::rotate;
 use crate::solver::{
-    correct_positions, ContactRow, ContactSolver, Impulse, PoseBody, PositionRow, SolveParams, SolveReport,
-    SolverBody,
+    correct_positions, ContactRow, ContactSolver, Impulse, PoseBody, PositionRow, SolveParams, SolveReport, SolverBody,
 };
 use crate::warm::{ModelKind, Needs, StepRows, WarmStartInput, WarmStarter};
 use collide::Collision;

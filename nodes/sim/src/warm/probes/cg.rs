@@ -82,7 +82,7 @@ impl WarmStartModel for ConjugateGradient {
     }
 
     fn needs(&self) -> Needs {
-        Needs { rows: true, ..Needs::default() }
+        Needs::ROWS
     }
 
     fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {

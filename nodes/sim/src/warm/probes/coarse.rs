@@ -64,7 +64,7 @@ impl WarmStartModel for Coarse {
     }
 
     fn needs(&self) -> Needs {
-        Needs { rows: true, ..Needs::default() }
+        Needs::ROWS
     }
 
     fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {

@@ -77,7 +77,7 @@ impl WarmStartModel for Subspace {
     }
 
     fn needs(&self) -> Needs {
-        let own = Needs { rows: true, ..Needs::default() };
+        let own = Needs::ROWS;
         self.direction.as_ref().map_or(own, |m| own.union(m.needs()))
     }
 
@@ -185,7 +185,6 @@ fn fill_trail(
         None => [0.0, 0.0],
     }));
 }
-
 
 /// Solves the symmetric positive semi-definite `n x n` system by Cholesky, with a ridge of 1e-10
 /// of its trace (a direction the step's problem cannot see gets no correction). `None` when the

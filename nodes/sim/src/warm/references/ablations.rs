@@ -69,7 +69,7 @@ impl WarmStartModel for OracleAblation {
 
     fn needs(&self) -> Needs {
         // The smoothing links contacts through moving bodies: it reads which bodies are fixed.
-        Needs { exact: true, rows: true, ..Needs::default() }
+        Needs::EXACT.union(Needs::ROWS)
     }
 
     fn begin_simulation(&mut self, _simulation: u32, seed: u64) {

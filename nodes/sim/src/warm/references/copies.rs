@@ -35,7 +35,7 @@ impl WarmStartModel for Copy {
         self.name
     }
     fn needs(&self) -> Needs {
-        Needs { exact: true, ..Needs::default() }
+        Needs::EXACT
     }
     fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
         out.copy_from_slice(exact_solution(input)?);
@@ -93,7 +93,7 @@ impl WarmStartModel for CopyGrid {
         self.name
     }
     fn needs(&self) -> Needs {
-        Needs { exact: true, ..Needs::default() }
+        Needs::EXACT
     }
     fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
         out.copy_from_slice(exact_solution(input)?);
