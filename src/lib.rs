@@ -61,6 +61,59 @@ pub fn skip_for_missing(test: &str, why: &str) -> bool {
     true
 }
 
+/// The repository's root folder (this package's): where `python/`, `launch/` and `experiments/` lie.
+pub fn repo_root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Runs `python3 SCRIPT ARGS`, the script's path relative to the repository root.
+pub fn python(script: &str, args: &[&str]) -> Output {
+    Command::new("python3").arg(repo_root().join(script)).args(args).output().expect("run python3")
+}
+
+/// Whether python3 imports `modules`; else skips (or fails under DC_REQUIRE_ALL=1).
+pub fn have_python(test: &str, modules: &str) -> bool {
+    let ok = Command::new("python3").args(["-c", &format!("import {modules}")]).output();
+    ok.is_ok_and(|o| o.status.success())
+        || !skip_for_missing(test, &format!("python3 cannot import {modules} (pip install -r python/requirements.txt)"))
+}
+
+/// Records a small real run for the Python readers: `dc-sim` (builtin, seeds 3..5, 60 steps, 30
+/// balls) publishing every step's problem labelled to 2e-6, and `dc-record` writing every topic
+/// the step join and the probes read. Returns the recording and the launcher's (successful) output.
+pub fn record_labelled_problems(test: &str) -> (PathBuf, Output) {
+    let dir = scratch_dir(test);
+    let file = dir.join("run.mcap");
+    let graph = dir.join("graph.toml");
+    std::fs::write(
+        &graph,
+        format!(
+            r#"
+[[nodes]]
+name = "recorder"
+binary = "dc-record"
+daemon = true
+params = {{ out = "{}", topics = "bodies,contacts,problem/bodies,problem/contacts,stats/solve,control" }}
+
+[[nodes]]
+name = "sim"
+binary = "dc-sim"
+params = {{ model = "builtin", seeds = "3..5", steps = 60, n = 30, publish-problem = true, label-tolerance = 2e-6 }}
+"#,
+            file.display()
+        ),
+    )
+    .expect("write launch file");
+    let out = Command::new(bin("dc"))
+        .args(["launch"])
+        .arg(&graph)
+        .args(["--namespace", &unique_namespace(test)])
+        .output()
+        .expect("run dc");
+    assert!(out.status.success(), "{}", text(&out));
+    (file, out)
+}
+
 /// stdout and stderr of a finished command, for assertion messages.
 pub fn text(out: &Output) -> String {
     format!(

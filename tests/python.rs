@@ -1,28 +1,13 @@
 //! The Python examples in `python/` against real data: a recording made by a real graph is read
-//! into numpy arrays and matches what the simulator reported; the headroom probe re-solves its
-//! problems; a live zenoh tap of the repository's own `launch/python-tap.toml` graph receives
-//! the simulator's statistics. Skipped, saying why, where python3 or the PyPI packages
-//! (`python/requirements.txt`) are missing, except under `DC_REQUIRE_ALL=1` (CI).
+//! into numpy arrays and matches what the simulator reported; a live zenoh tap of the repository's
+//! own `launch/python-tap.toml` graph receives the simulator's statistics. Skipped, saying why,
+//! where python3 or the PyPI packages (`python/requirements.txt`) are missing, except under
+//! `DC_REQUIRE_ALL=1` (CI). (The solver probes on such a recording are experiments:
+//! `experiments/tests/probes.rs`.)
 
-use deep_contact::{bin, scratch_dir, skip_for_missing, text, unique_namespace};
-use std::path::{Path, PathBuf};
+use deep_contact::{bin, have_python, python, record_labelled_problems, repo_root, text};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
-
-fn python_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("python")
-}
-
-fn python(script: &str, args: &[&str]) -> Output {
-    Command::new("python3").arg(python_dir().join(script)).args(args).output().expect("run python3")
-}
-
-/// Whether python3 imports `modules`; else skips (or fails under DC_REQUIRE_ALL=1).
-fn have_python(test: &str, modules: &str) -> bool {
-    let ok = Command::new("python3").args(["-c", &format!("import {modules}")]).output();
-    ok.is_ok_and(|o| o.status.success())
-        || !skip_for_missing(test, &format!("python3 cannot import {modules} (pip install -r python/requirements.txt)"))
-}
 
 /// Whether process `pid` has a listening TCP socket (its sockets in /proc/PID/fd, matched by inode
 /// with the LISTEN entries of /proc/net/tcp and tcp6).
@@ -49,42 +34,14 @@ fn total_sweeps(out: &Output) -> u64 {
 }
 
 #[test]
-fn python_reads_a_real_recording_into_numpy_and_probes_its_problems() {
+fn python_reads_a_real_recording_into_numpy() {
     if !have_python("python reader", "numpy, mcap, cbor2") {
         return;
     }
-    let dir = scratch_dir("python-read");
-    let file = dir.join("run.mcap");
-    let graph = dir.join("graph.toml");
-    std::fs::write(
-        &graph,
-        format!(
-            r#"
-[[nodes]]
-name = "recorder"
-binary = "dc-record"
-daemon = true
-params = {{ out = "{}", topics = "bodies,contacts,problem/bodies,problem/contacts,stats/solve,control" }}
-
-[[nodes]]
-name = "sim"
-binary = "dc-sim"
-params = {{ model = "builtin", seeds = "3..5", steps = 60, n = 30, publish-problem = true, label-tolerance = 2e-6 }}
-"#,
-            file.display()
-        ),
-    )
-    .unwrap();
-    let out = Command::new(bin("dc"))
-        .args(["launch"])
-        .arg(&graph)
-        .args(["--namespace", &unique_namespace("python-read")])
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", text(&out));
+    let (file, out) = record_labelled_problems("python-read");
     let sweeps = total_sweeps(&out);
 
-    let read = python("read_recording.py", &[file.to_str().unwrap(), "--json"]);
+    let read = python("python/read_recording.py", &[file.to_str().unwrap(), "--json"]);
     assert!(read.status.success(), "{}", text(&read));
     let summary: serde_json::Value = serde_json::from_slice(&read.stdout).expect("one JSON summary");
     let sims = summary.as_object().unwrap();
@@ -100,33 +57,10 @@ params = {{ model = "builtin", seeds = "3..5", steps = 60, n = 30, publish-probl
         assert!(s["contacts"].as_u64().unwrap() > 0, "{s}");
     }
 
-    // The probe re-solves late problems: from the recorded reference it takes about one sweep.
-    let probe =
-        python("probe_headroom.py", &[file.to_str().unwrap(), "--from-step", "40", "--every", "10", "--limit", "2"]);
-    assert!(probe.status.success(), "{}", text(&probe));
-    let table = String::from_utf8_lossy(&probe.stdout);
-    let ratio = |name: &str| -> f64 {
-        let line = table.lines().find(|l| l.starts_with(name)).unwrap_or_else(|| panic!("no {name}:\n{table}"));
-        line.split_whitespace().last().unwrap().trim_end_matches('x').parse().unwrap()
-    };
-    assert_eq!(ratio("builtin"), 1.0, "{table}");
-    assert!(ratio("reference") < 0.2, "the exact solution needs almost no sweeps:\n{table}");
-
-    // With compliant contacts the linear solution on the exact solution's own active set is that
-    // solution: about one sweep.
-    let probe = python("probe_active_set.py", &[file.to_str().unwrap(), "--from-step", "40", "--limit", "2"]);
-    assert!(probe.status.success(), "{}", text(&probe));
-    let table = String::from_utf8_lossy(&probe.stdout);
-    let sweeps = |name: &str| -> u64 {
-        let line = table.lines().find(|l| l.starts_with(name)).unwrap_or_else(|| panic!("no {name}:\n{table}"));
-        line.split_whitespace().nth(1).unwrap().parse().unwrap()
-    };
-    assert!(sweeps("true-set") <= 2 * 2 && sweeps("builtin") > sweeps("true-set"), "{table}");
-
     // Bad input: a clear message naming the file, no traceback.
-    let junk = dir.join("junk.mcap");
+    let junk = file.with_file_name("junk.mcap");
     std::fs::write(&junk, b"\x89MCAP0\r\n this is not a recording").unwrap();
-    let bad = python("read_recording.py", &[junk.to_str().unwrap()]);
+    let bad = python("python/read_recording.py", &[junk.to_str().unwrap()]);
     assert!(!bad.status.success());
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(err.contains("junk.mcap") && !err.contains("Traceback"), "{err}");
@@ -140,7 +74,7 @@ fn python_taps_the_live_statistics_of_the_python_tap_graph() {
     // The subscriber first (the simulator's publisher waits briefly for a match), then the
     // repository's launch file as it is.
     let tap = Command::new("python3")
-        .arg(python_dir().join("subscribe.py"))
+        .arg(repo_root().join("python/subscribe.py"))
         .args(["--connect", "tcp/127.0.0.1:17447", "--key", "dc/python-tap/stats/solve"])
         .args(["--count", "50", "--timeout", "60", "--json"])
         .stdout(Stdio::piped())
@@ -153,7 +87,7 @@ fn python_taps_the_live_statistics_of_the_python_tap_graph() {
         assert!(Instant::now() < deadline, "subscribe.py opened no zenoh session within 30 s");
         std::thread::sleep(Duration::from_millis(20));
     }
-    let launch_file = Path::new(env!("CARGO_MANIFEST_DIR")).join("launch/python-tap.toml");
+    let launch_file = repo_root().join("launch/python-tap.toml");
     let out = Command::new(bin("dc")).arg("launch").arg(&launch_file).output().unwrap();
     assert!(out.status.success(), "{}", text(&out));
     let tapped = tap.wait_with_output().unwrap();

@@ -3,7 +3,7 @@
 problems with the project's PGS made compliant (`dc-sim --compliance G`) from warm starts that
 solve the step's linear problem exactly on a given active set, and prints sweeps vs builtin.
 
-usage: python3 python/probe_active_set.py RECORDING.mcap [--compliance 0.01] [--limit 12]
+usage: python3 experiments/python/probe_active_set.py RECORDING.mcap [--compliance 0.01] [--limit 12]
 
 Variants (each solved by compliant PGS to the recording's tolerance):
   builtin          the recorded warm start (the previous step's impulses)
@@ -12,8 +12,9 @@ Variants (each solved by compliant PGS to the recording's tolerance):
                    slip direction): with compliance that *is* the solution
   true-set-Kflips  the true set with K random row states wrong (stick <-> slip on a closed
                    contact, an open one taken as closed and sticking)
-Record the problems with the same compliance (`launch/record-gnn-val-compliant.toml`, 0.01):
-on a rigid run's recording builtin carries the rigid run's impulses and looks worse than it is.
+Record the problems with the same compliance
+(`dc launch experiments/launch/record-gnn-val-compliant.toml`, 0.01): on a rigid run's recording
+builtin carries the rigid run's impulses and looks worse than it is.
 """
 import numpy as np
 

@@ -3,7 +3,7 @@
 project's PGS (f64, same row order and projections) from warm starts that fix one part of
 builtin's error at a time, and prints the sweeps of each relative to builtin's.
 
-usage: python3 python/probe_headroom.py RECORDING.mcap [--from-step 150] [--every 10] [--limit N]
+usage: python3 experiments/python/probe_headroom.py RECORDING.mcap [--from-step 150] [--every 10] [--limit N]
 
 The recording must carry labelled problems (`dc-sim --publish-problem --label-tolerance 2e-6`,
 e.g. `dc launch launch/record-gnn-val.toml`). Variants (each then solved by PGS to the run's
@@ -27,11 +27,14 @@ start that corrects builtin by linear algebra on the step's problem.
 """
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 from mcap.reader import make_reader
 
-from deep_contact import FrameError, decode, step_of
+# The product's frame decoder lives in the repository's python/ folder.
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "python"))
+from deep_contact import FrameError, decode, step_of  # noqa: E402
 
 
 def load(path, from_step, every):

@@ -3,14 +3,12 @@
 //! looked at the *scale* of what came back; here the scale bias (median reconstructed / true) is a
 //! first-class column, because a warm start at 20% of the solution is barely better than none.
 
-use crate::geometry::{Bounds, GridGeometry};
-use crate::kernel::KernelKind;
-use crate::mode::Mode;
-use crate::particles::{ParticleSet, Source, CONTACT_CHANNELS};
-use crate::transfer::{Search, Transfer, TransferConfig};
-use crate::SphError;
-use metrics::stats::median;
+use charts::median;
 use msgs::Contact;
+use sph::{
+    Bounds, GridGeometry, KernelKind, Mode, ParticleSet, Search, Source, SphError, Transfer, TransferConfig,
+    CONTACT_CHANNELS,
+};
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -161,7 +159,7 @@ pub fn to_markdown(results: &[CaseResult]) -> String {
 }
 
 /// A frame of one simulation step's contacts (channels `normal`, `tangent`): what the study runs
-/// on for a real recording (`dc-sph study --dataset mcap:PATH`).
+/// on for a real recording (`dc-sph-study --dataset mcap:PATH`).
 pub fn contacts_frame(name: impl Into<String>, contacts: &[Contact]) -> Result<StudyFrame, SphError> {
     Ok(StudyFrame { name: name.into(), particles: ParticleSet::from_contacts(contacts)? })
 }
@@ -203,7 +201,7 @@ pub fn frames_from_contacts_csv(name: &str, text: &str) -> Result<Vec<StudyFrame
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth;
+    use sph::synth;
 
     fn pile_frames(n: u64) -> Vec<StudyFrame> {
         (0..n)

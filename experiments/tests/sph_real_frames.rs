@@ -3,12 +3,12 @@
 //! into the committed fixture `recordings/fixtures/ball-box-seed0-steps.mcap` (how it was made:
 //! `recordings/fixtures/README.md`).
 
-use sph::study::{self, StudyCase, StudyFrame};
+use experiments::sph_study::{self as study, StudyCase, StudyFrame};
 use sph::{Bounds, KernelKind, Mode};
 use std::path::PathBuf;
 
 fn fixture() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../recordings/fixtures/ball-box-seed0-steps.mcap")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../recordings/fixtures/ball-box-seed0-steps.mcap")
 }
 
 /// Each recorded step with contacts as a study frame, and the walls' grid rectangle.

@@ -1,9 +1,94 @@
-//! Diagnostics of the settled-pile convergence (ignored; run with
-//! `cargo test -p sim --test diag_contacts -- --ignored --nocapture`).
+//! `dc-sim-diag`: diagnostics of the settled-pile convergence, printed step by step for one
+//! ball-box simulation: why the late steps of a pile still take hundreds of sweeps. They back the
+//! finding that steps 150-249 are not at rest (bodies still move, contacts open and close and
+//! change load), where a pile really at rest converges from builtin in one sweep. Hand-run, e.g.
+//! `cargo run -p experiments --bin dc-sim-diag -- ball-box --seed 3` (subcommands `ball-box`,
+//! `motion`, `rows`, `pair`; `--help` lists each one's options).
 
-use sim::solver::{tangent_of, ContactRow, Impulse, SolverBody};
-use sim::{ModelKind, SceneConfig, WarmStarter, World, WorldParams};
+use anyhow::Result;
+use clap::Parser;
+use sim::solver::{tangent_of, ContactRow, SolverBody};
+use sim::{Impulse, ModelKind, SceneConfig, World, WorldParams};
 use std::collections::HashMap;
+
+#[derive(Parser, Debug)]
+#[command(name = "dc-sim-diag", about = "Diagnostics of the settled-pile convergence (one ball-box simulation)")]
+struct Args {
+    #[command(subcommand)]
+    diag: Diag,
+}
+
+/// The diagnostics.
+#[derive(clap::Subcommand, Debug)]
+enum Diag {
+    /// Per step: contacts added and removed, sweeps, largest impulse change, kinetic energy,
+    /// deepest penetration, the residual's tail and the oracle; for the first two unconverged
+    /// steps after --dump-after, the residual curve and the same problem re-solved in f64 from zero.
+    BallBox {
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Warm-start model.
+        #[arg(long, value_enum, default_value = "builtin")]
+        model: DiagModel,
+        #[arg(long, default_value_t = 250)]
+        steps: u32,
+        /// Unconverged steps after this one are dumped (two at most).
+        #[arg(long, default_value_t = 150)]
+        dump_after: u32,
+        /// Print the f64 re-solve's largest change every 100 sweeps.
+        #[arg(long)]
+        trace: bool,
+    },
+    /// Steps 150..249: the three bodies with the most kinetic energy and the deepest contact.
+    Motion {
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+    /// After 160 steps: the balls of the three lowest layers, their positions and gaps.
+    Rows {
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+    /// Every third step from 100: two bodies' states and their contacts' impulses and warm starts.
+    Pair {
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value_t = 40)]
+        a: u32,
+        #[arg(long, default_value_t = 51)]
+        b: u32,
+    },
+}
+
+/// The warm-start models the ball-box diagnostic compares.
+#[derive(clap::ValueEnum, Debug, Clone, Copy)]
+enum DiagModel {
+    Builtin,
+    Copy,
+    None,
+}
+
+impl From<DiagModel> for ModelKind {
+    fn from(m: DiagModel) -> ModelKind {
+        match m {
+            DiagModel::Builtin => ModelKind::Builtin,
+            DiagModel::Copy => ModelKind::Copy,
+            DiagModel::None => ModelKind::None,
+        }
+    }
+}
+
+fn main() -> std::process::ExitCode {
+    let args = Args::parse();
+    runtime::exit(match args.diag {
+        Diag::BallBox { seed, model, steps, dump_after, trace } => {
+            diagnose_ball_box(seed, model.into(), steps, dump_after, trace)
+        }
+        Diag::Motion { seed } => diagnose_motion(seed),
+        Diag::Rows { seed } => diagnose_rows(seed),
+        Diag::Pair { seed, a, b } => diagnose_pair(seed, a, b),
+    })
+}
 
 /// Pre-solve velocities reconstructed from the post-solve ones and the impulses.
 fn pre_solve(rows: &[ContactRow], post: &[SolverBody], imp: &[Impulse]) -> Vec<[f64; 3]> {
@@ -35,6 +120,7 @@ fn pgs64(
     v0: &[[f64; 3]],
     sweeps: usize,
     mu_override: Option<f64>,
+    trace: bool,
 ) -> Vec<f64> {
     let mut v = v0.to_vec();
     let mut lam = vec![[0.0f64; 2]; rows.len()];
@@ -89,7 +175,7 @@ fn pgs64(
                 r = r.max(dl.abs());
             }
         }
-        if std::env::var("TRACE").is_ok() && (sweep % 100 == 99) {
+        if trace && (sweep % 100 == 99) {
             let (i, dir, dl) = arg;
             let (a, b, n, ..) = pr[i];
             println!(
@@ -102,22 +188,12 @@ fn pgs64(
     res
 }
 
-#[test]
-#[ignore]
-fn diagnose_ball_box() {
-    let seed: u64 = std::env::var("SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
-    let model = match std::env::var("MODEL").as_deref() {
-        Ok("copy") => ModelKind::Copy,
-        Ok("none") => ModelKind::None,
-        _ => ModelKind::Builtin,
-    };
-    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, WorldParams::default()).unwrap();
-    let mut warm = WarmStarter::local(model, 0).unwrap();
+fn diagnose_ball_box(seed: u64, model: ModelKind, steps: u32, dump_after: u32, trace: bool) -> Result<()> {
+    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, WorldParams::default())?;
+    let mut warm = model.starter(0)?;
     warm.begin_simulation(seed as u32, seed);
     let mut prev: HashMap<_, Impulse> = HashMap::new();
     let mut dumped = 0;
-    let steps: u32 = std::env::var("STEPS").ok().and_then(|s| s.parse().ok()).unwrap_or(250);
-    let dump_after: u32 = std::env::var("DUMP_AFTER").ok().and_then(|s| s.parse().ok()).unwrap_or(150);
     for _ in 0..steps {
         let s = world.step(&mut warm).clone();
         let keys: HashMap<_, Impulse> =
@@ -151,7 +227,7 @@ fn diagnose_ball_box() {
             // Same problem in f64 from zero, with and without friction.
             let v0 = pre_solve(world.rows(), world.solver_bodies(), world.impulses());
             for mu in [None, Some(0.0)] {
-                let r64 = pgs64(world.rows(), world.solver_bodies(), &v0, 3000, mu);
+                let r64 = pgs64(world.rows(), world.solver_bodies(), &v0, 3000, mu, trace);
                 let pts: Vec<String> = [1, 10, 50, 100, 200, 400, 700, 1000, 1500, 2000, 3000]
                     .iter()
                     .map(|&i| format!("{i}:{:.1e}", r64[i - 1]))
@@ -167,14 +243,12 @@ fn diagnose_ball_box() {
         }
         prev = keys;
     }
+    Ok(())
 }
 
-#[test]
-#[ignore]
-fn diagnose_motion() {
-    let seed: u64 = std::env::var("SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
-    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, WorldParams::default()).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+fn diagnose_motion(seed: u64) -> Result<()> {
+    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, WorldParams::default())?;
+    let mut warm = ModelKind::Builtin.starter(0)?;
     warm.begin_simulation(seed as u32, seed);
     for _ in 0..250 {
         let s = world.step(&mut warm).clone();
@@ -208,14 +282,12 @@ fn diagnose_motion() {
         );
         println!("{line}");
     }
+    Ok(())
 }
 
-#[test]
-#[ignore]
-fn diagnose_rows() {
-    let seed: u64 = std::env::var("SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
-    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, WorldParams::default()).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+fn diagnose_rows(seed: u64) -> Result<()> {
+    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, WorldParams::default())?;
+    let mut warm = ModelKind::Builtin.starter(0)?;
     for _ in 0..160 {
         world.step(&mut warm);
     }
@@ -235,16 +307,12 @@ fn diagnose_rows() {
         println!("  y {:?}", xs.iter().map(|x| format!("{:.4}", x.1)).collect::<Vec<_>>());
         println!("  gaps {:?}", gaps);
     }
+    Ok(())
 }
 
-#[test]
-#[ignore]
-fn diagnose_pair() {
-    let seed: u64 = std::env::var("SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(0);
-    let a: u32 = std::env::var("A").ok().and_then(|s| s.parse().ok()).unwrap_or(40);
-    let b: u32 = std::env::var("B").ok().and_then(|s| s.parse().ok()).unwrap_or(51);
-    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, WorldParams::default()).unwrap();
-    let mut warm = WarmStarter::local(ModelKind::Builtin, 0).unwrap();
+fn diagnose_pair(seed: u64, a: u32, b: u32) -> Result<()> {
+    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, WorldParams::default())?;
+    let mut warm = ModelKind::Builtin.starter(0)?;
     for _ in 0..260 {
         let s = world.step(&mut warm).clone();
         if s.step < 100 || !s.step.is_multiple_of(3) {
@@ -274,4 +342,5 @@ fn diagnose_pair() {
         }
         println!("{line}");
     }
+    Ok(())
 }

@@ -67,7 +67,7 @@ pub fn first_difference<T: msgs::FrameItem>(got: &[T], expected: &[T]) -> Option
 }
 
 /// Latency and throughput of one bench case, as the receiver measured them. The latency
-/// percentiles are by nearest rank ([`metrics::stats::quantile_nearest_rank`]): each is a measured
+/// percentiles are by nearest rank ([`charts::quantile_nearest_rank`]): each is a measured
 /// latency.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct BenchResult {

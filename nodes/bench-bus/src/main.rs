@@ -6,8 +6,8 @@
 
 use anyhow::{bail, Context, Result};
 use bench_bus::*;
+use charts::quantile_nearest_rank;
 use clap::{Parser, ValueEnum};
-use metrics::stats::quantile_nearest_rank;
 use msgs::{topics, Body, StepHeader};
 use runtime::Node;
 use std::time::{Duration, Instant};

@@ -17,6 +17,12 @@
 //!
 //! Training and validation recordings come from `dc-sim --publish-problem --label-tolerance`
 //! on seeds that the evaluation (0..29) never uses.
+//!
+//! The shipped model (`models/gnn.dcg`) is trained end to end (`--method backprop --loss
+//! residual`). The closed-form readout fit (`--method readout`, still the default so that earlier
+//! commands mean what they meant) and the solver-in-the-loop loss (`--loss unrolled`, `unroll.rs`)
+//! are research methods that no shipped model uses; they stay here because they share the data
+//! loading, the validation re-solve and the training loop, and `--help` says which is which.
 
 mod backprop;
 mod twin;
@@ -30,7 +36,10 @@ use std::path::{Path, PathBuf};
 #[derive(clap::Parser, Debug)]
 #[command(
     name = "dc-gnn-train",
-    about = "Train the contact-graph network on labelled recorded problems (readout fit or end to end)"
+    about = "Train the contact-graph network on labelled recorded problems (readout fit or end to end)",
+    long_about = "Train the contact-graph network on labelled recorded problems.\n\nThe shipped model is trained \
+        end to end: `--method backprop --loss residual`. `--method readout` and `--loss unrolled` are research \
+        methods (no shipped model uses them; kept to reproduce the README's findings)."
 )]
 struct Args {
     /// Training recordings (file or folder) with labelled problems.
@@ -47,25 +56,27 @@ struct Args {
     /// Seed of the message-passing weights.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Ridge strengths tried (relative to each input's own scale).
+    /// With `readout` (research): ridge strengths tried (relative to each input's own scale).
     #[arg(long, value_delimiter = ',', default_value = "1e-4,1e-3,1e-2,1e-1,1")]
     ridge: Vec<f64>,
     /// What is minimised: `residual` (the step's velocity residual at the warm start; with
-    /// compliant contacts in `backprop` the compliant one), `mse` (the distance to the reference
-    /// solution: a well-posed target only where it is unique, i.e. compliant contacts) or
-    /// `unrolled` (the residual after --sweeps PGS sweeps from the warm start; backprop only).
+    /// compliant contacts in `backprop` the compliant one; the shipped model's), `mse` (the
+    /// distance to the reference solution: a well-posed target only where it is unique, i.e.
+    /// compliant contacts) or `unrolled` (research: the residual after --sweeps PGS sweeps from
+    /// the warm start; backprop only).
     #[arg(long, default_value = "residual", value_parser = ["residual", "mse", "unrolled"])]
     loss: String,
-    /// With `--loss unrolled`: the PGS sweeps unrolled before the residual is taken (0: per step,
+    /// Research, with `--loss unrolled`: the PGS sweeps unrolled before the residual is taken (0: per step,
     /// one less than builtin took on it, at most 400).
     #[arg(long, default_value_t = 10)]
     sweeps: usize,
-    /// With `--loss unrolled`: the power of each change's energy in the loss (2: the energy;
+    /// Research, with `--loss unrolled`: the power of each change's energy in the loss (2: the energy;
     /// larger: the largest changes, which decide when PGS stops, weigh more).
     #[arg(long, default_value_t = 2.0)]
     power: f64,
-    /// `readout`: the closed-form readout fit above; `backprop`: the whole network end to end
-    /// (burn, Adam) on the step's complementarity residual.
+    /// `readout` (research; no shipped model uses it): the closed-form ridge fit of the readout
+    /// alone; `backprop`: the whole network end to end (burn, Adam), how the shipped model is
+    /// trained.
     #[arg(long, default_value = "readout", value_parser = ["readout", "backprop"])]
     method: String,
     /// With `backprop`: passes over the training steps, and Adam's learning rate.

@@ -4,6 +4,9 @@
 //! `sum (d lambda)^2 / m` (the residual left after `k` sweeps, in velocity-energy units): the
 //! quantity the solver's stopping rule reads, and invariant to where in the problem's null space
 //! the warm start lies. Its gradient with respect to the warm start drives the network.
+//!
+//! A research method (`--loss unrolled`): no shipped model is trained with it; it lowers its own
+//! loss but not the sweeps to tolerance. [`Unrolled::delassus`] also serves the readout fit.
 
 use msgs::{ProblemBody, ProblemContact};
 

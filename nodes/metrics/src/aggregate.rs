@@ -1,11 +1,15 @@
-//! Per-step solver records and their aggregation per model, simulation and step.
+//! Per-step solver records and their aggregation per model, simulation and step, and the tables
+//! computed from them: the summary per model, and the step-range phase tables whose rows
+//! [`crate::phases`] defines.
 
+use crate::phases::{
+    AccuracyRow, BlendPlacement, PhaseRow, StepRange, SweepBin, SweepHistogram, SweepHistograms,
+    DEFAULT_PHASE_BOUNDARIES,
+};
+use charts::{median, quantile};
 use msgs::{SolveStatsHeader, StepStats};
 use serde::Serialize;
 use std::collections::BTreeMap;
-
-// Re-exported: `metrics::aggregate::{quantile, median}` were defined here before `stats`.
-pub use crate::stats::{median, quantile};
 
 /// One step's solve as the simulator reported it (`msgs::StepStats`, the one definition of the
 /// statistics: its fields read through `Deref`), with the residual after each sweep.
@@ -174,11 +178,7 @@ impl Default for Aggregate {
 
 impl Aggregate {
     pub fn new() -> Aggregate {
-        Aggregate {
-            models: BTreeMap::new(),
-            settle_speed: 0.1,
-            phase_boundaries: crate::phases::DEFAULT_PHASE_BOUNDARIES.to_vec(),
-        }
+        Aggregate { models: BTreeMap::new(), settle_speed: 0.1, phase_boundaries: DEFAULT_PHASE_BOUNDARIES.to_vec() }
     }
 
     /// The models in a stable, meaningful order: the contract's table order (the thesis's), then
@@ -306,6 +306,177 @@ impl Aggregate {
             .map(|n| {
                 let at: Vec<f64> = solves.iter().map(|r| r[(n - 1).min(r.len() - 1)] as f64).collect();
                 (n, median(&at))
+            })
+            .collect()
+    }
+}
+
+/// `value` relative to a positive, finite `reference`.
+fn ratio(value: f64, reference: Option<f64>) -> Option<f64> {
+    reference.filter(|r| *r > 0.0 && r.is_finite()).map(|r| value / r)
+}
+
+/// `part / whole`; NaN for nothing to share.
+fn share(part: u64, whole: u64) -> f64 {
+    if whole == 0 {
+        f64::NAN
+    } else {
+        part as f64 / whole as f64
+    }
+}
+
+/// The step-range phase tables of [`crate::phases`].
+impl Aggregate {
+    /// The step ranges of [`Aggregate::phase_boundaries`].
+    pub fn phase_ranges(&self) -> Vec<StepRange> {
+        StepRange::from_boundaries(&self.phase_boundaries)
+    }
+
+    fn in_range<'a>(&'a self, model: &str, range: StepRange) -> impl Iterator<Item = &'a StepRecord> + 'a {
+        self.records(model).filter(move |r| range.contains(r.step))
+    }
+
+    fn builtin_total(&self) -> Option<f64> {
+        self.models
+            .contains_key("builtin")
+            .then(|| self.records("builtin").map(|r| r.sweeps as u64).sum::<u64>() as f64)
+    }
+
+    /// Per model (in [`Aggregate::model_order`]) and phase: steps, sweeps and their share of the
+    /// model's total, sweeps relative to builtin's whole-run total, capped steps and their
+    /// sweeps, median sweeps and median warm-start error.
+    pub fn phase_rows(&self) -> Vec<PhaseRow> {
+        let builtin = self.builtin_total();
+        let ranges = self.phase_ranges();
+        let mut out = Vec::new();
+        for model in self.model_order() {
+            let model_total: u64 = self.records(&model).map(|r| r.sweeps as u64).sum();
+            for &range in &ranges {
+                let steps: Vec<&StepRecord> = self.in_range(&model, range).collect();
+                let total: u64 = steps.iter().map(|r| r.sweeps as u64).sum();
+                let capped = || steps.iter().filter(|r| !r.converged);
+                let cap_sweeps: u64 = capped().map(|r| r.sweeps as u64).sum();
+                let sweeps: Vec<f64> = steps.iter().map(|r| r.sweeps as f64).collect();
+                let errors: Vec<f64> =
+                    steps.iter().filter(|r| r.contacts > 0).map(|r| r.warm_error_normal_mse as f64).collect();
+                out.push(PhaseRow {
+                    model: model.clone(),
+                    phase: range,
+                    steps: steps.len(),
+                    total_sweeps: total,
+                    model_total_sweeps: model_total,
+                    share_of_model: share(total, model_total),
+                    ratio_to_builtin_total: ratio(total as f64, builtin),
+                    same_states_ratio: same_states_totals(steps.iter().copied())
+                        .and_then(|(own, builtin)| ratio(own as f64, Some(builtin as f64))),
+                    cap_hits: capped().count(),
+                    cap_sweeps,
+                    cap_sweeps_share: share(cap_sweeps, model_total),
+                    median_sweeps: median(&sweeps),
+                    median_warm_error_normal_mse: median(&errors),
+                });
+            }
+        }
+        out
+    }
+
+    /// Per model and phase, the fraction of steps per log-spaced bin of sweeps (bins 1, 2-3,
+    /// 4-7, ... up to the largest sweep count of any model; a 0 bin when some step needed none).
+    pub fn sweeps_histograms(&self) -> SweepHistograms {
+        let models = self.model_order();
+        let all = || models.iter().flat_map(|m| self.records(m));
+        let max = all().map(|r| r.sweeps).max().unwrap_or(1);
+        let bins = SweepBin::log2_bins(max, all().any(|r| r.sweeps == 0));
+        let bin_of = |sweeps: u32| bins.iter().position(|b| (b.lo..=b.hi).contains(&sweeps));
+        let mut histograms = Vec::new();
+        for model in &models {
+            for range in self.phase_ranges() {
+                let mut counts = vec![0usize; bins.len()];
+                let mut steps = 0;
+                for r in self.in_range(model, range) {
+                    steps += 1;
+                    if let Some(b) = bin_of(r.sweeps) {
+                        counts[b] += 1;
+                    }
+                }
+                let fractions =
+                    counts.iter().map(|&c| if steps == 0 { 0.0 } else { c as f64 / steps as f64 }).collect();
+                histograms.push(SweepHistogram { model: model.clone(), phase: range, steps, counts, fractions });
+            }
+        }
+        SweepHistograms { bins, histograms }
+    }
+
+    /// The model's steps as (warm-start normal MSE, sweeps), both positive (for log axes), at most
+    /// `max_points` of them: every k-th such step in simulation and step order.
+    pub fn sweeps_vs_warm_error(&self, model: &str, max_points: usize) -> Vec<(f64, f64)> {
+        let valid: Vec<(f64, f64)> = self
+            .records(model)
+            .map(|r| (r.warm_error_normal_mse as f64, r.sweeps as f64))
+            .filter(|&(e, s)| e > 0.0 && e.is_finite() && s > 0.0)
+            .collect();
+        let every = valid.len().div_ceil(max_points.max(1)).max(1);
+        valid.into_iter().step_by(every).collect()
+    }
+
+    /// The accuracy -> sweeps curve, one row per model: its median warm-start normal MSE over the
+    /// late phase's steps with persisting contacts and its total sweeps, each also relative to
+    /// builtin's.
+    pub fn accuracy(&self) -> Vec<AccuracyRow> {
+        let late = *self.phase_ranges().last().expect("at least one phase");
+        let rows: Vec<AccuracyRow> = self
+            .model_order()
+            .into_iter()
+            .map(|model| {
+                let errors: Vec<f64> = self
+                    .in_range(&model, late)
+                    .filter(|r| r.persisting_contacts > 0)
+                    .map(|r| r.warm_error_normal_mse as f64)
+                    .collect();
+                let mean = if errors.is_empty() { f64::NAN } else { errors.iter().sum::<f64>() / errors.len() as f64 };
+                AccuracyRow {
+                    late_phase: late,
+                    late_steps: errors.len(),
+                    median_warm_error_normal_mse: median(&errors),
+                    mean_warm_error_normal_mse: mean,
+                    error_vs_builtin: None,
+                    total_sweeps: self.records(&model).map(|r| r.sweeps as u64).sum(),
+                    sweeps_vs_builtin: None,
+                    late_sweeps: self.in_range(&model, late).map(|r| r.sweeps as u64).sum(),
+                    late_sweeps_vs_builtin: None,
+                    same_states_vs_builtin: same_states_totals(self.records(&model))
+                        .and_then(|(own, builtin)| ratio(own as f64, Some(builtin as f64))),
+                    blend_by_error: None,
+                    blend_by_sweeps: None,
+                    placed_on_same_states: false,
+                    model,
+                }
+            })
+            .collect();
+        let builtin = rows.iter().find(|r| r.model == "builtin").cloned();
+        let rows: Vec<AccuracyRow> = rows
+            .into_iter()
+            .map(|r| {
+                let b = builtin.as_ref();
+                AccuracyRow {
+                    error_vs_builtin: ratio(r.median_warm_error_normal_mse, b.map(|b| b.median_warm_error_normal_mse))
+                        .filter(|v| v.is_finite()),
+                    sweeps_vs_builtin: ratio(r.total_sweeps as f64, b.map(|b| b.total_sweeps as f64)),
+                    late_sweeps_vs_builtin: ratio(r.late_sweeps as f64, b.map(|b| b.late_sweeps as f64)),
+                    ..r
+                }
+            })
+            .collect();
+        // Same states when every model measured them: whole-run sweeps mix in the trajectory.
+        let same_states = rows.iter().all(|r| r.same_states_vs_builtin.is_some());
+        let rows: Vec<AccuracyRow> =
+            rows.into_iter().map(|r| AccuracyRow { placed_on_same_states: same_states, ..r }).collect();
+        let curve = BlendPlacement::of_table(&rows);
+        rows.into_iter()
+            .map(|r| AccuracyRow {
+                blend_by_error: curve.as_ref().zip(r.error_vs_builtin).and_then(|(c, e)| c.by_error(e)),
+                blend_by_sweeps: curve.as_ref().zip(r.placement_sweeps()).and_then(|(c, s)| c.by_sweeps(s)),
+                ..r
             })
             .collect()
     }

@@ -5,14 +5,13 @@
 //! solve time and whole-step time are reported separately.
 //!
 //! [`phases`] splits runs into step ranges (where the sweeps are spent), with the sweeps histogram
-//! and the accuracy -> sweeps table. [`stats`] holds the workspace's one quantile / median (other nodes' reports use it too).
+//! and the accuracy -> sweeps table. The charts and the workspace's one quantile / median live in
+//! the `charts` library (other nodes' reports use them too).
 
 pub mod aggregate;
 pub mod completeness;
 pub mod phases;
-pub mod plot;
 pub mod report;
-pub mod stats;
 
 pub use aggregate::{Aggregate, ModelSummary, StepRecord};
 pub use completeness::Completeness;

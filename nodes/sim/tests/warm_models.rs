@@ -176,7 +176,10 @@ fn an_untrained_contact_graph_network_is_builtin_exactly() {
     assert!(err.contains("--gnn-model"), "{err}");
     let files = sim::ModelFiles { gnn: Some(path) };
     let run = |spec: &ModelSpec| -> Vec<u32> {
-        let mut warm = WarmStarter::new(spec.build_with(0, sim::warm::Served::default(), &files).unwrap(), ModelKind::None.build(0).unwrap());
+        let mut warm = WarmStarter::new(
+            spec.build_with(0, sim::warm::Served::default(), &files).unwrap(),
+            ModelKind::None.build(0).unwrap(),
+        );
         warm.begin_simulation(0, 0);
         let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
         (0..150)

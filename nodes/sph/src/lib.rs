@@ -1,5 +1,6 @@
 //! SPH grid transfer for Deep Contact: smoothing kernels, particle -> grid scatter, grid -> particle
-//! bilinear sampling, and the transfer-error study that chooses their parameters.
+//! bilinear sampling. Their parameters were chosen by the transfer-error study (an experiment:
+//! `experiments::sph_study`, binary `dc-sph-study`).
 //!
 //! The thesis (chapters 4 and 7.2) lost its warm starts here: its transfer normalised each
 //! particle's kernel weights to sum 1, spreading every impulse over ~50 nodes so that less than 20%
@@ -14,9 +15,8 @@
 //!   back): build a [`Transfer`] once per scene with [`GridGeometry::from_bounds`], then per step
 //!   [`Transfer::contacts_grid`]; or the one-shot [`contacts_to_grid`].
 //!
-//! The library depends on `msgs`, `kiddo` and `thiserror` only; the `dc-sph` binary (node, study,
-//! bench) and the `study` module (which takes its median from `metrics`) sit behind the default
-//! `node` feature.
+//! The library depends on `msgs`, `kiddo` and `thiserror` only; the `dc-sph` binary (node, bench)
+//! sits behind the default `node` feature.
 
 pub mod geometry;
 pub mod kernel;
@@ -24,8 +24,6 @@ pub mod mode;
 pub mod pairing;
 pub mod particles;
 mod scatter;
-#[cfg(feature = "node")]
-pub mod study;
 pub mod synth;
 pub mod transfer;
 

@@ -1,10 +1,9 @@
 //! dc-sph: the SPH-grid node. Subscribes to bodies and contacts, pairs them by step, publishes the
 //! bodies grid (`grid/bodies`, the U-Net's input) and the impulse grid (`grid/contacts`, the `grid`
-//! warm-start model) of every step. `dc-sph study` runs the transfer-error study, `dc-sph bench`
-//! times the scatter.
+//! warm-start model) of every step. `dc-sph bench` times the scatter (the transfer-error study
+//! is an experiment: `dc-sph-study` in the `experiments` crate).
 
 mod commands;
-mod heatmap;
 
 use anyhow::Result;
 use clap::Parser;
@@ -15,7 +14,7 @@ use std::time::{Duration, Instant};
 #[derive(Parser, Debug)]
 #[command(
     name = "dc-sph",
-    about = "SPH grid transfer node; `study` and `bench` subcommands",
+    about = "SPH grid transfer node; `bench` subcommand",
     args_conflicts_with_subcommands = true
 )]
 struct Args {

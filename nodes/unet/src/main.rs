@@ -412,7 +412,7 @@ fn bench(args: &BenchArgs) -> Result<()> {
                         times.push(t.elapsed().as_secs_f64() * 1e3);
                     }
                 }
-                Ok(metrics::stats::median(&times))
+                Ok(charts::median(&times))
             };
             let b1 = time(1)?;
             let b16 = time(16)?;
@@ -432,7 +432,7 @@ fn bench(args: &BenchArgs) -> Result<()> {
                     times.push(t.elapsed().as_secs_f64() * 1e3);
                 }
             }
-            let step = metrics::stats::median(&times);
+            let step = charts::median(&times);
             println!("| {net_name} | {} | {name} | {b1:.2} | {b16:.1} | {step:.0} |", model.num_params());
             rows.push((net_name.clone(), name.clone(), b1));
         }

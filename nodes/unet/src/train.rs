@@ -10,6 +10,7 @@ use crate::{Result, UnetError};
 use burn::module::Module;
 use burn::optim::{momentum::MomentumConfig, AdamConfig, GradientsParams, ModuleOptimizer, SgdConfig};
 use burn::tensor::{Bytes, Device, Int, Tensor, TensorData};
+use charts::{chart, Axis, Mark, Panel, Series};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 use sph::SplitMix64;
@@ -574,8 +575,13 @@ fn resume_state(opts: &TrainOptions, dir: &Path, device: &Device) -> Result<Opti
     Ok(Some((state.meta, file.model.train(), optim, state.epoch + 1, state.optimizer_step)))
 }
 
+/// A PNG at `path` of loss curves: a line per series, x linear, the loss on a log axis.
+fn loss_chart(path: &Path, title: &str, x_label: &str, series: &[Series]) -> Result<()> {
+    let panel = Panel::new(Axis::linear(x_label), Axis::log("loss"), series, Mark::Lines);
+    chart(path, title, &[panel]).map_err(|e| UnetError::Data(e.to_string()))
+}
+
 fn write_loss_plot(out: &Path, meta: &ModelMeta, loss: LossKind, step_losses: &[(f64, f64)]) -> Result<()> {
-    use metrics::plot::{line_chart, Series, YScale};
     let per_epoch = |v: &[f64]| v.iter().enumerate().map(|(i, &l)| ((i + 1) as f64, l)).collect::<Vec<_>>();
     let mut series = vec![
         Series { name: "train".into(), points: per_epoch(&meta.training.train_loss), band: None },
@@ -593,22 +599,19 @@ fn write_loss_plot(out: &Path, meta: &ModelMeta, loss: LossKind, step_losses: &[
         LossKind::Points => "U-Net loss per epoch (at contact points, sweeps-weighted)",
         LossKind::Grid => "U-Net loss per epoch (normalised MSE)",
     };
-    line_chart(&path, title, "epoch", "loss", &series, YScale::Log).map_err(|e| UnetError::Data(e.to_string()))?;
+    loss_chart(&path, title, "epoch", &series)?;
     if !step_losses.is_empty() {
         let smooth = schedule::smoothed(step_losses, 0.98);
         let path = out.with_extension("steps.png");
-        line_chart(
+        loss_chart(
             &path,
             "U-Net training loss per optimiser step",
             "step",
-            "loss",
             &[
                 Series { name: "batch loss".into(), points: step_losses.to_vec(), band: None },
                 Series { name: "smoothed".into(), points: smooth, band: None },
             ],
-            YScale::Log,
-        )
-        .map_err(|e| UnetError::Data(e.to_string()))?;
+        )?;
     }
     Ok(())
 }
@@ -672,19 +675,15 @@ pub fn find_lr(opts: &TrainOptions, start: f64, end: f64, steps: usize, device: 
         std::fs::create_dir_all(dir).map_err(|e| UnetError::Io(dir.display().to_string(), e))?;
     }
     std::fs::write(&csv_path, csv).map_err(|e| UnetError::Io(csv_path.display().to_string(), e))?;
-    use metrics::plot::{line_chart, Series, YScale};
     let log_x = |c: &[(f64, f64)]| c.iter().map(|&(lr, l)| (lr.log10(), l)).collect::<Vec<_>>();
-    line_chart(
+    loss_chart(
         &opts.out.with_extension("lr.png"),
         &format!("LR finder (suggested {})", suggestion.map(|s| format!("{s:.2e}")).unwrap_or("none".into())),
         "log10 learning rate",
-        "loss",
         &[
             Series { name: "batch loss".into(), points: log_x(&curve), band: None },
             Series { name: "smoothed".into(), points: log_x(&schedule::smoothed(&curve, 0.9)), band: None },
         ],
-        YScale::Log,
-    )
-    .map_err(|e| UnetError::Data(e.to_string()))?;
+    )?;
     Ok((curve, suggestion))
 }

@@ -19,21 +19,22 @@ use std::path::Path;
 
 /// One model's curve, optionally with a band (x, low, high) drawn beneath it.
 pub struct Series {
+    /// The legend's name; it also picks the style ([`styles`]).
     pub name: String,
+    /// (x, y) in data units, in drawing order.
     pub points: Vec<(f64, f64)>,
+    /// (x, low, high) of a shaded band beneath the line.
     pub band: Option<Vec<(f64, f64, f64)>>,
 }
 
 /// How an axis maps values.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Scale {
+    /// The values as they are.
     Linear,
     /// log10 of the values; non-positive values are left out.
     Log,
 }
-
-/// The y axis's scale of [`line_chart`] (its name from before x axes could be logarithmic too).
-pub type YScale = Scale;
 
 /// How an axis's ticks are labelled.
 #[derive(Debug, Clone, PartialEq)]
@@ -51,7 +52,9 @@ pub enum Ticks {
 pub struct Axis {
     /// The axis description, with its unit.
     pub label: String,
+    /// How values map onto the axis.
     pub scale: Scale,
+    /// How the ticks are placed and labelled.
     pub ticks: Ticks,
     /// A linear axis reaches down (or up) to 0.
     pub include_zero: bool,
@@ -78,14 +81,17 @@ impl Axis {
         Axis { ticks: Ticks::Categories(names), ..Axis::linear(label) }
     }
 
+    /// The same axis on `scale`.
     pub fn with_scale(self, scale: Scale) -> Axis {
         Axis { scale, ..self }
     }
 
+    /// The same axis with whole-number ticks only.
     pub fn integer(self) -> Axis {
         Axis { ticks: Ticks::Integer, ..self }
     }
 
+    /// The same axis reaching 0 (linear axes only).
     pub fn from_zero(self) -> Axis {
         Axis { include_zero: true, ..self }
     }
@@ -108,9 +114,13 @@ pub enum Mark {
 pub struct Panel<'a> {
     /// Shown above the panel (empty: none).
     pub title: String,
+    /// The horizontal axis.
     pub x: Axis,
+    /// The vertical axis.
     pub y: Axis,
+    /// What is drawn; each series keeps its style across the chart's panels.
     pub series: &'a [Series],
+    /// How the series are drawn.
     pub mark: Mark,
     /// Dashed grey lines at these x values (e.g. 1.0: "as builtin").
     pub x_guides: Vec<f64>,
@@ -119,49 +129,66 @@ pub struct Panel<'a> {
 }
 
 impl<'a> Panel<'a> {
+    /// A panel without title or guides.
     pub fn new(x: Axis, y: Axis, series: &'a [Series], mark: Mark) -> Panel<'a> {
         Panel { title: String::new(), x, y, series, mark, x_guides: Vec::new(), y_guides: Vec::new() }
     }
 
+    /// The same panel with `title` above it.
     pub fn titled(self, title: &str) -> Panel<'a> {
         Panel { title: title.into(), ..self }
     }
 
+    /// The same panel with dashed guide lines at these x and y values.
     pub fn guides(self, x: &[f64], y: &[f64]) -> Panel<'a> {
         Panel { x_guides: x.to_vec(), y_guides: y.to_vec(), ..self }
     }
 }
 
+/// A chart that could not be drawn or written.
 #[derive(Debug, thiserror::Error)]
 #[error("plot {file}: {what}")]
 pub struct PlotError {
+    /// The PNG's path.
     pub file: String,
+    /// What plotters reported.
     pub what: String,
 }
 
 /// How a line is stroked.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Dash {
+    /// An unbroken line.
     Solid,
+    /// Long dashes.
     Dashed,
+    /// Short dots.
     Dotted,
 }
 
 /// The shape drawn at a series' points.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Marker {
+    /// A filled circle.
     Circle,
+    /// A filled triangle, point up.
     Triangle,
+    /// A filled square.
     Square,
+    /// A filled square on its corner.
     Diamond,
+    /// An x.
     Cross,
 }
 
 /// How one series is drawn.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Style {
+    /// Line, band and marker colour.
     pub color: RGBColor,
+    /// How the line is stroked.
     pub dash: Dash,
+    /// The shape at the series' points.
     pub marker: Marker,
 }
 
@@ -245,19 +272,6 @@ fn register_font() {
             tracing::warn!("bundled font did not load; plots will lack text");
         }
     });
-}
-
-/// Draws `series` into a PNG at `path`: one panel of lines, x linear, y on `y_scale` from 0.
-pub fn line_chart(
-    path: &Path,
-    title: &str,
-    x_label: &str,
-    y_label: &str,
-    series: &[Series],
-    y_scale: YScale,
-) -> Result<(), PlotError> {
-    let y = Axis { include_zero: true, ..Axis::linear(y_label).with_scale(y_scale) };
-    chart(path, title, &[Panel::new(Axis::linear(x_label), y, series, Mark::Lines)])
 }
 
 /// Draws `panels` stacked top to bottom into a PNG at `path`, with `title` above them and one
