@@ -610,6 +610,11 @@ fn exec_node(node: &str, args: &[String]) -> Result<()> {
     bail!("cannot run {}: {err}", program.display())
 }
 
+/// A `--models` help text followed by the models in their groups.
+fn models_help(what: &str) -> String {
+    format!("{what}\n{}", msgs::models::groups_help())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -629,9 +634,4 @@ mod tests {
         assert!(train_command(args("--model transformer")).unwrap_err().to_string().contains("unknown model"));
         assert!(train_command(args("--model")).is_err());
     }
-}
-
-/// A `--models` help text followed by the models in their groups.
-fn models_help(what: &str) -> String {
-    format!("{what}\n{}", msgs::models::groups_help())
 }

@@ -4,21 +4,38 @@
 //! the whole graph on Ctrl-C or when a node fails.
 //!
 //! [`run_with`] is a loop over the phases of one `Supervisor`: take the nodes' events, move the
-//! start-up barrier, watch the other hosts, announce restarted nodes, handle exits, and stop once
-//! the workers are done. What each phase decides is a pure function (`barrier_step`,
-//! `hosts_gate`, `HostWatch::update`, `failure_action`, `workers_finished`) tested without
-//! processes; the methods around them do the process and bus work.
+//! start-up barrier, watch the other hosts, announce restarted nodes, handle exits, and once the
+//! workers are done `shutdown` (producers before their consumers); a failure, a timeout or
+//! Ctrl-C ends the run with `abort` (every node at once) instead. What each phase decides is a
+//! pure function (`barrier_step`, `hosts_gate`, `HostWatch::update`, `failure_action`,
+//! `workers_finished`, `next_wave`) tested without processes; the methods around them do the
+//! process and bus work, and `stop_nodes` is the one place a node is signalled.
 
 use crate::graph::{Graph, NodeSpec, OnFailure};
 use crate::plan::{self, Plan};
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::{BufRead, BufReader, Write};
-use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
+use std::process::{Child, ChildStderr, ChildStdin, ChildStdout, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 /// How long nodes get to finish after SIGTERM before SIGKILL.
 const STOP_GRACE: Duration = Duration::from_secs(5);
+/// How often stopping nodes are looked at during [`STOP_GRACE`].
+const STOP_POLL: Duration = Duration::from_millis(10);
+/// How long one round of the run loop waits for the nodes' first event.
+const EVENT_WAIT: Duration = Duration::from_millis(20);
+/// How long the nodes' last output lines may take to arrive once they are stopped.
+const LAST_LINES_WAIT: Duration = Duration::from_secs(2);
+/// The state a launcher declares to the other hosts' launchers once its nodes are connected.
+const CONNECTED: &str = "connected";
+/// The state a launcher declares while it has workers not all done.
+const WORKING: &str = "working";
+/// How many of a node's last stderr lines the launcher keeps, to quote its error when it fails.
+const STDERR_TAIL: usize = 40;
+/// How long a failed node's stderr may take to drain before its error is quoted.
+const STDERR_DRAIN: Duration = Duration::from_secs(1);
+
 /// Knobs of a run.
 #[derive(Debug, Clone)]
 pub struct RunOptions {
@@ -74,12 +91,6 @@ enum Event {
     ErrClosed(usize),
 }
 
-/// How many of a node's last stderr lines the launcher keeps, to quote its error when it fails.
-const STDERR_TAIL: usize = 40;
-
-/// How long a failed node's stderr may take to drain before its error is quoted.
-const STDERR_DRAIN: Duration = Duration::from_secs(1);
-
 /// Where a node is in its start-up handshake.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 enum Phase {
@@ -121,6 +132,14 @@ fn error_said<'a>(tail: impl DoubleEndedIterator<Item = &'a String> + ExactSizeI
 impl Running {
     fn finished(&self) -> bool {
         self.done || self.exited.is_some()
+    }
+
+    /// Keeps a stderr line among the last [`STDERR_TAIL`].
+    fn keep_stderr_line(&mut self, line: String) {
+        if self.stderr_tail.len() == STDERR_TAIL {
+            self.stderr_tail.pop_front();
+        }
+        self.stderr_tail.push_back(line);
     }
 }
 
@@ -377,7 +396,7 @@ pub fn run_with(
         }
         sup.handle_exits()?;
         if sup.workers_done() && sup.other_hosts_done() {
-            return sup.drain_and_shutdown();
+            return sup.shutdown();
         }
     }
 }
@@ -451,7 +470,7 @@ impl<'a> Supervisor<'a> {
                     stderr_tail: Default::default(),
                     stderr_open: true,
                 }),
-                Err(e) => return Err(self.fail(e)),
+                Err(e) => return Err(self.abort(e)),
             }
         }
         self.barrier.since = Instant::now();
@@ -475,41 +494,20 @@ impl<'a> Supervisor<'a> {
         let mut child = cmd.spawn().map_err(|e| RunError::Spawn { node: spec.name.clone(), what: e.to_string() })?;
         eprintln!("[dc] node `{}` started (pid {})", spec.name, child.id());
         let prefix = format!("[{:width$}]", spec.name, width = self.width);
-        let stdout = child.stdout.take().expect("piped");
-        let stderr = child.stderr.take().expect("piped");
-        let (tx_out, tx_err) = (self.tx.clone(), self.tx.clone());
         let forward = matches!(self.output, Output::Forward);
-        let p = prefix.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                let event = match line.as_str() {
-                    runtime::READY_MARKER => Event::Ready(i),
-                    runtime::CONNECTED_MARKER => Event::Connected(i),
-                    runtime::DONE_MARKER => Event::Done(i),
-                    _ => {
-                        if forward {
-                            println!("{p} {line}");
-                        }
-                        Event::Line(i, line)
-                    }
-                };
-                let _ = tx_out.send(event);
-            }
-        });
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                eprintln!("{prefix} {line}");
-                let _ = tx_err.send(Event::ErrLine(i, line));
-            }
-            let _ = tx_err.send(Event::ErrClosed(i));
-        });
+        let stdout = child.stdout.take().expect("piped");
+        let (p, tx) = (prefix.clone(), self.tx.clone());
+        std::thread::spawn(move || read_stdout(i, stdout, forward.then_some(p), tx));
+        let stderr = child.stderr.take().expect("piped");
+        let tx = self.tx.clone();
+        std::thread::spawn(move || read_stderr(i, stderr, prefix, tx));
         let stdin = child.stdin.take();
         Ok((child, stdin))
     }
 
     /// Takes the nodes' events (handshake markers, captured lines), waiting briefly for the first.
     fn pump_events(&mut self) {
-        let mut first = self.rx.recv_timeout(Duration::from_millis(20)).ok();
+        let mut first = self.rx.recv_timeout(EVENT_WAIT).ok();
         while let Some(ev) = first.take().or_else(|| self.rx.try_recv().ok()) {
             match ev {
                 Event::Ready(i) => self.nodes[i].phase = self.nodes[i].phase.max(Phase::Ready),
@@ -518,10 +516,7 @@ impl<'a> Supervisor<'a> {
                 Event::Line(i, line) => self.capture(i, line),
                 Event::ErrLine(i, line) => {
                     if let Some(n) = self.nodes.get_mut(i) {
-                        if n.stderr_tail.len() == STDERR_TAIL {
-                            n.stderr_tail.pop_front();
-                        }
-                        n.stderr_tail.push_back(line);
+                        n.keep_stderr_line(line);
                     }
                 }
                 Event::ErrClosed(i) => {
@@ -570,17 +565,17 @@ impl<'a> Supervisor<'a> {
         // workers too (one session delivers in order), so it cannot mistake us for done and stop
         // its daemons under our feet.
         if !self.hosts.working_declared && self.nodes.iter().any(|n| !n.spec.daemon) {
-            sync.declare(self.host, "working").map_err(RunError::Bus)?;
+            sync.declare(self.host, WORKING).map_err(RunError::Bus)?;
             self.hosts.working_declared = true;
         }
-        sync.declare(self.host, "connected").map_err(RunError::Bus)?;
-        let connected = hosts_in(sync.alive(), "connected");
+        sync.declare(self.host, CONNECTED).map_err(RunError::Bus)?;
+        let connected = hosts_in(sync.alive(), CONNECTED);
         match hosts_gate(&self.hosts.with_nodes, &connected, self.barrier.since.elapsed(), self.options.hosts_timeout) {
             HostsGate::Open => Ok(true),
             HostsGate::Wait => Ok(false),
             HostsGate::TimedOut(missing) => {
                 let missing = missing.iter().map(|h| format!("`{h}`")).collect::<Vec<_>>().join(", ");
-                Err(self.fail(RunError::HostsMissing { missing, secs: self.options.hosts_timeout.as_secs_f64() }))
+                Err(self.abort(RunError::HostsMissing { missing, secs: self.options.hosts_timeout.as_secs_f64() }))
             }
         }
     }
@@ -593,7 +588,7 @@ impl<'a> Supervisor<'a> {
             return;
         }
         let Some(sync) = &mut self.bus.sync else { return };
-        let connected = hosts_in(sync.alive(), "connected");
+        let connected = hosts_in(sync.alive(), CONNECTED);
         let changes = self.hosts.update(self.host, &connected);
         for change in &changes {
             match change {
@@ -638,42 +633,51 @@ impl<'a> Supervisor<'a> {
         Ok(())
     }
 
+    /// Node `i` exited with the failure `status`: restarts it, or ends the run as its policy says.
     fn node_failed(&mut self, i: usize, status: ExitStatus) -> Result<(), RunError> {
         let name = self.nodes[i].spec.name.clone();
         let described = describe(status);
-        // Its last words are still in the pipe: let them arrive, to quote its error.
-        let since = Instant::now();
-        while self.nodes[i].stderr_open && since.elapsed() < STDERR_DRAIN {
-            self.pump_events();
-        }
-        let said = error_said(self.nodes[i].stderr_tail.iter());
-        self.nodes[i].stderr_tail.clear();
+        let said = self.last_words(i);
         // Its shared-memory ports must go at once: publishers would wait on its full queues.
         if let Err(e) = runtime::cleanup_stale_resources() {
             tracing::warn!("cleaning the dead node's resources: {e}");
         }
         let down = notice_of(&self.plan, &name, self.host, &described);
-        match failure_action(self.nodes[i].spec.on_failure, self.nodes[i].restarts) {
+        let e = match failure_action(self.nodes[i].spec.on_failure, self.nodes[i].restarts) {
             FailureAction::Restart { attempt, max } => {
                 self.nodes[i].restarts = attempt;
                 eprintln!("[dc] node `{name}` exited with {described}: restarting it ({attempt} of at most {max})");
                 self.bus.notice(false, down);
                 self.restart(i)?;
                 self.report.restarts.insert(name, attempt);
-                Ok(())
+                return Ok(());
             }
             FailureAction::Exhausted { restarts } => {
                 eprintln!("[dc] node `{name}` exited with {described} after {restarts} restarts: stopping the graph");
                 self.bus.notice(false, down);
-                self.stop_and_drain();
-                Err(RunError::RestartsExhausted { node: name, status: described, restarts, said })
+                RunError::RestartsExhausted { node: name, status: described, restarts, said }
             }
             FailureAction::StopGraph => {
                 eprintln!("[dc] node `{name}` exited with {described}: stopping the graph");
-                self.stop_and_drain();
-                Err(RunError::NodeFailed { node: name, status: described, said })
+                RunError::NodeFailed { node: name, status: described, said }
             }
+        };
+        let e = self.abort(e);
+        // What the other nodes said on their way out comes before the error.
+        self.take_last_lines();
+        Err(e)
+    }
+
+    /// What failed node `i` said about its failure ([`error_said`]): its last words are still
+    /// in the pipe, so they get [`STDERR_DRAIN`] to arrive. Its kept lines are cleared after.
+    fn last_words(&mut self, i: usize) -> String {
+        let since = Instant::now();
+        while self.nodes[i].stderr_open && since.elapsed() < STDERR_DRAIN {
+            self.pump_events();
         }
+        let said = error_said(self.nodes[i].stderr_tail.iter());
+        self.nodes[i].stderr_tail.clear();
+        said
     }
 
     /// Starts node `i` again and tells it the barrier lines already said: it reads them once its
@@ -682,7 +686,7 @@ impl<'a> Supervisor<'a> {
         let spec = self.nodes[i].spec.clone();
         let (child, stdin) = match self.spawn(i, &spec) {
             Ok(c) => c,
-            Err(e) => return Err(self.fail(e)),
+            Err(e) => return Err(self.abort(e)),
         };
         let n = &mut self.nodes[i];
         (n.child, n.stdin, n.exited, n.done, n.phase) = (child, stdin, None, false, Phase::Starting);
@@ -705,19 +709,20 @@ impl<'a> Supervisor<'a> {
     fn other_hosts_done(&mut self) -> bool {
         let Some(sync) = &mut self.bus.sync else { return true };
         if self.hosts.working_declared {
-            sync.withdraw(self.host, "working");
+            sync.withdraw(self.host, WORKING);
             self.hosts.working_declared = false;
         }
-        !sync.alive().iter().any(|(_, state)| state == "working")
+        !sync.alive().iter().any(|(_, state)| state == WORKING)
     }
 
-    /// Stops the nodes: daemons first (they drain what the finished workers sent, whose
-    /// publishers are still alive), then the lingering workers. A node that fails while being
-    /// stopped is still a failure worth reporting.
-    fn drain_and_shutdown(mut self) -> Result<RunReport, RunError> {
+    /// The end of a run whose workers are done: the nodes at work (daemons) stop in waves,
+    /// producers first, so they drain what the finished workers sent (whose publishers are still
+    /// alive); then the lingering workers. A node that fails while being stopped is still a
+    /// failure worth reporting.
+    fn shutdown(mut self) -> Result<RunReport, RunError> {
         stop_in_waves(&mut self.nodes, &self.plan);
-        stop_all(&mut self.nodes);
-        self.drain_lines();
+        stop_nodes(&mut self.nodes, |_| true);
+        self.take_last_lines();
         if let Some(n) = self.nodes.iter().find(|n| n.exited.is_some_and(failed_on_stop)) {
             let status = describe(n.exited.unwrap());
             let said = error_said(n.stderr_tail.iter());
@@ -728,23 +733,20 @@ impl<'a> Supervisor<'a> {
 
     fn interrupted(&mut self) -> RunError {
         eprintln!("[dc] interrupted: stopping the graph");
-        self.fail(RunError::Interrupted)
+        self.abort(RunError::Interrupted)
     }
 
-    /// Stops every node and passes `e` on.
-    fn fail(&mut self, e: RunError) -> RunError {
-        stop_all(&mut self.nodes);
+    /// The end of a run on `e`: stops every node at once and passes `e` on.
+    fn abort(&mut self, e: RunError) -> RunError {
+        stop_nodes(&mut self.nodes, |_| true);
         e
     }
 
-    fn stop_and_drain(&mut self) {
-        stop_all(&mut self.nodes);
-        self.drain_lines();
-    }
-
-    fn drain_lines(&mut self) {
+    /// Takes the stdout lines still on their way from stopped nodes (for [`Output::Capture`]),
+    /// for at most [`LAST_LINES_WAIT`].
+    fn take_last_lines(&mut self) {
         // Reader threads finish once the children's pipes close.
-        let deadline = Instant::now() + Duration::from_secs(2);
+        let deadline = Instant::now() + LAST_LINES_WAIT;
         while let Ok(ev) = self.rx.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
             if let Event::Line(i, line) = ev {
                 self.capture(i, line);
@@ -784,15 +786,9 @@ fn describe(status: ExitStatus) -> String {
     }
 }
 
-/// SIGTERM to every running node, then SIGKILL after the grace period.
-fn stop_all(nodes: &mut [Running]) {
-    stop_where(nodes, |_| true)
-}
-
-/// Stops the nodes still at work, producers before their consumers: each wave is every such node
-/// none of whose input topics another of them writes (the launchers' control notices aside), and
-/// it exits before the next wave is asked to, so what a producer makes of its last inputs (an SPH
-/// node's last grids) still reaches a reader that records it. Readers of each other stop together.
+/// Stops the nodes still at work, one [`next_wave`] at a time: each wave exits before the next is
+/// asked to, so what a producer makes of its last inputs (an SPH node's last grids) still reaches
+/// a reader that records it.
 fn stop_in_waves(nodes: &mut [Running], plan: &Plan) {
     let ports = |name: &str| plan.members.iter().find(|m| m.name == name).map(|m| &m.ports);
     loop {
@@ -801,25 +797,33 @@ fn stop_in_waves(nodes: &mut [Running], plan: &Plan) {
         if at_work.is_empty() {
             return;
         }
-        let fed_by_others = |name: &str| {
-            ports(name).is_some_and(|p| {
-                p.subscribes
-                    .iter()
-                    .filter(|t| t.as_str() != msgs::topics::CONTROL.name)
-                    .any(|t| at_work.iter().any(|o| o != name && ports(o).is_some_and(|q| q.publishes.contains(t))))
-            })
-        };
-        let mut wave: Vec<String> = at_work.iter().filter(|n| !fed_by_others(n)).cloned().collect();
-        if wave.is_empty() {
-            wave = at_work;
-        }
-        stop_where(nodes, |n| wave.contains(&n.spec.name));
+        let wave = next_wave(at_work, ports);
+        stop_nodes(nodes, |n| wave.contains(&n.spec.name));
+    }
+}
+
+/// The nodes of `at_work` to stop first: those none of whose input topics another of them writes
+/// (the launchers' control notices aside); all of them when they read each other.
+fn next_wave<'p>(at_work: Vec<String>, ports: impl Fn(&str) -> Option<&'p runtime::Ports>) -> Vec<String> {
+    let fed_by_others = |name: &str| {
+        ports(name).is_some_and(|p| {
+            p.subscribes
+                .iter()
+                .filter(|t| t.as_str() != msgs::topics::CONTROL.name)
+                .any(|t| at_work.iter().any(|o| o != name && ports(o).is_some_and(|q| q.publishes.contains(t))))
+        })
+    };
+    let wave: Vec<String> = at_work.iter().filter(|n| !fed_by_others(n)).cloned().collect();
+    if wave.is_empty() {
+        at_work
+    } else {
+        wave
     }
 }
 
 /// Stops the running nodes `which` selects: stdin closed (a node waiting for `start`, or lingering
-/// after its work, sees EOF and leaves), SIGTERM to those not done, SIGKILL after the grace period.
-fn stop_where(nodes: &mut [Running], which: impl Fn(&Running) -> bool) {
+/// after its work, sees EOF and leaves), SIGTERM to those not done, SIGKILL after [`STOP_GRACE`].
+fn stop_nodes(nodes: &mut [Running], which: impl Fn(&Running) -> bool) {
     for n in nodes.iter_mut().filter(|n| which(n)) {
         n.stdin.take();
         if n.exited.is_none() && !n.done {
@@ -846,8 +850,36 @@ fn stop_where(nodes: &mut [Running], which: impl Fn(&Running) -> bool) {
             }
             return;
         }
-        std::thread::sleep(Duration::from_millis(10));
+        std::thread::sleep(STOP_POLL);
     }
+}
+
+/// Turns node `i`'s stdout into events: its handshake markers, and every other line (printed
+/// after `prefix` when there is one).
+fn read_stdout(i: usize, stdout: ChildStdout, prefix: Option<String>, tx: mpsc::Sender<Event>) {
+    for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+        let event = match line.as_str() {
+            runtime::READY_MARKER => Event::Ready(i),
+            runtime::CONNECTED_MARKER => Event::Connected(i),
+            runtime::DONE_MARKER => Event::Done(i),
+            _ => {
+                if let Some(p) = &prefix {
+                    println!("{p} {line}");
+                }
+                Event::Line(i, line)
+            }
+        };
+        let _ = tx.send(event);
+    }
+}
+
+/// Prints node `i`'s stderr lines after `prefix` and passes them on, then says it closed.
+fn read_stderr(i: usize, stderr: ChildStderr, prefix: String, tx: mpsc::Sender<Event>) {
+    for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+        eprintln!("{prefix} {line}");
+        let _ = tx.send(Event::ErrLine(i, line));
+    }
+    let _ = tx.send(Event::ErrClosed(i));
 }
 
 /// Children get SIGKILL when the launcher dies, so a killed `dc` leaves no orphans.
@@ -864,6 +896,7 @@ fn die_with_parent(cmd: &mut Command) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::os::unix::process::ExitStatusExt;
 
     #[test]
     fn a_failed_nodes_error_is_quoted_from_its_last_error_line() {
@@ -877,7 +910,6 @@ mod tests {
         assert!(error_said(t.iter()).ends_with("attempt to divide by zero"));
         assert_eq!(error_said(tail(&["INFO bye"]).iter()), "");
     }
-    use std::os::unix::process::ExitStatusExt;
 
     fn set(hosts: &[&str]) -> BTreeSet<String> {
         hosts.iter().map(|h| h.to_string()).collect()
@@ -939,12 +971,12 @@ mod tests {
 
     #[test]
     fn hosts_in_picks_one_state() {
-        let alive: BTreeSet<(String, String)> = [("a", "connected"), ("a", "working"), ("b", "working")]
+        let alive: BTreeSet<(String, String)> = [("a", CONNECTED), ("a", WORKING), ("b", WORKING)]
             .iter()
             .map(|(h, s)| (h.to_string(), s.to_string()))
             .collect();
-        assert_eq!(hosts_in(&alive, "connected"), set(&["a"]));
-        assert_eq!(hosts_in(&alive, "working"), set(&["a", "b"]));
+        assert_eq!(hosts_in(&alive, CONNECTED), set(&["a"]));
+        assert_eq!(hosts_in(&alive, WORKING), set(&["a", "b"]));
     }
 
     #[test]
@@ -989,6 +1021,29 @@ mod tests {
         assert!(!workers_finished(true, [(false, true), (false, false)]));
         // Daemons only: done at start (they are stopped).
         assert!(workers_finished(true, [(true, false)]));
+    }
+
+    #[test]
+    fn producers_stop_before_their_consumers_and_readers_of_each_other_together() {
+        let ports = |publishes: &[&str], subscribes: &[&str]| runtime::Ports {
+            publishes: publishes.iter().map(|t| t.to_string()).collect(),
+            subscribes: subscribes.iter().map(|t| t.to_string()).collect(),
+        };
+        let control = msgs::topics::CONTROL.name;
+        let graph: BTreeMap<String, runtime::Ports> = [
+            ("sph".to_string(), ports(&["grid"], &["bodies", control])),
+            ("rec".to_string(), ports(&[], &["grid", "bodies", control])),
+            ("ping".to_string(), ports(&["a"], &["b"])),
+            ("pong".to_string(), ports(&["b"], &["a"])),
+        ]
+        .into();
+        let wave = |at_work: &[&str]| next_wave(strings(at_work), |n| graph.get(n));
+        // The simulator (publisher of `bodies`, and of `control` like every node) is done.
+        assert_eq!(wave(&["sph", "rec"]), strings(&["sph"]));
+        assert_eq!(wave(&["rec"]), strings(&["rec"]));
+        assert_eq!(wave(&["ping", "pong"]), strings(&["ping", "pong"]));
+        // A node of no known ports is fed by nobody.
+        assert_eq!(wave(&["rec", "sph", "unknown"]), strings(&["sph", "unknown"]));
     }
 
     #[test]

@@ -33,11 +33,34 @@ pub const MAX_CHUNK_LEN: u64 = 1 << 30;
 const MAX_SCANNED_RECORD_LEN: u64 = 16 << 20;
 /// The profile `RecordingWriter` writes: in such a file an unknown opcode is damage.
 const OWN_PROFILE: &str = "deep-contact";
+/// The read buffer over the file.
+const READ_BUFFER_LEN: usize = 1 << 16;
 
 /// MCAP opcodes (the `mcap` crate's `records::op`, under their names in the specification).
 mod op {
     pub use mcap::records::op::*;
+    /// Opcodes from here to 0xff are left to a writer's own records.
+    pub const FIRST_PRIVATE: u8 = 0x80;
 }
+
+/// Bytes of the magic at each end of a file.
+const MAGIC_LEN: u64 = mcap::MAGIC.len() as u64;
+/// Bytes of a record's header: `opcode: u8, length: u64` (the length of the content after it).
+const RECORD_HEADER_LEN: u64 = 9;
+/// Bytes of a data end record's content: `data_section_crc: u32`.
+const DATA_END_LEN: u64 = 4;
+/// Bytes of a footer record's content: `summary_start: u64, summary_offset_start: u64,
+/// summary_crc: u32`.
+const FOOTER_LEN: u64 = 20;
+/// Bytes of a message record's fields before its data ([`MessageHeader`]).
+const MESSAGE_HEADER_LEN: u64 = 22;
+/// Bytes of a message index record's fields before its entries ([`MessageIndexHeader`]).
+const MESSAGE_INDEX_HEADER_LEN: u64 = 6;
+/// Bytes of a message index entry: `log_time: u64, offset: u64`.
+const MESSAGE_INDEX_ENTRY_LEN: u32 = 16;
+/// The shortest content of a header, channel, schema or metadata record (that of a header or a
+/// metadata record holding two empty strings).
+const MIN_DESCRIPTIVE_LEN: u64 = 8;
 
 /// A channel of a recording.
 #[derive(Debug, Clone, PartialEq)]
@@ -174,13 +197,73 @@ struct RawChannel {
     metadata: BTreeMap<String, String>,
 }
 
-/// A message record's fields.
+/// A record's header.
+#[derive(Debug, Clone, Copy)]
+struct RecordHeader {
+    opcode: u8,
+    length: u64,
+}
+
+impl RecordHeader {
+    fn parse(bytes: &[u8; RECORD_HEADER_LEN as usize]) -> RecordHeader {
+        let [opcode, length @ ..] = *bytes;
+        RecordHeader { opcode, length: u64::from_le_bytes(length) }
+    }
+}
+
+/// A message record's fields before its data.
 #[derive(Debug, Clone, Copy)]
 struct MessageHeader {
     channel_id: u16,
     sequence: u32,
     log_time: u64,
     publish_time: u64,
+}
+
+/// A message index record's fields before its entries.
+struct MessageIndexHeader {
+    channel_id: u16,
+    /// Bytes of the entries that follow.
+    records_len: u32,
+}
+
+impl MessageIndexHeader {
+    fn read(f: &mut Fields) -> Result<MessageIndexHeader, String> {
+        Ok(MessageIndexHeader { channel_id: f.u16("the channel id")?, records_len: f.u32("the index entries")? })
+    }
+}
+
+/// A message index record: the channel and how many messages of it the chunk before holds.
+struct MessageIndex {
+    channel_id: u16,
+    entries: u64,
+}
+
+/// A chunk record's fields before its compressed records.
+struct ChunkHeader {
+    uncompressed_size: u64,
+    /// CRC-32 of the decompressed records; 0: none.
+    uncompressed_crc: u32,
+    compression: String,
+    compressed_size: u64,
+}
+
+impl ChunkHeader {
+    fn read(f: &mut Fields) -> Result<ChunkHeader, String> {
+        let _message_start_time = f.u64("the start time")?;
+        let _message_end_time = f.u64("the end time")?;
+        Ok(ChunkHeader {
+            uncompressed_size: f.u64("the uncompressed size")?,
+            uncompressed_crc: f.u32("the CRC")?,
+            compression: f.string("the compression")?,
+            compressed_size: f.u64("the compressed size")?,
+        })
+    }
+}
+
+/// A footer record's field that this reader uses.
+struct Footer {
+    summary_start: u64,
 }
 
 /// A record inside a chunk that this reader uses.
@@ -191,9 +274,7 @@ enum Inner {
 
 /// A chunk that decompressed, checked out and parsed.
 struct ParsedChunk {
-    compression: String,
-    compressed: u64,
-    uncompressed: u64,
+    header: ChunkHeader,
     records: Vec<Inner>,
 }
 
@@ -251,7 +332,7 @@ impl RecordingReader {
         source.seek(SeekFrom::Start(0)).map_err(io)?;
         let mut reader = RecordingReader {
             path: name.to_path_buf(),
-            source: BufReader::with_capacity(1 << 16, Box::new(source)),
+            source: BufReader::with_capacity(READ_BUFFER_LEN, Box::new(source)),
             size,
             at: 0,
             pos: 0,
@@ -272,11 +353,11 @@ impl RecordingReader {
 
     /// Checks the magic; a lenient reader looks past a damaged one for the first intact record.
     fn start(&mut self) -> Result<()> {
-        let n = self.size.min(8) as usize;
+        let n = self.size.min(MAGIC_LEN) as usize;
         let mut magic = vec![0u8; n];
         self.read_at(0, &mut magic).map_err(|e| self.io(e))?;
         if magic == mcap::MAGIC {
-            self.pos = 8;
+            self.pos = MAGIC_LEN;
             return Ok(());
         }
         let detail = format!("the first {n} bytes are not the MCAP magic");
@@ -406,21 +487,21 @@ impl RecordingReader {
             let detail = "the file ends here without a footer (its writer did not finish)".to_string();
             return Err(fault(None, detail));
         }
-        if left < 9 {
+        if left < RECORD_HEADER_LEN {
             return Err(fault(None, format!("the file ends inside a record header ({left} bytes left)")));
         }
-        let mut head = [0u8; 9];
-        self.read_at(offset, &mut head).map_err(|e| Stop::Error(self.io(e)))?;
-        let (opcode, len) = (head[0], u64::from_le_bytes(head[1..9].try_into().expect("8 bytes")));
-        check_len(opcode, len, left - 9).map_err(|d| fault(Some(opcode), d))?;
-        let end = offset + 9 + len; // <= size, checked above
+        let RecordHeader { opcode, length: len } =
+            self.read_record_header(offset).map_err(|e| Stop::Error(self.io(e)))?;
+        check_len(opcode, len, left - RECORD_HEADER_LEN).map_err(|d| fault(Some(opcode), d))?;
+        let body_at = offset + RECORD_HEADER_LEN;
+        let end = body_at + len; // <= size, checked above
         if self.state == State::Summary && opcode != op::FOOTER {
             // The summary repeats what the data section holds: its records are skipped unread.
             self.pos = end;
             return Ok(());
         }
         let mut body = vec![0u8; len as usize];
-        self.read_at(offset + 9, &mut body).map_err(|e| Stop::Error(self.io(e)))?;
+        self.read_at(body_at, &mut body).map_err(|e| Stop::Error(self.io(e)))?;
         self.take(offset, opcode, &body)?;
         self.pos = end;
         if opcode == op::FOOTER {
@@ -432,13 +513,13 @@ impl RecordingReader {
 
     fn check_end_magic(&mut self, at: u64) -> Result<(), Stop> {
         let fault = |detail: String| Stop::Fault(Fault { offset: at, opcode: None, detail });
-        if self.size - at < 8 {
+        if self.size - at < MAGIC_LEN {
             return Err(fault(format!(
                 "the file ends {} bytes after its footer, before the closing magic",
                 self.size - at
             )));
         }
-        let mut magic = [0u8; 8];
+        let mut magic = [0u8; MAGIC_LEN as usize];
         self.read_at(at, &mut magic).map_err(|e| Stop::Error(self.io(e)))?;
         if magic != *mcap::MAGIC {
             return Err(fault("no MCAP magic after the footer".into()));
@@ -455,63 +536,22 @@ impl RecordingReader {
             self.counting_skipped = false;
         }
         match opcode {
-            op::HEADER => {
-                let (profile, _library) = parse_header(body).map_err(fault)?;
-                self.foreign = profile != OWN_PROFILE;
-            }
-            op::CHUNK => {
-                let chunk = parse_chunk(body).map_err(fault)?;
-                self.pending.push_back(Item::Chunk {
-                    compression: chunk.compression,
-                    compressed: chunk.compressed,
-                    uncompressed: chunk.uncompressed,
-                });
-                for record in chunk.records {
-                    match record {
-                        Inner::Channel(c) => self.add_channel(c)?,
-                        Inner::Message(header, data) => self.add_message(offset, header, data)?,
-                    }
-                }
-            }
-            op::CHANNEL => {
-                let c = parse_channel(body).map_err(fault)?;
-                self.add_channel(c)?;
-            }
+            op::HEADER => self.take_header(parse_header(body).map_err(fault)?),
+            op::CHUNK => self.take_chunk(offset, parse_chunk(body).map_err(fault)?)?,
+            op::CHANNEL => self.add_channel(parse_channel(body).map_err(fault)?)?,
             op::MESSAGE => {
                 let (header, data) = parse_message(body).map_err(fault)?;
                 self.add_message(offset, header, data.to_vec())?;
             }
             op::SCHEMA => parse_schema(body).map_err(fault)?,
-            op::METADATA => {
-                let (name, metadata) = parse_metadata(body).map_err(fault)?;
-                if name == crate::CHANNELS_METADATA {
-                    // The format's own bookkeeping, not the recording's metadata.
-                    self.repeated_channels.extend(repeated_channels(&metadata));
-                } else {
-                    self.pending.push_back(Item::Metadata(mcap::records::Metadata { name, metadata }));
-                }
-            }
-            op::MESSAGE_INDEX => {
-                let entries = parse_message_index(body).map_err(fault)?;
-                if self.counting_skipped {
-                    let channel_id = u16::from_le_bytes([body[0], body[1]]);
-                    let topic = self.topic_name(channel_id);
-                    *self.skipped.entry(topic.clone()).or_default() += entries;
-                    if let Some(last) = self.damage.last_mut() {
-                        *last.messages.entry(topic).or_default() += entries;
-                    }
-                }
-            }
+            op::METADATA => self.take_metadata(parse_metadata(body).map_err(fault)?),
+            op::MESSAGE_INDEX => self.take_message_index(parse_message_index(body).map_err(fault)?),
             op::DATA_END => {
-                if body.len() != 4 {
-                    return Err(fault(format!("{} bytes (4 expected)", body.len())));
-                }
+                parse_data_end(body).map_err(fault)?;
                 self.state = State::Summary;
             }
             op::FOOTER => {
-                if body.len() != 20 {
-                    return Err(fault(format!("{} bytes (20 expected)", body.len())));
-                }
+                parse_footer(body).map_err(fault)?;
             }
             op::ATTACHMENT
             | op::ATTACHMENT_INDEX
@@ -519,12 +559,56 @@ impl RecordingReader {
             | op::STATISTICS
             | op::METADATA_INDEX
             | op::SUMMARY_OFFSET => {}
-            other if other >= 0x80 && self.foreign => {} // another writer's extension
+            other if other >= op::FIRST_PRIVATE && self.foreign => {} // another writer's extension
             other => {
                 return Err(fault(format!("0x{other:02x} is no MCAP opcode (this file's writer uses none of its own)")))
             }
         }
         Ok(())
+    }
+
+    /// A header record: whose profile the file has.
+    fn take_header(&mut self, header: mcap::records::Header) {
+        self.foreign = header.profile != OWN_PROFILE;
+    }
+
+    /// An intact chunk: its sizes, then the channels and messages it holds.
+    fn take_chunk(&mut self, offset: u64, chunk: ParsedChunk) -> Result<(), Stop> {
+        let ChunkHeader { compression, compressed_size, uncompressed_size, .. } = chunk.header;
+        self.pending.push_back(Item::Chunk {
+            compression,
+            compressed: compressed_size,
+            uncompressed: uncompressed_size,
+        });
+        for record in chunk.records {
+            match record {
+                Inner::Channel(c) => self.add_channel(c)?,
+                Inner::Message(header, data) => self.add_message(offset, header, data)?,
+            }
+        }
+        Ok(())
+    }
+
+    /// A metadata record: the recording's metadata, or the writer's repetition of its channels.
+    fn take_metadata(&mut self, metadata: mcap::records::Metadata) {
+        if metadata.name == crate::CHANNELS_METADATA {
+            // The format's own bookkeeping, not the recording's metadata.
+            self.repeated_channels.extend(repeated_channels(&metadata.metadata));
+        } else {
+            self.pending.push_back(Item::Metadata(metadata));
+        }
+    }
+
+    /// A message index record: after a skipped chunk, it counts the messages lost.
+    fn take_message_index(&mut self, index: MessageIndex) {
+        if !self.counting_skipped {
+            return;
+        }
+        let topic = self.topic_name(index.channel_id);
+        *self.skipped.entry(topic.clone()).or_default() += index.entries;
+        if let Some(last) = self.damage.last_mut() {
+            *last.messages.entry(topic).or_default() += index.entries;
+        }
     }
 
     /// The topic of a channel id for reports.
@@ -613,36 +697,44 @@ impl RecordingReader {
 
     /// The channel records of an intact summary section, found through the footer.
     fn read_summary_channels(&mut self) -> std::io::Result<HashMap<u16, RawChannel>> {
+        const FOOTER_RECORD_LEN: u64 = RECORD_HEADER_LEN + FOOTER_LEN;
         let mut out = HashMap::new();
-        // Footer record (9 + 20 bytes) and the closing magic (8).
-        let Some(footer_at) = self.size.checked_sub(37) else { return Ok(out) };
-        let mut tail = [0u8; 37];
+        // The footer record, then the closing magic.
+        let Some(footer_at) = self.size.checked_sub(FOOTER_RECORD_LEN + MAGIC_LEN) else { return Ok(out) };
+        let mut tail = [0u8; (FOOTER_RECORD_LEN + MAGIC_LEN) as usize];
         self.read_at(footer_at, &mut tail)?;
-        if tail[0] != op::FOOTER || tail[1..9] != 20u64.to_le_bytes() || tail[29..] != *mcap::MAGIC {
+        let (head, rest) = tail.split_first_chunk().expect("a record header");
+        let (body, magic) = rest.split_at(FOOTER_LEN as usize);
+        let head = RecordHeader::parse(head);
+        let is_footer = head.opcode == op::FOOTER && head.length == FOOTER_LEN && magic == mcap::MAGIC;
+        let Some(footer) = parse_footer(body).ok().filter(|_| is_footer) else { return Ok(out) };
+        let mut at = footer.summary_start;
+        if at < MAGIC_LEN || at > footer_at {
             return Ok(out);
         }
-        let summary_start = u64::from_le_bytes(tail[9..17].try_into().expect("8 bytes"));
-        let mut at = summary_start;
-        if at < 8 || at > footer_at {
-            return Ok(out);
-        }
-        while at + 9 <= footer_at {
-            let mut head = [0u8; 9];
-            self.read_at(at, &mut head)?;
-            let len = u64::from_le_bytes(head[1..9].try_into().expect("8 bytes"));
-            if len > footer_at - at - 9 || len > MAX_SCANNED_RECORD_LEN {
+        while at + RECORD_HEADER_LEN <= footer_at {
+            let head = self.read_record_header(at)?;
+            let body_at = at + RECORD_HEADER_LEN;
+            if head.length > footer_at - body_at || head.length > MAX_SCANNED_RECORD_LEN {
                 break;
             }
-            if head[0] == op::CHANNEL {
-                let mut body = vec![0u8; len as usize];
-                self.read_at(at + 9, &mut body)?;
+            if head.opcode == op::CHANNEL {
+                let mut body = vec![0u8; head.length as usize];
+                self.read_at(body_at, &mut body)?;
                 if let Ok(c) = parse_channel(&body) {
                     out.insert(c.id, c);
                 }
             }
-            at += 9 + len;
+            at = body_at + head.length;
         }
         Ok(out)
+    }
+
+    /// Reads the record header at `offset` (within the file: callers check).
+    fn read_record_header(&mut self, offset: u64) -> std::io::Result<RecordHeader> {
+        let mut head = [0u8; RECORD_HEADER_LEN as usize];
+        self.read_at(offset, &mut head)?;
+        Ok(RecordHeader::parse(&head))
     }
 
     /// Reads `buf.len()` bytes at `offset` (within the file: callers check).
@@ -673,7 +765,7 @@ impl RecordingReader {
         let mut window: Vec<u8> = Vec::new();
         let mut window_start = from;
         let mut p = from;
-        while p.saturating_add(9) <= self.size {
+        while p.saturating_add(RECORD_HEADER_LEN) <= self.size {
             let want = LOOKAHEAD.min(self.size - p);
             if p < window_start || p + want > window_start + window.len() as u64 {
                 let n = WINDOW.min(self.size - p) as usize;
@@ -693,65 +785,66 @@ impl RecordingReader {
     /// Cheap checks of a candidate record at `p` whose first bytes are `w` (at least 128, or up
     /// to the end of the file).
     fn plausible(&self, p: u64, w: &[u8]) -> bool {
-        let opcode = w[0];
-        let len = u64::from_le_bytes(w[1..9].try_into().expect("8 bytes"));
-        let left = self.size - p - 9;
+        let RecordHeader { opcode, length: len } = RecordHeader::parse(w.first_chunk().expect("a record header"));
+        let left = self.size - p - RECORD_HEADER_LEN;
         if len > left || len > MAX_RECORD_LEN {
             return false;
         }
         let small = len <= MAX_SCANNED_RECORD_LEN;
-        let field = |at: usize, n: usize| w.get(9 + at..9 + at + n);
-        let u32_at = |at| field(at, 4).map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes")) as u64);
-        let u64_at = |at| field(at, 8).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")));
+        // The fields of the content that are in `w` (it may end before the record does).
+        let mut content = Fields::new(&w[RECORD_HEADER_LEN as usize..]);
         match opcode {
-            op::CHUNK => {
-                // start, end, uncompressed size, crc, compression name, compressed size.
-                let Some(name_len) = u32_at(28) else { return false };
-                let Some(name) = field(32, name_len.min(16) as usize) else { return false };
-                if !matches!(name, b"" | b"zstd" | b"lz4") || name_len > 4 {
-                    return false;
+            op::CHUNK => match ChunkHeader::read(&mut content) {
+                Ok(chunk) => {
+                    let header_len = content.at as u64;
+                    matches!(chunk.compression.as_str(), "" | "zstd" | "lz4")
+                        && len.checked_sub(header_len).is_some_and(|rest| chunk.compressed_size <= rest)
+                        && chunk.uncompressed_size <= MAX_CHUNK_LEN
                 }
-                let head = 32 + name_len + 8;
-                let (Some(uncompressed), Some(compressed)) = (u64_at(16), u64_at(32 + name_len as usize)) else {
-                    return false;
-                };
-                len.checked_sub(head).is_some_and(|rest| compressed <= rest) && uncompressed <= MAX_CHUNK_LEN
-            }
-            op::MESSAGE_INDEX => len >= 6 && small && u32_at(2).is_some_and(|n| n == len - 6 && n % 16 == 0),
-            op::DATA_END => len == 4,
-            op::FOOTER => len == 20 && left >= 28,
-            op::MESSAGE => {
-                let id = field(0, 2).map(|b| u16::from_le_bytes([b[0], b[1]]));
-                len >= 22
-                    && id.is_some_and(|id| {
-                        self.channels.contains_key(&id)
-                            || self.summary_channels.as_ref().is_some_and(|c| c.contains_key(&id))
-                            || self.repeated_channels.contains_key(&id)
+                Err(_) => false,
+            },
+            op::MESSAGE_INDEX => {
+                len >= MESSAGE_INDEX_HEADER_LEN
+                    && small
+                    && MessageIndexHeader::read(&mut content).is_ok_and(|h| {
+                        u64::from(h.records_len) == len - MESSAGE_INDEX_HEADER_LEN
+                            && h.records_len % MESSAGE_INDEX_ENTRY_LEN == 0
                     })
             }
-            op::HEADER | op::CHANNEL | op::SCHEMA | op::METADATA => len >= 8 && small,
+            op::DATA_END => len == DATA_END_LEN,
+            op::FOOTER => len == FOOTER_LEN && left >= FOOTER_LEN + MAGIC_LEN,
+            op::MESSAGE => {
+                len >= MESSAGE_HEADER_LEN && content.u16("the channel id").is_ok_and(|id| self.knows_channel(id))
+            }
+            op::HEADER | op::CHANNEL | op::SCHEMA | op::METADATA => len >= MIN_DESCRIPTIVE_LEN && small,
             _ => false,
         }
+    }
+
+    /// Whether channel `id` was declared so far, in the summary or in the writer's repetition.
+    fn knows_channel(&self, id: u16) -> bool {
+        self.channels.contains_key(&id)
+            || self.summary_channels.as_ref().is_some_and(|c| c.contains_key(&id))
+            || self.repeated_channels.contains_key(&id)
     }
 
     /// Whether the record at `p` (plausible) parses whole; a record with no CRC or little
     /// structure must also be followed by a plausible record header (or the end of the file).
     fn intact(&mut self, p: u64) -> std::io::Result<bool> {
-        let mut head = [0u8; 9];
-        self.read_at(p, &mut head)?;
-        let (opcode, len) = (head[0], u64::from_le_bytes(head[1..9].try_into().expect("8 bytes")));
-        let end = p + 9 + len;
+        let RecordHeader { opcode, length: len } = self.read_record_header(p)?;
+        let body_at = p + RECORD_HEADER_LEN;
+        let end = body_at + len;
         if opcode == op::FOOTER {
-            let mut magic = [0u8; 8];
+            let mut magic = [0u8; MAGIC_LEN as usize];
             self.read_at(end, &mut magic)?;
             return Ok(magic == *mcap::MAGIC);
         }
         let mut body = vec![0u8; len as usize];
-        self.read_at(p + 9, &mut body)?;
+        self.read_at(body_at, &mut body)?;
         let parses = match opcode {
             op::CHUNK => match parse_chunk(&body) {
                 // A chunk with a CRC that checks out stands on its own.
-                Ok(_) if u32::from_le_bytes(body[24..28].try_into().expect("4 bytes")) != 0 => return Ok(true),
+                Ok(chunk) if chunk.header.uncompressed_crc != 0 => return Ok(true),
                 Ok(_) => true,
                 Err(_) => false,
             },
@@ -768,12 +861,11 @@ impl RecordingReader {
         if end == self.size {
             return Ok(true);
         }
-        if self.size - end < 9 {
+        if self.size - end < RECORD_HEADER_LEN {
             return Ok(false);
         }
-        self.read_at(end, &mut head)?;
-        let next_len = u64::from_le_bytes(head[1..9].try_into().expect("8 bytes"));
-        Ok(is_known(head[0]) && head[0] != 0 && next_len <= self.size - end - 9)
+        let next = self.read_record_header(end)?;
+        Ok(is_known(next.opcode) && next.opcode != 0 && next.length <= self.size - end - RECORD_HEADER_LEN)
     }
 }
 
@@ -839,6 +931,11 @@ impl<'a> Fields<'a> {
         self.data.len() - self.at
     }
 
+    /// The bytes not read yet.
+    fn rest(&self) -> &'a [u8] {
+        &self.data[self.at..]
+    }
+
     fn bytes(&mut self, n: u64, what: &str) -> Result<&'a [u8], String> {
         match usize::try_from(n).ok().filter(|&n| n <= self.left()) {
             Some(n) => {
@@ -898,12 +995,12 @@ impl<'a> Fields<'a> {
     }
 }
 
-fn parse_header(body: &[u8]) -> Result<(String, String), String> {
+fn parse_header(body: &[u8]) -> Result<mcap::records::Header, String> {
     let mut f = Fields::new(body);
     let profile = f.string("the profile")?;
     let library = f.string("the library")?;
     f.end("header")?;
-    Ok((profile, library))
+    Ok(mcap::records::Header { profile, library })
 }
 
 fn parse_channel(body: &[u8]) -> Result<RawChannel, String> {
@@ -935,7 +1032,7 @@ fn parse_message(body: &[u8]) -> Result<(MessageHeader, &[u8]), String> {
         log_time: f.u64("the log time")?,
         publish_time: f.u64("the publish time")?,
     };
-    Ok((header, &body[f.at..]))
+    Ok((header, f.rest()))
 }
 
 /// The channels of a [`crate::CHANNELS_METADATA`] record; entries without a topic and an
@@ -967,44 +1064,60 @@ fn repeated_channels(record: &BTreeMap<String, String>) -> HashMap<u16, RawChann
     out
 }
 
-fn parse_metadata(body: &[u8]) -> Result<(String, BTreeMap<String, String>), String> {
+fn parse_metadata(body: &[u8]) -> Result<mcap::records::Metadata, String> {
     let mut f = Fields::new(body);
     let name = f.string("the metadata name")?;
     let metadata = f.string_map("the metadata")?;
     f.end("metadata")?;
-    Ok((name, metadata))
+    Ok(mcap::records::Metadata { name, metadata })
 }
 
-/// The entries of a message index record.
-fn parse_message_index(body: &[u8]) -> Result<u64, String> {
+fn parse_message_index(body: &[u8]) -> Result<MessageIndex, String> {
     let mut f = Fields::new(body);
-    f.u16("the channel id")?;
-    let len = f.u32("the index entries")?;
+    let MessageIndexHeader { channel_id, records_len: len } = MessageIndexHeader::read(&mut f)?;
     f.bytes(len.into(), "the index entries")?;
     f.end("message index")?;
-    if len % 16 != 0 {
-        return Err(format!("index entries of {len} bytes, not a multiple of 16"));
+    if len % MESSAGE_INDEX_ENTRY_LEN != 0 {
+        return Err(format!("index entries of {len} bytes, not a multiple of {MESSAGE_INDEX_ENTRY_LEN}"));
     }
-    Ok(u64::from(len / 16))
+    Ok(MessageIndex { channel_id, entries: u64::from(len / MESSAGE_INDEX_ENTRY_LEN) })
+}
+
+fn parse_data_end(body: &[u8]) -> Result<(), String> {
+    exact_len(body, DATA_END_LEN)
+}
+
+fn parse_footer(body: &[u8]) -> Result<Footer, String> {
+    exact_len(body, FOOTER_LEN)?;
+    let mut f = Fields::new(body);
+    let summary_start = f.u64("the summary start")?;
+    let _summary_offset_start = f.u64("the summary offset start")?;
+    let _summary_crc = f.u32("the summary CRC")?;
+    Ok(Footer { summary_start })
+}
+
+/// A record of fixed length: exactly `len` bytes.
+fn exact_len(body: &[u8], len: u64) -> Result<(), String> {
+    match body.len() as u64 {
+        n if n == len => Ok(()),
+        n => Err(format!("{n} bytes ({len} expected)")),
+    }
 }
 
 /// A chunk record: header, decompressed records (size and CRC checked), parsed.
 fn parse_chunk(body: &[u8]) -> Result<ParsedChunk, String> {
     let mut f = Fields::new(body);
-    let _start = f.u64("the start time")?;
-    let _end = f.u64("the end time")?;
-    let uncompressed = f.u64("the uncompressed size")?;
-    let crc = f.u32("the CRC")?;
-    let compression = f.string("the compression")?;
-    let compressed = f.u64("the compressed size")?;
+    let header = ChunkHeader::read(&mut f)?;
     // Padding after the compressed records is allowed.
-    let data = f.bytes(compressed, "the compressed records")?;
+    let data = f.bytes(header.compressed_size, "the compressed records")?;
+    let uncompressed = header.uncompressed_size;
     if uncompressed > MAX_CHUNK_LEN {
         return Err(format!(
             "an uncompressed size of {uncompressed} bytes, more than the {MAX_CHUNK_LEN} a chunk may hold"
         ));
     }
-    let records = decompress(&compression, data, uncompressed)?;
+    let records = decompress(&header.compression, data, uncompressed)?;
+    let crc = header.uncompressed_crc;
     if crc != 0 {
         let computed = crc32fast::hash(&records);
         if computed != crc {
@@ -1013,7 +1126,12 @@ fn parse_chunk(body: &[u8]) -> Result<ParsedChunk, String> {
             ));
         }
     }
-    let mut f = Fields::new(&records);
+    Ok(ParsedChunk { header, records: parse_chunk_records(&records)? })
+}
+
+/// The records of a decompressed chunk.
+fn parse_chunk_records(records: &[u8]) -> Result<Vec<Inner>, String> {
+    let mut f = Fields::new(records);
     let mut out = Vec::new();
     while f.left() > 0 {
         let at = f.at;
@@ -1031,12 +1149,13 @@ fn parse_chunk(body: &[u8]) -> Result<ParsedChunk, String> {
             other => return Err(in_chunk(format!("a {} (opcode 0x{other:02x}) in a chunk", record_name(other)))),
         }
     }
-    Ok(ParsedChunk { compression, compressed, uncompressed, records: out })
+    Ok(out)
 }
 
 /// Decompresses a chunk's records, to exactly `size` bytes (memory follows the bytes produced,
 /// not `size`).
 fn decompress(compression: &str, data: &[u8], size: u64) -> Result<Vec<u8>, String> {
+    // Reserved ahead: as if compressed to a quarter, up to 16 MiB; more grows as bytes arrive.
     let mut out = Vec::with_capacity(size.min(data.len() as u64 * 4).min(16 << 20) as usize);
     let limit = size.saturating_add(1);
     let read = match compression {
