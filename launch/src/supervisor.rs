@@ -745,7 +745,10 @@ impl<'a> Supervisor<'a> {
     /// Takes the stdout lines still on their way from stopped nodes (for [`Output::Capture`]),
     /// for at most [`LAST_LINES_WAIT`].
     fn take_last_lines(&mut self) {
-        // Reader threads finish once the children's pipes close.
+        // Reader threads finish once the children's pipes close; with the supervisor's own
+        // sender gone, the channel then disconnects and the wait ends at once (no node is
+        // spawned after this).
+        drop(std::mem::replace(&mut self.tx, mpsc::channel().0));
         let deadline = Instant::now() + LAST_LINES_WAIT;
         while let Ok(ev) = self.rx.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
             if let Event::Line(i, line) = ev {

@@ -75,6 +75,16 @@ const fn plain(name: &'static str, group: ModelGroup, about: &'static str) -> Mo
     ModelInfo { name, group, served_on: None, param: None, about }
 }
 
+/// A model computed in the simulator with one numeric parameter.
+const fn with_param(name: &'static str, group: ModelGroup, param: Param, about: &'static str) -> ModelInfo {
+    ModelInfo { name, group, served_on: None, param: Some(param), about }
+}
+
+/// A model whose warm starts another node answers on `topic`.
+const fn served(name: &'static str, group: ModelGroup, topic: &'static str, about: &'static str) -> ModelInfo {
+    ModelInfo { name, group, served_on: Some(topic), param: None, about }
+}
+
 /// Every model: the thesis's table, then the oracle ablations and baselines of the accuracy ->
 /// sweeps curve, then the grid-based models.
 pub const MODELS: &[ModelInfo] = &[
@@ -85,99 +95,67 @@ pub const MODELS: &[ModelInfo] = &[
     plain("copy2", ModelGroup::Reference, "oracle rounded to 2 decimals"),
     plain("bad", ModelGroup::Reference, "a deliberately wrong warm start (50 everywhere)"),
     plain("random", ModelGroup::Reference, "random impulses of the solution's scale"),
-    ModelInfo {
-        name: "extrapolate",
-        group: ModelGroup::Probe,
-        served_on: None,
-        param: Some(Param { what: "beta: l1 + beta (l1 - l2)", default: 1.0, min: 0.0, max: 2.0 }),
-        about: "damped extrapolation of the last two steps (beta 1: linear)",
-    },
-    ModelInfo {
-        name: "continue",
-        group: ModelGroup::Probe,
-        served_on: None,
-        param: Some(Param { what: "G: builtin + G x the last solve's remaining distance", default: 1.0, min: 0.0, max: 4.0 }),
-        about: "builtin plus G times where the previous solve was still going: its last sweep's change times rate / (1 - rate)",
-    },
-    ModelInfo {
-        name: "subspace",
-        group: ModelGroup::Probe,
-        served_on: None,
-        param: Some(Param { what: "K: the previous solve's last K sweeps span the correction", default: 2.0, min: 1.0, max: 4.0 }),
-        about: "builtin corrected, by the step's own K x K Galerkin system, along the previous solve's last K sweep changes (its slowest modes)",
-    },
-    ModelInfo {
-        name: "coarse",
-        group: ModelGroup::Probe,
-        served_on: None,
-        param: Some(Param { what: "S: side of a cell in metres", default: 2.0, min: 0.25, max: 1000.0 }),
-        about: "builtin plus a coarse-grid correction: the step's own problem solved (Galerkin) within piecewise-uniform stress fields over cells of side S",
-    },
-    ModelInfo {
-        name: "cg",
-        group: ModelGroup::Probe,
-        served_on: None,
-        param: Some(Param { what: "K: conjugate-gradient iterations (each about a sweep's work)", default: 50.0, min: 0.0, max: 10000.0 }),
-        about: "builtin plus K Jacobi-preconditioned CG iterations on the step's own linear problem on builtin's active set (with the solver's compliance; rigid problems regularised by 1e-4 W_ii)",
-    },
+    with_param(
+        "extrapolate",
+        ModelGroup::Probe,
+        Param { what: "beta: l1 + beta (l1 - l2)", default: 1.0, min: 0.0, max: 2.0 },
+        "damped extrapolation of the last two steps (beta 1: linear)",
+    ),
+    with_param(
+        "continue",
+        ModelGroup::Probe,
+        Param { what: "G: builtin + G x the last solve's remaining distance", default: 1.0, min: 0.0, max: 4.0 },
+        "builtin plus G times where the previous solve was still going: its last sweep's change times rate / (1 - rate)",
+    ),
+    with_param(
+        "subspace",
+        ModelGroup::Probe,
+        Param { what: "K: the previous solve's last K sweeps span the correction", default: 2.0, min: 1.0, max: 4.0 },
+        "builtin corrected, by the step's own K x K Galerkin system, along the previous solve's last K sweep changes (its slowest modes)",
+    ),
+    with_param(
+        "coarse",
+        ModelGroup::Probe,
+        Param { what: "S: side of a cell in metres", default: 2.0, min: 0.25, max: 1000.0 },
+        "builtin plus a coarse-grid correction: the step's own problem solved (Galerkin) within piecewise-uniform stress fields over cells of side S",
+    ),
+    with_param(
+        "cg",
+        ModelGroup::Probe,
+        Param { what: "K: conjugate-gradient iterations (each about a sweep's work)", default: 50.0, min: 0.0, max: 10000.0 },
+        "builtin plus K Jacobi-preconditioned CG iterations on the step's own linear problem on builtin's active set (with the solver's compliance; rigid problems regularised by 1e-4 W_ii)",
+    ),
     plain("builtin-reappear", ModelGroup::Probe, "builtin, and a contact new this step that existed two steps ago gets that impulse"),
     plain("copy-persisting", ModelGroup::Reference, "oracle on persisting contacts, 0 on new ones"),
     plain("copy-new", ModelGroup::Reference, "builtin on persisting contacts, the oracle on new ones"),
     plain("copy-previous", ModelGroup::Reference, "the previous step's oracle on persisting contacts, 0 on new: builtin if every solve were finished"),
-    ModelInfo {
-        name: "blend",
-        group: ModelGroup::Reference,
-        served_on: None,
-        param: Some(Param { what: "F: builtin + F (oracle - builtin)", default: 0.5, min: 0.0, max: 1.0 }),
-        about: "a fraction F of builtin's error removed",
-    },
-    ModelInfo {
-        name: "noise",
-        group: ModelGroup::Reference,
-        served_on: None,
-        param: Some(Param { what: "S: noise of S x builtin's RMS error", default: 1.0, min: 0.0, max: 100.0 }),
-        about: "the oracle plus Gaussian noise of S times builtin's RMS error (per step)",
-    },
+    with_param(
+        "blend",
+        ModelGroup::Reference,
+        Param { what: "F: builtin + F (oracle - builtin)", default: 0.5, min: 0.0, max: 1.0 },
+        "a fraction F of builtin's error removed",
+    ),
+    with_param(
+        "noise",
+        ModelGroup::Reference,
+        Param { what: "S: noise of S x builtin's RMS error", default: 1.0, min: 0.0, max: 100.0 },
+        "the oracle plus Gaussian noise of S times builtin's RMS error (per step)",
+    ),
     plain("smooth-error", ModelGroup::Reference, "the oracle plus the smooth part of builtin's error (averaged over the contact graph)"),
     plain("rough-error", ModelGroup::Reference, "the oracle plus the rest of builtin's error (its local, high-frequency part)"),
     plain("gnn", ModelGroup::Product, "the contact-graph network's correction to builtin (in the simulator, `--gnn-model FILE`)"),
-    ModelInfo {
-        name: "gnn-subspace",
-        group: ModelGroup::Probe,
-        served_on: None,
-        param: Some(Param { what: "K: the previous solve's last K sweeps beside the network's direction", default: 2.0, min: 0.0, max: 4.0 }),
-        about: "the network's correction as a direction only: builtin plus the amplitudes of it and the previous solve's last K sweeps that the step's own Galerkin system picks (`--gnn-model FILE`)",
-    },
-    ModelInfo {
-        name: "gnn-node",
-        group: ModelGroup::Product,
-        served_on: Some(topics::WARM_GNN.name),
-        param: None,
-        about: "the contact-graph network served over the bus by a `dc-gnn` node, builtin when late or down",
-    },
+    with_param(
+        "gnn-subspace",
+        ModelGroup::Probe,
+        Param { what: "K: the previous solve's last K sweeps beside the network's direction", default: 2.0, min: 0.0, max: 4.0 },
+        "the network's correction as a direction only: builtin plus the amplitudes of it and the previous solve's last K sweeps that the step's own Galerkin system picks (`--gnn-model FILE`)",
+    ),
+    served("gnn-node", ModelGroup::Product, topics::WARM_GNN.name, "the contact-graph network served over the bus by a `dc-gnn` node, builtin when late or down"),
     plain("copy-grid", ModelGroup::Reference, "oracle through the value-preserving grid transfer and back"),
     plain("copy-grid-sph", ModelGroup::Reference, "oracle through the thesis's grid transfer and back"),
-    ModelInfo {
-        name: "grid",
-        group: ModelGroup::Product,
-        served_on: Some(topics::GRID_CONTACTS.name),
-        param: None,
-        about: "the previous step's impulses through the SPH node's grid",
-    },
-    ModelInfo {
-        name: "unet",
-        group: ModelGroup::Product,
-        served_on: Some(topics::GRID_UNET.name),
-        param: None,
-        about: "the U-Net's predicted impulse grid",
-    },
-    ModelInfo {
-        name: "unet-delta",
-        group: ModelGroup::Product,
-        served_on: Some(topics::GRID_UNET.name),
-        param: None,
-        about: "builtin plus the U-Net's predicted change on persisting contacts, its value on new ones",
-    },
+    served("grid", ModelGroup::Product, topics::GRID_CONTACTS.name, "the previous step's impulses through the SPH node's grid"),
+    served("unet", ModelGroup::Product, topics::GRID_UNET.name, "the U-Net's predicted impulse grid"),
+    served("unet-delta", ModelGroup::Product, topics::GRID_UNET.name, "builtin plus the U-Net's predicted change on persisting contacts, its value on new ones"),
 ];
 
 /// The model of a name, without a parameter (`blend`, not `blend:0.5`).

@@ -5,11 +5,11 @@
 //! over a production solver with a fixed, small iteration count. Both run single-threaded.
 
 use crate::error::SimError;
-use crate::scene::{BodyKind, Scene, SceneConfig, ShapeSpec};
+use crate::scene::{BodyKind, Scene, SceneConfig};
 use crate::warm::ModelKind;
 use crate::world::{World, WorldParams};
 use rapier2d::math::{Pose, Vec2};
-use rapier2d::prelude::{ColliderBuilder, PhysicsWorld, RigidBodyBuilder};
+use rapier2d::prelude::PhysicsWorld;
 use std::time::Instant;
 
 /// One measured configuration.
@@ -49,26 +49,8 @@ pub fn rapier_ms_per_step(scene: &Scene, params: &WorldParams, steps: u32) -> f6
     w.gravity = Vec2::from(params.gravity);
     w.integration_parameters.dt = params.dt;
     let mut kinematic = Vec::new();
-    for spec in &scene.bodies {
-        let rb = match spec.kind {
-            BodyKind::Dynamic => RigidBodyBuilder::dynamic(),
-            BodyKind::Static => RigidBodyBuilder::fixed(),
-            BodyKind::Kinematic => RigidBodyBuilder::kinematic_position_based(),
-        }
-        .pose(Pose::new(Vec2::from(spec.position), spec.angle))
-        .build();
-        let co = match &spec.shape {
-            ShapeSpec::Ball { radius } => ColliderBuilder::ball(*radius),
-            ShapeSpec::Cuboid { half } => ColliderBuilder::cuboid(half[0], half[1]),
-            ShapeSpec::Polygon { vertices } => {
-                ColliderBuilder::convex_polyline(vertices.iter().map(|v| Vec2::from(*v)).collect())
-                    .expect("convex scene polygon")
-            }
-        }
-        .density(scene.config.density)
-        .friction(scene.config.friction)
-        .restitution(0.0)
-        .build();
+    for (id, spec) in scene.bodies.iter().enumerate() {
+        let (rb, co) = scene.rapier_body(id);
         let (h, _) = w.insert(rb, co);
         if spec.kind == BodyKind::Kinematic {
             kinematic.push((h, Vec2::from(spec.position), spec.angle));

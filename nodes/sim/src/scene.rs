@@ -403,6 +403,34 @@ fn mixed_obstacles(side: f32) -> Vec<BodySpec> {
 }
 
 impl Scene {
+    /// Body `id` as rapier's rigid body and collider (density, friction, no restitution), both
+    /// carrying `id` as user data.
+    pub fn rapier_body(&self, id: usize) -> (rapier2d::prelude::RigidBody, rapier2d::prelude::Collider) {
+        use rapier2d::math::{Pose, Vec2};
+        use rapier2d::prelude::{ColliderBuilder, RigidBodyBuilder};
+        let spec = &self.bodies[id];
+        let builder = match spec.kind {
+            BodyKind::Dynamic => RigidBodyBuilder::dynamic(),
+            BodyKind::Static => RigidBodyBuilder::fixed(),
+            BodyKind::Kinematic => RigidBodyBuilder::kinematic_position_based(),
+        };
+        let rb = builder.pose(Pose::new(Vec2::from(spec.position), spec.angle)).user_data(id as u128).build();
+        let collider = match &spec.shape {
+            ShapeSpec::Ball { radius } => ColliderBuilder::ball(*radius),
+            ShapeSpec::Cuboid { half } => ColliderBuilder::cuboid(half[0], half[1]),
+            ShapeSpec::Polygon { vertices } => {
+                ColliderBuilder::convex_polyline(vertices.iter().map(|v| Vec2::from(*v)).collect())
+                    .expect("scene polygons are convex with at least 3 vertices")
+            }
+        }
+        .density(self.config.density)
+        .friction(self.config.friction)
+        .restitution(0.0)
+        .user_data(id as u128)
+        .build();
+        (rb, collider)
+    }
+
     /// Builds the scene described by `config` (deterministic in the config).
     pub fn build(config: &SceneConfig) -> Result<Scene, SimError> {
         config.validate()?;

@@ -22,9 +22,32 @@ const fn headers<T, const N: usize>(columns: &[Column<T>; N]) -> [&'static str; 
     out
 }
 
-/// The cells of `row`, one per column.
-fn cells<T, const N: usize>(columns: &[Column<T>; N], row: &T) -> [String; N] {
-    columns.map(|(_, cell)| cell(row))
+/// A formatted table of `T`s: one row of cells per item, a cell per column; its first
+/// `key_columns` columns are left-aligned in markdown, the numbers right-aligned.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Table<T, const N: usize> {
+    headers: &'static [&'static str; N],
+    key_columns: usize,
+    /// One row per item, a cell per column.
+    pub rows: Vec<[String; N]>,
+    of: std::marker::PhantomData<fn(&T)>,
+}
+
+impl<T, const N: usize> Table<T, N> {
+    fn build(columns: &[Column<T>; N], headers: &'static [&'static str; N], key_columns: usize, items: &[T]) -> Self {
+        let rows = items.iter().map(|item| columns.map(|(_, cell)| cell(item))).collect();
+        Table { headers, key_columns, rows, of: std::marker::PhantomData }
+    }
+
+    /// A markdown table.
+    pub fn to_markdown(&self) -> String {
+        markdown_table(self.headers, self.key_columns, &self.rows)
+    }
+
+    /// An HTML `<table>`: a header row, then one row per item (cells escaped).
+    pub fn to_html(&self) -> String {
+        html_table(self.headers, &self.rows)
+    }
 }
 
 fn fmt(v: f64, digits: usize) -> String {
@@ -85,27 +108,13 @@ const SUMMARY: [Column<ModelSummary>; 16] = [
 pub const SUMMARY_COLUMNS: [&str; SUMMARY.len()] = headers(&SUMMARY);
 
 /// The summary table as formatted cells, one row per model: what both the markdown table and the
-/// HTML page show.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SummaryTable {
-    /// One row per model, a cell per [`SUMMARY_COLUMNS`] entry.
-    pub rows: Vec<[String; SUMMARY.len()]>,
-}
+/// HTML page show (the model column left-aligned, the numbers right-aligned).
+pub type SummaryTable = Table<ModelSummary, { SUMMARY.len() }>;
 
 impl SummaryTable {
     /// The cells of `summaries`, in their order.
     pub fn new(summaries: &[ModelSummary]) -> SummaryTable {
-        SummaryTable { rows: summaries.iter().map(|m| cells(&SUMMARY, m)).collect() }
-    }
-
-    /// A markdown table: the model column left-aligned, the numbers right-aligned.
-    pub fn to_markdown(&self) -> String {
-        markdown_table(&SUMMARY_COLUMNS, 1, &self.rows)
-    }
-
-    /// An HTML `<table>`: a header row, then one row per model (cells escaped).
-    pub fn to_html(&self) -> String {
-        html_table(&SUMMARY_COLUMNS, &self.rows)
+        Table::build(&SUMMARY, &SUMMARY_COLUMNS, 1, summaries)
     }
 }
 
@@ -126,27 +135,14 @@ const PHASE: [Column<PhaseRow>; 11] = [
 /// Columns of the per-phase table (markdown and HTML).
 pub const PHASE_COLUMNS: [&str; PHASE.len()] = headers(&PHASE);
 
-/// Per model and step-range phase: where the sweeps went, as formatted cells.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PhaseTable {
-    /// One row per (model, phase), a cell per [`PHASE_COLUMNS`] entry.
-    pub rows: Vec<[String; PHASE.len()]>,
-}
+/// Per model and step-range phase: where the sweeps went, as formatted cells (model and phase
+/// left-aligned).
+pub type PhaseTable = Table<PhaseRow, { PHASE.len() }>;
 
 impl PhaseTable {
     /// The cells of `rows`, in their order.
     pub fn new(rows: &[PhaseRow]) -> PhaseTable {
-        PhaseTable { rows: rows.iter().map(|r| cells(&PHASE, r)).collect() }
-    }
-
-    /// A markdown table: model and phase left-aligned, the numbers right-aligned.
-    pub fn to_markdown(&self) -> String {
-        markdown_table(&PHASE_COLUMNS, 2, &self.rows)
-    }
-
-    /// An HTML `<table>`: a header row, then one row per (model, phase).
-    pub fn to_html(&self) -> String {
-        html_table(&PHASE_COLUMNS, &self.rows)
+        Table::build(&PHASE, &PHASE_COLUMNS, 2, rows)
     }
 }
 
@@ -168,26 +164,12 @@ const ACCURACY: [Column<AccuracyRow>; 11] = [
 pub const ACCURACY_COLUMNS: [&str; ACCURACY.len()] = headers(&ACCURACY);
 
 /// The accuracy -> sweeps table as formatted cells, one row per model.
-#[derive(Debug, Clone, PartialEq)]
-pub struct AccuracyTable {
-    /// One row per model, a cell per [`ACCURACY_COLUMNS`] entry.
-    pub rows: Vec<[String; ACCURACY.len()]>,
-}
+pub type AccuracyTable = Table<AccuracyRow, { ACCURACY.len() }>;
 
 impl AccuracyTable {
     /// The cells of `rows`, in their order.
     pub fn new(rows: &[AccuracyRow]) -> AccuracyTable {
-        AccuracyTable { rows: rows.iter().map(|r| cells(&ACCURACY, r)).collect() }
-    }
-
-    /// A markdown table: the model column left-aligned, the numbers right-aligned.
-    pub fn to_markdown(&self) -> String {
-        markdown_table(&ACCURACY_COLUMNS, 1, &self.rows)
-    }
-
-    /// An HTML `<table>`: a header row, then one row per model.
-    pub fn to_html(&self) -> String {
-        html_table(&ACCURACY_COLUMNS, &self.rows)
+        Table::build(&ACCURACY, &ACCURACY_COLUMNS, 1, rows)
     }
 }
 

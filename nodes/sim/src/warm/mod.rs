@@ -23,5 +23,5 @@ pub mod registry;
 pub use model::{
     ContactWarmSource, GridSource, Needs, StepRows, Unavailable, WarmStartInput, WarmStartModel, WarmStarter,
 };
-pub use product::{Builtin, GnnModel, GnnNodeModel, GridModel, NoWarmStart, ProblemSender};
+pub use product::{Builtin, Constant, GnnModel, GnnNodeModel, GridModel, ProblemSender};
 pub use registry::{ModelFiles, ModelKind, ModelSpec, Served};

@@ -1,4 +1,4 @@
-//! The product's warm starts: what a simulator user runs. `none` and `builtin` (the
+//! The product's warm starts: what a simulator user runs. `none` (a [`Constant`]) and `builtin` (the
 //! simulator's own temporal warm start), the grid-based models fed by another node (`grid`,
 //! `unet`, `unet-delta`), and the contact-graph network in process (`gnn`) or served by a node
 //! (`gnn-node`).
@@ -10,16 +10,30 @@ use crate::warm::model::{
 };
 use sph::sample_bilinear;
 
-/// `none`: start from zero.
-#[derive(Debug, Default)]
-pub struct NoWarmStart;
+/// A constant start: `none` (zero, the cold start), and the evaluation's `bad` (50 everywhere).
+#[derive(Debug, Clone, Copy)]
+pub struct Constant {
+    name: &'static str,
+    value: Impulse,
+}
 
-impl WarmStartModel for NoWarmStart {
+impl Constant {
+    /// `none`: start from zero.
+    pub fn zero() -> Constant {
+        Constant { name: "none", value: Impulse::default() }
+    }
+    /// `name`: every contact starts at `value`.
+    pub fn new(name: &'static str, value: Impulse) -> Constant {
+        Constant { name, value }
+    }
+}
+
+impl WarmStartModel for Constant {
     fn name(&self) -> &str {
-        "none"
+        self.name
     }
     fn warm_start(&mut self, _: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-        out.fill(Impulse::default());
+        out.fill(self.value);
         Ok(())
     }
 }

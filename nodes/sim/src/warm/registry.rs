@@ -4,10 +4,11 @@
 //! rooms are: product, references, probes.
 
 use crate::error::SimError;
+use crate::solver::rows::Impulse;
 use crate::warm::model::{ContactWarmSource, GridSource, WarmStartModel, WarmStarter};
 use crate::warm::probes::{BuiltinReappear, Coarse, ConjugateGradient, Continue, Extrapolate, Subspace};
-use crate::warm::product::{Builtin, GnnModel, GnnNodeModel, GridModel, NoWarmStart, ProblemSender};
-use crate::warm::references::{Ablation, Bad, Copy, CopyGrid, OracleAblation, Random};
+use crate::warm::product::{Builtin, Constant, GnnModel, GnnNodeModel, GridModel, ProblemSender};
+use crate::warm::references::{Ablation, Copy, OracleAblation, Random};
 use msgs::models::ModelGroup;
 use std::str::FromStr;
 
@@ -241,7 +242,7 @@ impl ModelSpec {
         let no_source = || SimError::NoGridSource(self.name());
         Ok(match self.kind {
             // Product.
-            ModelKind::None => Box::new(NoWarmStart),
+            ModelKind::None => Box::new(Constant::zero()),
             ModelKind::Builtin => Box::new(Builtin),
             ModelKind::Grid | ModelKind::Unet => {
                 Box::new(GridModel::new(self.kind.name(), served.grid.ok_or_else(no_source)?))
@@ -256,9 +257,9 @@ impl ModelSpec {
             ModelKind::Copy => Box::new(Copy::exact()),
             ModelKind::Copy0 => Box::new(Copy::rounded_to_units()),
             ModelKind::Copy2 => Box::new(Copy::rounded_to_hundredths()),
-            ModelKind::CopyGrid => Box::new(CopyGrid::new(sph::Mode::Preserving)),
-            ModelKind::CopyGridSph => Box::new(CopyGrid::new(sph::Mode::Sph)),
-            ModelKind::Bad => Box::new(Bad),
+            ModelKind::CopyGrid => Box::new(Copy::through_grid(sph::Mode::Preserving)),
+            ModelKind::CopyGridSph => Box::new(Copy::through_grid(sph::Mode::Sph)),
+            ModelKind::Bad => Box::new(Constant::new("bad", Impulse { normal: 50.0, tangent: 50.0 })),
             ModelKind::Random => Box::new(Random::new(seed)),
             ModelKind::CopyPersisting => ablation(Ablation::CopyPersisting),
             ModelKind::CopyNew => ablation(Ablation::CopyNew),

@@ -8,7 +8,7 @@ use crate::scene::{BodyKind, Scene, ShapeSpec};
 use crate::solver::position::rotate;
 use crate::solver::{PositionGeometry, PositionRow};
 use rapier2d::math::{Pose, Vec2};
-use rapier2d::prelude::{ColliderBuilder, PhysicsWorld, RigidBodyBuilder, RigidBodyHandle};
+use rapier2d::prelude::{PhysicsWorld, RigidBodyHandle};
 
 /// rapier's collision structures for one scene, and the detection's scratch.
 pub(crate) struct Collision {
@@ -24,28 +24,9 @@ impl Collision {
         let mut rapier = PhysicsWorld::new();
         let mut bodies = Vec::with_capacity(scene.bodies.len());
         let mut handles = Vec::with_capacity(scene.bodies.len());
-        let friction = scene.config.friction;
         for (id, spec) in scene.bodies.iter().enumerate() {
-            let builder = match spec.kind {
-                BodyKind::Dynamic => RigidBodyBuilder::dynamic(),
-                BodyKind::Static => RigidBodyBuilder::fixed(),
-                BodyKind::Kinematic => RigidBodyBuilder::kinematic_position_based(),
-            };
+            let (rb, collider) = scene.rapier_body(id);
             let pose = Pose::new(Vec2::from(spec.position), spec.angle);
-            let rb = builder.pose(pose).user_data(id as u128).build();
-            let collider = match &spec.shape {
-                ShapeSpec::Ball { radius } => ColliderBuilder::ball(*radius),
-                ShapeSpec::Cuboid { half } => ColliderBuilder::cuboid(half[0], half[1]),
-                ShapeSpec::Polygon { vertices } => {
-                    ColliderBuilder::convex_polyline(vertices.iter().map(|v| Vec2::from(*v)).collect())
-                        .expect("scene polygons are convex with at least 3 vertices")
-                }
-            }
-            .density(scene.config.density)
-            .friction(friction)
-            .restitution(0.0)
-            .user_data(id as u128)
-            .build();
             let (mass, inertia) = if spec.kind == BodyKind::Dynamic {
                 let mp = collider.mass_properties();
                 (1.0 / mp.inv_mass, 1.0 / mp.inv_principal_inertia)

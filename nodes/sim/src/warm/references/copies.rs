@@ -1,6 +1,6 @@
 //! Fixed references of the evaluation: the step's exact solution as it is (`copy`), rounded
 //! (`copy0`, `copy2`) or sent through the SPH grid and back (`copy-grid`, `copy-grid-sph`), and
-//! the deliberately poor starts (`bad`, `random`). The oracle behind the first ones *is* the
+//! random starts (`random`; `bad` is a constant start, built by the registry). The oracle behind the first ones *is* the
 //! solve: they bound what a model could gain, they are not models a simulator can run.
 
 use crate::contact::ContactPoint;
@@ -8,25 +8,45 @@ use crate::rng::{Sampler, Xoshiro};
 use crate::solver::rows::Impulse;
 use crate::warm::model::{exact_solution, Needs, Unavailable, WarmStartInput, WarmStartModel};
 
-/// `copy`, `copy0`, `copy2`: the step's own solution (optionally rounded to some decimals), the oracle.
+/// `copy`, `copy0`, `copy2`, `copy-grid`, `copy-grid-sph`: the step's own solution (the oracle),
+/// as it is or degraded the way a prediction would be: rounded, or sent through a grid and back.
 #[derive(Debug)]
 pub struct Copy {
-    decimals: Option<i32>,
     name: &'static str,
+    degrade: Degrade,
+}
+
+/// What [`Copy`] does to the exact solution.
+#[derive(Debug)]
+enum Degrade {
+    Nothing,
+    Round { decimals: i32 },
+    Grid(GridTrip),
 }
 
 impl Copy {
     /// The exact solution (`copy`).
     pub fn exact() -> Copy {
-        Copy { decimals: None, name: "copy" }
+        Copy { name: "copy", degrade: Degrade::Nothing }
     }
     /// The solution rounded to whole units (`copy0`).
     pub fn rounded_to_units() -> Copy {
-        Copy { decimals: Some(0), name: "copy0" }
+        Copy { name: "copy0", degrade: Degrade::Round { decimals: 0 } }
     }
     /// The solution rounded to 2 decimals (`copy2`).
     pub fn rounded_to_hundredths() -> Copy {
-        Copy { decimals: Some(2), name: "copy2" }
+        Copy { name: "copy2", degrade: Degrade::Round { decimals: 2 } }
+    }
+    /// The solution through the SPH grid and back (particle -> grid -> bilinear at the contacts),
+    /// by the value-preserving transfer (`copy-grid`) or the thesis's (`copy-grid-sph`). The gate
+    /// for every grid-based model: no prediction on that grid can do better than the solution
+    /// itself after the transfer.
+    pub fn through_grid(mode: sph::Mode) -> Copy {
+        let name = match mode {
+            sph::Mode::Preserving => "copy-grid",
+            sph::Mode::Sph => "copy-grid-sph",
+        };
+        Copy { name, degrade: Degrade::Grid(GridTrip::new(mode)) }
     }
 }
 
@@ -39,35 +59,34 @@ impl WarmStartModel for Copy {
     }
     fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
         out.copy_from_slice(exact_solution(input)?);
-        if let Some(d) = self.decimals {
-            let s = 10f32.powi(d);
-            for o in out.iter_mut() {
-                o.normal = (o.normal * s).round() / s;
-                o.tangent = (o.tangent * s).round() / s;
+        match &self.degrade {
+            Degrade::Nothing => {}
+            Degrade::Round { decimals } => {
+                let s = 10f32.powi(*decimals);
+                for o in out.iter_mut() {
+                    o.normal = (o.normal * s).round() / s;
+                    o.tangent = (o.tangent * s).round() / s;
+                }
+            }
+            Degrade::Grid(trip) => {
+                trip.round_trip(input.contacts, out).map_err(|e| Unavailable(format!("grid transfer: {e}")))?
             }
         }
         Ok(())
     }
 }
 
-/// `copy-grid`, `copy-grid-sph`: the step's exact solution sent through the SPH grid and back
-/// (particle -> grid -> bilinear at the contacts). The gate for every grid-based model: no
-/// prediction on that grid can do better than the solution itself after the transfer.
-pub struct CopyGrid {
-    name: &'static str,
+/// The SPH transfer of contact values to a grid and back.
+#[derive(Debug)]
+struct GridTrip {
     config: sph::TransferConfig,
     /// Grid spacing (the thesis's 0.125).
     spacing: f32,
 }
 
-impl CopyGrid {
-    /// Through the value-preserving transfer (`copy-grid`) or the thesis's (`copy-grid-sph`).
-    pub fn new(mode: sph::Mode) -> CopyGrid {
-        let name = match mode {
-            sph::Mode::Preserving => "copy-grid",
-            sph::Mode::Sph => "copy-grid-sph",
-        };
-        CopyGrid { name, config: sph::TransferConfig { mode, ..Default::default() }, spacing: 0.125 }
+impl GridTrip {
+    fn new(mode: sph::Mode) -> GridTrip {
+        GridTrip { config: sph::TransferConfig { mode, ..Default::default() }, spacing: 0.125 }
     }
 
     /// A grid over the contacts, on the lattice of a scene grid with origin (0, 0) (so the result
@@ -86,46 +105,22 @@ impl CopyGrid {
         let bounds = sph::Bounds::new([snap_lo(lo[0]), snap_lo(lo[1])], [snap_hi(hi[0]), snap_hi(hi[1])])?;
         sph::GridGeometry::from_bounds(bounds, self.spacing, 1)
     }
-}
 
-impl WarmStartModel for CopyGrid {
-    fn name(&self) -> &str {
-        self.name
-    }
-    fn needs(&self) -> Needs {
-        Needs::EXACT
-    }
-    fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-        out.copy_from_slice(exact_solution(input)?);
-        if input.contacts.is_empty() {
+    /// Replaces each contact's value in `values` by its value after the round trip.
+    fn round_trip(&self, contacts: &[ContactPoint], values: &mut [Impulse]) -> Result<(), sph::SphError> {
+        if contacts.is_empty() {
             return Ok(());
         }
-        let unavailable = |e: sph::SphError| Unavailable(format!("grid transfer: {e}"));
         let mut particles = sph::ParticleSet::new(&["normal", "tangent"]);
-        for (c, o) in input.contacts.iter().zip(out.iter()) {
+        for (c, o) in contacts.iter().zip(values.iter()) {
             let source = sph::Source::Contact { body_a: c.key.body_a, body_b: c.key.body_b };
-            particles.push(source, [c.point.x, c.point.y], &[o.normal, o.tangent]).map_err(unavailable)?;
+            particles.push(source, [c.point.x, c.point.y], &[o.normal, o.tangent])?;
         }
-        let mut transfer = sph::Transfer::new(self.config, self.geometry(input.contacts).map_err(unavailable)?)
-            .map_err(unavailable)?;
-        let (back, _) = transfer.round_trip(&particles).map_err(unavailable)?;
-        for (o, v) in out.iter_mut().zip(back.chunks_exact(2)) {
+        let mut transfer = sph::Transfer::new(self.config, self.geometry(contacts)?)?;
+        let (back, _) = transfer.round_trip(&particles)?;
+        for (o, v) in values.iter_mut().zip(back.chunks_exact(2)) {
             *o = Impulse { normal: v[0], tangent: v[1] };
         }
-        Ok(())
-    }
-}
-
-/// `bad`: 50 for normal and tangent impulses.
-#[derive(Debug, Default)]
-pub struct Bad;
-
-impl WarmStartModel for Bad {
-    fn name(&self) -> &str {
-        "bad"
-    }
-    fn warm_start(&mut self, _: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-        out.fill(Impulse { normal: 50.0, tangent: 50.0 });
         Ok(())
     }
 }
