@@ -318,3 +318,61 @@ fn a_daemon_finishes_its_backlog_before_the_daemon_that_records_it_stops() {
     assert_eq!(bodies.len(), 60, "{}", text(&out));
     assert_eq!(grids, bodies, "steps recorded without their grid:\n{}", text(&out));
 }
+
+/// `dc` under an address-space limit (its nodes inherit it), so that a bound that regresses fails
+/// the test with an allocation abort instead of exhausting the machine.
+fn dc_limited(args: &[&str]) -> Output {
+    Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -v 8000000; exec \"$0\" \"$@\"")
+        .arg(bin("dc"))
+        .args(args)
+        .output()
+        .expect("run dc")
+}
+
+#[test]
+fn counts_and_sizes_beyond_their_bounds_are_refused_by_the_check() {
+    let dir = scratch_dir("bounds");
+    let file = dir.join("graph.toml");
+    std::fs::write(
+        &file,
+        "[[nodes]]\nname = \"many\"\nbinary = \"dc-sim\"\nparams = { seeds = \"0..4294967296\" }\n\n\
+         [[nodes]]\nname = \"wide\"\nbinary = \"dc-sim\"\nparams = { side = 1e12 }\n\n\
+         [[nodes]]\nname = \"crowd\"\nbinary = \"dc-sim\"\nparams = { n = 100000000 }\n",
+    )
+    .unwrap();
+    let out = dc_limited(&["launch", file.to_str().unwrap(), "--dry-run"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    for (line, node, what) in [
+        (1, "many", "invalid parameter `seeds` = 0..4294967296: `0..4294967296`: more than 100000 seeds"),
+        (6, "wide", "invalid parameter `side` = 1000000000000: at most 4096"),
+        (11, "crowd", "invalid parameter `n` = 100000000: at most 1000000 bodies"),
+    ] {
+        assert!(
+            err.contains(&format!("graph.toml:{line}: node `{node}` (dc-sim): bad parameters: {what}")),
+            "{node}:\n{err}"
+        );
+    }
+    assert!(!err.contains("panicked") && !err.contains("backtrace") && !err.contains("crashed"), "{err}");
+}
+
+#[test]
+fn eval_refuses_an_unwritable_out_folder_before_any_node_starts() {
+    let dir = scratch_dir("eval-out");
+    let file = dir.join("not-a-folder");
+    std::fs::write(&file, "x").unwrap();
+    // Root may write anywhere: a path below a regular file is what cannot be created.
+    let out_dir = file.join("report");
+    let started = Instant::now();
+    let args = "eval --models none --seeds 0 --steps 1 --n 20 --out";
+    let out = dc_limited(&args.split(' ').chain([out_dir.to_str().unwrap()]).collect::<Vec<_>>());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(err.contains("--out") && err.contains(&format!("cannot create the folder {}", out_dir.display())), "{err}");
+    // Refused before start: no node ran, so no node output and no run summary.
+    assert!(!String::from_utf8_lossy(&out.stdout).contains('['), "{}", text(&out));
+    assert!(!err.contains("[sim-0]") && !err.contains("[metrics]"), "{err}");
+    assert!(started.elapsed() < Duration::from_secs(30), "took {:?}", started.elapsed());
+}

@@ -266,6 +266,27 @@ pub struct Graph {
     pub nodes: Vec<NodeSpec>,
 }
 
+/// Why a node refused its parameters, on one line: clap's message without its usage and help
+/// footer; a node that crashed instead (a panic, an abort, a signal) is said to have crashed,
+/// with its message and without the backtrace or notes that follow it.
+fn refusal(status: std::process::ExitStatus, stderr: &str) -> String {
+    let msg = stderr
+        .lines()
+        .take_while(|l| {
+            !l.starts_with("Usage:") && !l.starts_with("For more information") && !l.starts_with("stack backtrace:")
+        })
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with("note: "))
+        .collect::<Vec<_>>()
+        .join(" ");
+    let msg = msg.trim_start_matches("error: ");
+    // 101: a Rust panic; no code: killed by a signal (an allocation failure aborts).
+    match status.code() {
+        Some(101) | None => format!("crashed while checking its parameters ({status}): {msg}"),
+        Some(_) => format!("bad parameters: {msg}"),
+    }
+}
+
 fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].matches('\n').count() + 1
 }
@@ -619,26 +640,21 @@ impl Graph {
             let out = std::process::Command::new(&node.program)
                 .args(&node.args)
                 .env("DC_VALIDATE", "1")
+                // A node that crashes while checking says why in a line, not a backtrace.
+                .env("RUST_BACKTRACE", "0")
                 .stdin(std::process::Stdio::null())
                 .output();
             match out {
                 Ok(o) if o.status.success() => {}
-                Ok(o) => {
-                    // clap's message without its usage and help footer, on one line.
-                    let stderr = String::from_utf8_lossy(&o.stderr);
-                    let msg = stderr
-                        .lines()
-                        .take_while(|l| !l.starts_with("Usage:") && !l.starts_with("For more information"))
-                        .map(str::trim)
-                        .filter(|l| !l.is_empty())
-                        .collect::<Vec<_>>()
-                        .join(" ");
-                    let msg = msg.trim_start_matches("error: ");
-                    problems.push(Problem {
-                        line: node.line,
-                        message: format!("node `{}` ({}): bad parameters: {msg}", node.name, node.binary),
-                    });
-                }
+                Ok(o) => problems.push(Problem {
+                    line: node.line,
+                    message: format!(
+                        "node `{}` ({}): {}",
+                        node.name,
+                        node.binary,
+                        refusal(o.status, &String::from_utf8_lossy(&o.stderr))
+                    ),
+                }),
                 Err(e) => problems.push(Problem {
                     line: node.line,
                     message: format!("node `{}`: cannot run `{}`: {e}", node.name, node.program.display()),
@@ -751,6 +767,24 @@ host = "c"
         assert!(err.contains("<demo>: duplicate node name `a`"), "{err}");
         assert!(err.contains("<demo>: node `a`: unknown node binary `dc-no-such-binary`"), "{err}");
         assert!(err.contains("<demo>: node name `b c` must be"), "{err}");
+    }
+
+    #[test]
+    fn a_node_that_crashes_while_checking_is_said_to_have_crashed_without_a_backtrace() {
+        use std::os::unix::process::ExitStatusExt;
+        let usage = "error: invalid value 'x' for '--n <N>'\n\nUsage: dc-sim [OPTIONS]\n\nFor more information, try '--help'.\n";
+        assert_eq!(
+            refusal(std::process::ExitStatus::from_raw(2 << 8), usage),
+            "bad parameters: invalid value 'x' for '--n <N>'"
+        );
+        let panic = "\nthread 'main' (7) panicked at src/scene.rs:297:72:\nattempt to multiply with overflow\n\
+                     stack backtrace:\n   0: __rustc::rust_begin_unwind\nnote: Some details are omitted\n";
+        let m = refusal(std::process::ExitStatus::from_raw(101 << 8), panic);
+        assert!(m.starts_with("crashed while checking its parameters (exit status: 101): thread"), "{m}");
+        assert!(m.ends_with("attempt to multiply with overflow"), "{m}");
+        let abort = "memory allocation of 34359738368 bytes failed\nstack backtrace:\n   0: std::alloc::rust_oom\n";
+        let m = refusal(std::process::ExitStatus::from_raw(6), abort);
+        assert!(m.contains("crashed") && m.ends_with("memory allocation of 34359738368 bytes failed"), "{m}");
     }
 
     #[test]

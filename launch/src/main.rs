@@ -566,9 +566,22 @@ fn eval(args: EvalArgs) -> Result<()> {
     if args.dry_run {
         return print_graph(&graph, None);
     }
+    // The report is written after every simulation ran: a folder that cannot take it must
+    // stop the evaluation before it starts, not lose it at the end.
+    writable_dir(&out).context("--out")?;
     let flag = interrupt_flag();
     supervisor::run(&graph, DEFAULT_HOST, Output::Forward, &flag)?;
     println!("evaluation report: {}", out.join("report.html").display());
+    Ok(())
+}
+
+/// Creates `dir` (and its parents) if needed and proves it writable by writing and removing a
+/// probe file; the error names the path.
+fn writable_dir(dir: &std::path::Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
+    let probe = dir.join(format!(".dc-write-probe-{}", std::process::id()));
+    std::fs::write(&probe, b"probe").with_context(|| format!("cannot write in the folder {}", dir.display()))?;
+    std::fs::remove_file(&probe).with_context(|| format!("cannot remove {} again", probe.display()))?;
     Ok(())
 }
 
@@ -621,6 +634,24 @@ mod tests {
 
     fn args(s: &str) -> Vec<String> {
         s.split_whitespace().map(str::to_string).collect()
+    }
+
+    #[test]
+    fn an_output_folder_is_created_and_probed_and_an_unwritable_one_is_named() {
+        let base = std::env::temp_dir().join(format!("dc-writable-dir-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        let dir = base.join("a/b");
+        writable_dir(&dir).unwrap();
+        assert!(dir.is_dir());
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0, "the probe is removed");
+        // A file where a folder should be (root may write anywhere, so no permission test).
+        let file = base.join("file");
+        std::fs::write(&file, b"x").unwrap();
+        for bad in [file.clone(), file.join("sub")] {
+            let e = format!("{:#}", writable_dir(&bad).unwrap_err());
+            assert!(e.contains(&bad.display().to_string()), "{e}");
+        }
+        std::fs::remove_dir_all(&base).unwrap();
     }
 
     #[test]

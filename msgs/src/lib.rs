@@ -79,31 +79,53 @@ pub fn name16_str(n: &Name16) -> &str {
     std::str::from_utf8(&n[..end]).unwrap_or("<invalid utf-8>")
 }
 
+/// Most seeds one list may name. A run announces its whole seed list in its run start (CBOR,
+/// up to 9 bytes a seed: under 1 MB at this bound), and the metrics, the recorder and the
+/// evaluation keep state per simulation; a run of this many simulations of the thesis scene
+/// (250 steps, ~1 ms a step) already takes about seven hours.
+pub const MAX_SEEDS: u64 = 100_000;
+
+/// Largest seed: seeds are simulation ids, a `u32` in every message header ([`StepHeader`]).
+pub const MAX_SEED: u64 = u32::MAX as u64;
+
 /// Parses a seed list: `N`, `A..B` (exclusive), `A..=B`, or a comma list of those; sorted,
-/// without repeats. Seeds are simulation ids, shared by the simulator and the evaluation.
+/// without repeats. Seeds are simulation ids, shared by the simulator and the evaluation: each
+/// is at most [`MAX_SEED`], and a list names at most [`MAX_SEEDS`] (counted before any is stored).
 pub fn parse_seeds(s: &str) -> Result<Vec<u64>, String> {
     let num = |t: &str| t.trim().parse::<u64>().map_err(|_| format!("`{s}`: expected N, A..B, A..=B or a comma list"));
-    let mut out = Vec::new();
+    let seed = |v: u64| match v {
+        0..=MAX_SEED => Ok(v),
+        _ => Err(format!("`{s}`: seed {v} is above {MAX_SEED} (seeds are u32 simulation ids)")),
+    };
+    // Each part as an inclusive range, checked and counted before anything is allocated.
+    let mut ranges = Vec::new();
+    let mut count = 0u64;
     for part in s.split(',').filter(|p| !p.trim().is_empty()) {
-        if let Some((a, b)) = part.split_once("..=") {
-            let (a, b) = (num(a)?, num(b)?);
-            if b < a {
-                return Err(format!("`{s}`: empty range"));
-            }
-            out.extend(a..=b);
+        let (a, b) = if let Some((a, b)) = part.split_once("..=") {
+            (seed(num(a)?)?, seed(num(b)?)?)
         } else if let Some((a, b)) = part.split_once("..") {
-            let (a, b) = (num(a)?, num(b)?);
+            let (a, b) = (seed(num(a)?)?, num(b)?);
             if b <= a {
                 return Err(format!("`{s}`: empty range"));
             }
-            out.extend(a..b);
+            (a, seed(b - 1)?)
         } else {
-            out.push(num(part)?);
+            let v = seed(num(part)?)?;
+            (v, v)
+        };
+        if b < a {
+            return Err(format!("`{s}`: empty range"));
         }
+        count += b - a + 1;
+        if count > MAX_SEEDS {
+            return Err(format!("`{s}`: more than {MAX_SEEDS} seeds (the limit of one seed list)"));
+        }
+        ranges.push(a..=b);
     }
-    if out.is_empty() {
+    if ranges.is_empty() {
         return Err(format!("`{s}`: no seeds"));
     }
+    let mut out: Vec<u64> = ranges.into_iter().flatten().collect();
     out.sort_unstable();
     out.dedup();
     Ok(out)
@@ -391,6 +413,23 @@ mod tests {
         assert!(parse_seeds("3..3").is_err());
         assert!(parse_seeds("x").is_err());
         assert!(parse_seeds("").is_err());
+    }
+
+    #[test]
+    fn seed_lists_beyond_their_bounds_are_refused_before_allocating() {
+        assert_eq!(parse_seeds("0..100000").unwrap().len(), 100_000);
+        assert_eq!(parse_seeds("4294967295").unwrap(), [MAX_SEED]);
+        assert_eq!(parse_seeds("4294967290..4294967296").unwrap().len(), 6);
+        let e = parse_seeds("0..400000000").unwrap_err();
+        assert!(e.contains("more than 100000 seeds"), "{e}");
+        let e = parse_seeds("0..4294967296").unwrap_err();
+        assert!(e.contains("more than 100000 seeds"), "{e}");
+        let e = parse_seeds("0..60000,100000..=160000").unwrap_err();
+        assert!(e.contains("more than 100000 seeds"), "{e}");
+        let e = parse_seeds("0..=18446744073709551615").unwrap_err();
+        assert!(e.contains("above 4294967295"), "{e}");
+        assert!(parse_seeds("4294967296").unwrap_err().contains("above 4294967295"));
+        assert!(parse_seeds("0..4294967297").unwrap_err().contains("above 4294967295"));
     }
 
     #[test]

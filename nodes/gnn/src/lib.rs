@@ -21,13 +21,13 @@ pub enum GnnError {
     Io { path: String, source: std::io::Error },
     #[error("{path}: not a contact-graph model file: {why}")]
     Format { path: String, why: String },
-    #[error("{path}: weights checksum {found:016x} does not match {expected:016x}: the file is damaged")]
+    #[error("{path}: checksum {found:016x} does not match {expected:016x}: the file is damaged")]
     Checksum { path: String, found: u64, expected: u64 },
     #[error("{path}: {why}")]
     Invalid { path: String, why: String },
 }
 
-/// What a `.dcg` file holds: the network, how it was made, and a checksum of its weights.
+/// What a `.dcg` file holds: the network, how it was made, and a checksum of everything else.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ModelFile {
     /// `dc-gnn` model file format version.
@@ -35,57 +35,127 @@ pub struct ModelFile {
     pub net: Net,
     /// How the model was made (free text: data, loss, steps), shown by `dc-gnn info`.
     pub provenance: String,
-    /// FNV-1a 64 of the weights' bytes, in layer order.
+    /// Format 2: FNV-1a 64 of the CBOR encoding of the format, the network (configuration and
+    /// weights) and the provenance ([`content_checksum`]). Format 1: of the weights only.
     pub checksum: u64,
 }
 
 /// The format [`ModelFile::save`] writes.
-pub const FORMAT: u32 = 1;
+pub const FORMAT: u32 = 2;
 
-/// FNV-1a 64 over every weight and bias, in layer order.
-pub fn checksum(net: &Net) -> u64 {
-    let mut h = 0xcbf2_9ce4_8422_2325u64;
-    for layer in [&net.encode_contact, &net.encode_body, &net.body, &net.contact, &net.decode] {
-        for v in layer.weight.iter().chain(&layer.bias) {
-            for byte in v.to_le_bytes() {
-                h ^= byte as u64;
-                h = h.wrapping_mul(0x0100_0000_01b3);
-            }
-        }
+/// The format whose checksum covers the weights only: a changed configuration (`rounds`) went
+/// unnoticed. Read only by [`ModelFile::upgrade`].
+pub const FORMAT_WEIGHTS_ONLY: u32 = 1;
+
+/// FNV-1a 64 of `bytes`, continuing from `h`.
+fn fnv1a(mut h: u64, bytes: impl IntoIterator<Item = u8>) -> u64 {
+    for byte in bytes {
+        h ^= byte as u64;
+        h = h.wrapping_mul(0x0100_0000_01b3);
     }
     h
 }
 
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// Format 1's checksum: FNV-1a 64 over every weight and bias, in layer order.
+pub fn checksum(net: &Net) -> u64 {
+    [&net.encode_contact, &net.encode_body, &net.body, &net.contact, &net.decode]
+        .into_iter()
+        .flat_map(|layer| layer.weight.iter().chain(&layer.bias))
+        .fold(FNV_OFFSET, |h, v| fnv1a(h, v.to_le_bytes()))
+}
+
+/// Format 2's checksum: FNV-1a 64 over the CBOR encoding of everything the file holds but the
+/// checksum itself.
+pub fn content_checksum(format: u32, net: &Net, provenance: &str) -> u64 {
+    let mut bytes = Vec::new();
+    ciborium::into_writer(&(format, net, provenance), &mut bytes).expect("a model serialises to a Vec");
+    fnv1a(FNV_OFFSET, bytes)
+}
+
 impl ModelFile {
+    /// A format-2 file of `net`.
     pub fn new(net: Net, provenance: &str) -> ModelFile {
-        let checksum = checksum(&net);
+        let checksum = content_checksum(FORMAT, &net, provenance);
         ModelFile { format: FORMAT, net, provenance: provenance.into(), checksum }
     }
 
+    /// Writes the file through a temporary beside it, renamed into place: a failed write never
+    /// leaves a truncated model where a good one was.
     pub fn save(&self, path: &Path) -> Result<(), GnnError> {
         let io = |source| GnnError::Io { path: path.display().to_string(), source };
         let mut bytes = Vec::new();
         ciborium::into_writer(self, &mut bytes).expect("a model serialises to a Vec");
-        std::fs::write(path, bytes).map_err(io)
+        let mut temporary = path.as_os_str().to_owned();
+        temporary.push(format!(".{}.tmp", std::process::id()));
+        let temporary = std::path::PathBuf::from(temporary);
+        std::fs::write(&temporary, bytes).map_err(io)?;
+        std::fs::rename(&temporary, path).map_err(|e| {
+            let _ = std::fs::remove_file(&temporary);
+            io(e)
+        })
     }
 
-    /// Loads a model, refusing a damaged file (checksum), another format, wrong shapes or
-    /// weights that are not finite.
+    /// Loads a model, refusing a damaged file (checksum over everything it holds), bytes after
+    /// the model, another format, wrong shapes or weights that are not finite.
     pub fn load(path: &Path) -> Result<ModelFile, GnnError> {
+        let file = ModelFile::read(path)?;
         let p = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| GnnError::Io { path: p.clone(), source })?;
-        let file: ModelFile = ciborium::from_reader(bytes.as_slice())
-            .map_err(|e| GnnError::Format { path: p.clone(), why: e.to_string() })?;
         if file.format != FORMAT {
+            let how = if file.format == FORMAT_WEIGHTS_ONLY {
+                " whose checksum leaves the configuration unchecked: `dc-gnn upgrade FILE` rewrites it"
+            } else {
+                ""
+            };
             return Err(GnnError::Format {
                 path: p,
-                why: format!("format {} (this build reads {FORMAT})", file.format),
+                why: format!("format {}{how} (this build reads {FORMAT})", file.format),
             });
         }
-        file.net.validate().map_err(|why| GnnError::Invalid { path: p.clone(), why })?;
-        let found = checksum(&file.net);
+        let found = content_checksum(file.format, &file.net, &file.provenance);
         if found != file.checksum {
             return Err(GnnError::Checksum { path: p, found, expected: file.checksum });
+        }
+        file.net.validate().map_err(|why| GnnError::Invalid { path: p, why })?;
+        Ok(file)
+    }
+
+    /// Rewrites a format-1 file (checked by its weights' checksum and shapes) as format 2 at
+    /// `out`; a format-2 file is checked and copied as it is.
+    pub fn upgrade(path: &Path, out: &Path) -> Result<ModelFile, GnnError> {
+        let file = ModelFile::read(path)?;
+        let p = path.display().to_string();
+        let upgraded = match file.format {
+            FORMAT => ModelFile::load(path)?,
+            FORMAT_WEIGHTS_ONLY => {
+                let found = checksum(&file.net);
+                if found != file.checksum {
+                    return Err(GnnError::Checksum { path: p, found, expected: file.checksum });
+                }
+                file.net.validate().map_err(|why| GnnError::Invalid { path: p, why })?;
+                ModelFile::new(file.net, &file.provenance)
+            }
+            other => {
+                return Err(GnnError::Format { path: p, why: format!("format {other} (this build reads {FORMAT})") })
+            }
+        };
+        upgraded.save(out)?;
+        Ok(upgraded)
+    }
+
+    /// The file's CBOR, all of it: bytes after the model are an error.
+    fn read(path: &Path) -> Result<ModelFile, GnnError> {
+        let p = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|source| GnnError::Io { path: p.clone(), source })?;
+        let mut rest = bytes.as_slice();
+        let file: ModelFile =
+            ciborium::from_reader(&mut rest).map_err(|e| GnnError::Format { path: p.clone(), why: e.to_string() })?;
+        if !rest.is_empty() {
+            return Err(GnnError::Format {
+                path: p,
+                why: format!("{} bytes after the model (of {})", rest.len(), bytes.len()),
+            });
         }
         Ok(file)
     }
@@ -150,10 +220,43 @@ mod tests {
         damaged.net.contact.weight[3] += 1e-3;
         damaged.save(&path).unwrap();
         assert!(matches!(ModelFile::load(&path), Err(GnnError::Checksum { .. })));
+        // A changed configuration that still parses and has valid shapes (rounds 4 -> 5: the
+        // weights are shared across rounds): the checksum covers it too.
+        let mut rounds = file.clone();
+        rounds.net.config.rounds += 1;
+        rounds.save(&path).unwrap();
+        assert!(matches!(ModelFile::load(&path), Err(GnnError::Checksum { .. })), "a changed rounds loaded");
+        // Trailing bytes after a good model are refused, naming them.
+        file.save(&path).unwrap();
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes.extend_from_slice(b"trailing");
+        std::fs::write(&path, &bytes).unwrap();
+        assert!(ModelFile::load(&path).unwrap_err().to_string().contains("8 bytes after the model"));
         // Bytes that do not parse, and a file that is not there, are named errors too.
         std::fs::write(&path, b"\x00\x01junk").unwrap();
         assert!(ModelFile::load(&path).unwrap_err().to_string().contains("not a contact-graph model file"));
         assert!(matches!(ModelFile::load(&dir.join("missing.dcg")), Err(GnnError::Io { .. })));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn format_1_files_are_refused_until_upgraded_and_upgrade_checks_their_weights() {
+        let dir = std::env::temp_dir().join(format!("dc-gnn-v1-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (old, new) = (dir.join("old.dcg"), dir.join("new.dcg"));
+        let net = Net::new(net::NetConfig::default(), 3);
+        let v1 = ModelFile { format: FORMAT_WEIGHTS_ONLY, checksum: checksum(&net), net, provenance: "v1".into() };
+        v1.save(&old).unwrap();
+        let err = ModelFile::load(&old).unwrap_err().to_string();
+        assert!(err.contains("format 1") && err.contains("dc-gnn upgrade"), "{err}");
+        let upgraded = ModelFile::upgrade(&old, &new).unwrap();
+        assert_eq!((upgraded.format, &upgraded.net, upgraded.provenance.as_str()), (FORMAT, &v1.net, "v1"));
+        assert_eq!(ModelFile::load(&new).unwrap(), upgraded);
+        // A damaged format-1 file is not laundered into a valid format-2 one.
+        let mut damaged = v1.clone();
+        damaged.net.decode.bias[0] += 1.0;
+        damaged.save(&old).unwrap();
+        assert!(matches!(ModelFile::upgrade(&old, &new), Err(GnnError::Checksum { .. })));
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -50,6 +50,13 @@ enum Command {
     },
     /// Prints a model file.
     Info { file: PathBuf },
+    /// Rewrites a format-1 model file (whose checksum covers the weights only) as format 2,
+    /// whose checksum covers everything; in place unless `--out` is given.
+    Upgrade {
+        file: PathBuf,
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Writes an untrained network (decoder at zero: builtin's warm start).
     Init {
         #[arg(long)]
@@ -141,6 +148,11 @@ fn try_main() -> Result<()> {
             let m = ModelFile::load(&file)?;
             println!("{}: format {}, {:?}, checksum {:016x}", file.display(), m.format, m.net.config, m.checksum);
             println!("  made by: {}", m.provenance);
+        }
+        Command::Upgrade { file, out } => {
+            let out = out.unwrap_or_else(|| file.clone());
+            let m = ModelFile::upgrade(&file, &out)?;
+            println!("wrote {} (format {}, checksum {:016x})", out.display(), m.format, m.checksum);
         }
         Command::Init { out, net, seed } => {
             let m = ModelFile::new(Net::new(net, seed), "dc-gnn init (untrained: builtin)");

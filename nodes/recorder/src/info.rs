@@ -1,7 +1,8 @@
 //! `dc-record info`: what a recording holds, like `ros2 bag info`.
 
 use crate::read::{Damage, Item, ReadOptions, RecordingReader};
-use crate::Result;
+use crate::summary::SummaryProblem;
+use crate::{Error, Result};
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -50,6 +51,10 @@ pub struct Info {
     pub damage: Vec<Damage>,
     /// Messages lost in the skipped regions, per topic, as far as the file tells.
     pub skipped: BTreeMap<String, u64>,
+    /// Where each recording after the first starts (files concatenated; a lenient read only).
+    pub recordings: Vec<u64>,
+    /// What is wrong with the summary section (what indexed readers go by).
+    pub summary_problems: Vec<SummaryProblem>,
 }
 
 impl Info {
@@ -117,7 +122,27 @@ impl Info {
         }
         info.damage = reader.damage().to_vec();
         info.skipped = reader.skipped().clone();
+        info.recordings = reader.recordings().to_vec();
+        info.summary_problems = reader.summary_problems().to_vec();
         Ok(info)
+    }
+
+    /// The first thing wrong with the file as an error naming it: damage skipped, then recordings
+    /// concatenated, then a summary that does not match the data; `None` for a sound file.
+    pub fn problem(&self) -> Option<Error> {
+        let path = self.path.clone();
+        if let Some(d) = self.damage.first() {
+            return Some(d.to_error(&path));
+        }
+        if let Some(&second) = self.recordings.first() {
+            return Some(Error::Concatenated { path, recordings: self.recordings.len() + 1, second });
+        }
+        let first = self.summary_problems.first()?;
+        let more = match self.summary_problems.len() - 1 {
+            0 => String::new(),
+            n => format!(" (and {n} more problem(s))"),
+        };
+        Some(Error::BadSummary { path, offset: first.offset, detail: first.detail.clone(), more })
     }
 
     /// Uncompressed over compressed chunk bytes.
@@ -189,6 +214,18 @@ impl fmt::Display for Info {
             }
             for (topic, n) in &self.skipped {
                 writeln!(f, "  lost on {topic}: {n} messages")?;
+            }
+        }
+        if !self.recordings.is_empty() {
+            writeln!(f, "Recordings:        {} concatenated in this one file", self.recordings.len() + 1)?;
+            for at in &self.recordings {
+                writeln!(f, "  another recording starts at byte {at}")?;
+            }
+        }
+        if !self.summary_problems.is_empty() {
+            writeln!(f, "Summary section:   {} problem(s)", self.summary_problems.len())?;
+            for p in &self.summary_problems {
+                writeln!(f, "  {p}")?;
             }
         }
         for (name, m) in &self.metadata {

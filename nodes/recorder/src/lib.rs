@@ -11,7 +11,11 @@
 //! - [`join::Steps`]: what the trainer reads: a recording (one file or a folder of files) as steps
 //!   joined per (run, simulation, step): bodies + contacts (+ solver statistics).
 //! - [`info::Info`] (`dc-record info`) and [`recover::recover`] (`dc-record recover`: every intact
-//!   chunk, with a report per topic of what was kept and skipped).
+//!   chunk, with a report per topic of what was kept and skipped, into a new file that replaces
+//!   the output only when complete and is never the input under another name).
+//! - [`summary`]: the summary section (footer offsets, chunk indexes, statistics) checked against
+//!   the data section as the reader walks it; what follows a footer (another recording, junk) is
+//!   read too, never ignored.
 //! - [`bench`]: the recorder's end-of-run counts and a recording's missing steps, for
 //!   `dc-record bench` (a 10,000-body simulator recorded live: drops, MB/s, msgs/s, CPU time).
 //!
@@ -25,6 +29,7 @@ pub mod info;
 pub mod join;
 pub mod read;
 pub mod recover;
+pub mod summary;
 pub mod write;
 
 pub use info::Info;
@@ -71,6 +76,15 @@ pub enum Error {
     NothingRecovered { path: PathBuf, detail: String },
     #[error("{path}: no .mcap recordings there")]
     NoRecordings { path: PathBuf },
+    /// `recover` was asked to write over the file it reads.
+    #[error("{output} is the same file as the input {input} (a hard link, a symlink or another spelling of it): recover would overwrite what it reads; choose another output")]
+    SameFile { input: PathBuf, output: PathBuf },
+    /// More than one recording in one file (`cat a.mcap b.mcap > c.mcap`).
+    #[error("{path}: {recordings} recordings concatenated in one file (the second starts at byte {second}): readers that go by the summary see only one; `dc-record recover IN OUT` writes them as one")]
+    Concatenated { path: PathBuf, recordings: usize, second: u64 },
+    /// The summary section does not match the data section (see [`summary::SummaryProblem`]).
+    #[error("{path}: bad summary section at byte {offset}: {detail}{more} (indexed MCAP readers refuse the file or lose messages; `dc-record recover IN OUT` writes a new summary)")]
+    BadSummary { path: PathBuf, offset: u64, detail: String, more: String },
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

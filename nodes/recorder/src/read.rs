@@ -16,7 +16,13 @@
 //! whose CRC checks out), as `mcap recover` does. What was skipped is kept in
 //! [`RecordingReader::damage`] and, per topic, in [`RecordingReader::skipped`] (counted from the
 //! message indexes that follow a skipped chunk).
+//!
+//! The file is read to its physical end: bytes after a recording's closing magic are damage,
+//! unless another recording starts there (`cat a.mcap b.mcap`), which a lenient reader reads too
+//! ([`RecordingReader::recordings`]) and a strict one refuses. The summary section is checked,
+//! not used ([`RecordingReader::summary_problems`]).
 
+use crate::summary::{SummaryCheck, SummaryProblem};
 use crate::{Error, FrameKind, Result, MESSAGE_ENCODING, META_TYPE, META_WIRE_VERSION};
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::fmt;
@@ -261,9 +267,12 @@ impl ChunkHeader {
     }
 }
 
-/// A footer record's field that this reader uses.
+/// A footer record's fields.
 struct Footer {
     summary_start: u64,
+    summary_offset_start: u64,
+    /// CRC-32 of the summary section and the footer's fields before it; 0: none.
+    summary_crc: u32,
 }
 
 /// A record inside a chunk that this reader uses.
@@ -303,6 +312,18 @@ pub struct RecordingReader {
     /// The channels the writer repeated outside the chunks ([`crate::CHANNELS_METADATA`]), for
     /// the same use in a file without a summary (a killed recording).
     repeated_channels: HashMap<u16, RawChannel>,
+    /// The current recording's data section as walked, to check its summary against.
+    summary: SummaryCheck,
+    /// What is wrong with the summary sections read so far.
+    summary_problems: Vec<SummaryProblem>,
+    /// Where each recording after the first starts (files concatenated; lenient mode).
+    recordings: Vec<u64>,
+    /// Reading is just past a recording's closing magic: only another recording may follow.
+    after_end: bool,
+    /// Where the last MCAP magic read ends (a header record belongs there).
+    magic_end: Option<u64>,
+    /// A header record was read: another one starts another recording.
+    header_seen: bool,
 }
 
 impl RecordingReader {
@@ -346,6 +367,12 @@ impl RecordingReader {
             counting_skipped: false,
             summary_channels: None,
             repeated_channels: HashMap::new(),
+            summary: SummaryCheck::new(0),
+            summary_problems: Vec::new(),
+            recordings: Vec::new(),
+            after_end: false,
+            magic_end: None,
+            header_seen: false,
         };
         reader.start()?;
         Ok(reader)
@@ -358,6 +385,7 @@ impl RecordingReader {
         self.read_at(0, &mut magic).map_err(|e| self.io(e))?;
         if magic == mcap::MAGIC {
             self.pos = MAGIC_LEN;
+            self.magic_end = Some(MAGIC_LEN);
             return Ok(());
         }
         let detail = format!("the first {n} bytes are not the MCAP magic");
@@ -399,6 +427,20 @@ impl RecordingReader {
     /// messages whose channel declaration was lost), so far.
     pub fn skipped(&self) -> &BTreeMap<String, u64> {
         &self.skipped
+    }
+
+    /// What is wrong with the summary sections read so far (footer offsets, chunk indexes,
+    /// statistics ...: what indexed readers go by), in file order. Not an error of the reader:
+    /// the data section is read whole either way.
+    pub fn summary_problems(&self) -> &[SummaryProblem] {
+        &self.summary_problems
+    }
+
+    /// Where each recording after the first starts (its MCAP magic, or its header record when
+    /// the magic was lost): files concatenated, as `cat a.mcap b.mcap` makes. A lenient reader
+    /// reads them all; a strict one stops with an error where the second starts.
+    pub fn recordings(&self) -> &[u64] {
+        &self.recordings
     }
 
     /// The next item of the data section; `None` after the footer. After an error it returns `None`.
@@ -483,6 +525,14 @@ impl RecordingReader {
         let offset = self.pos;
         let left = self.size.saturating_sub(offset);
         let fault = |opcode, detail: String| Stop::Fault(Fault { offset, opcode, detail });
+        if std::mem::take(&mut self.after_end) && !self.magic_at(offset).map_err(|e| Stop::Error(self.io(e)))? {
+            let detail =
+                format!("{left} bytes after the recording's closing magic, and they are not another recording");
+            return Err(fault(None, detail));
+        }
+        if left >= MAGIC_LEN && self.magic_at(offset).map_err(|e| Stop::Error(self.io(e)))? {
+            return self.start_recording(offset);
+        }
         if left == 0 {
             let detail = "the file ends here without a footer (its writer did not finish)".to_string();
             return Err(fault(None, detail));
@@ -496,7 +546,15 @@ impl RecordingReader {
         let body_at = offset + RECORD_HEADER_LEN;
         let end = body_at + len; // <= size, checked above
         if self.state == State::Summary && opcode != op::FOOTER {
-            // The summary repeats what the data section holds: its records are skipped unread.
+            // The summary repeats what the data section holds: only its indexes are read, to
+            // check them against what the data section held.
+            let mut body = Vec::new();
+            let readable = SummaryCheck::reads(opcode) && len <= MAX_SCANNED_RECORD_LEN;
+            if readable {
+                body.resize(len as usize, 0);
+                self.read_at(body_at, &mut body).map_err(|e| Stop::Error(self.io(e)))?;
+            }
+            self.summary.summary_record(offset, opcode, readable.then_some(&body[..]));
             self.pos = end;
             return Ok(());
         }
@@ -506,9 +564,82 @@ impl RecordingReader {
         self.pos = end;
         if opcode == op::FOOTER {
             self.check_end_magic(end)?;
-            self.state = State::Done;
+            // Past the closing magic: the end of the file, or another recording (or junk).
+            self.pos = end + MAGIC_LEN;
+            self.state = if self.pos == self.size { State::Done } else { State::Data };
+            self.after_end = self.state == State::Data;
         }
         Ok(())
+    }
+
+    /// Whether the MCAP magic is at `offset`.
+    fn magic_at(&mut self, offset: u64) -> std::io::Result<bool> {
+        if self.size.saturating_sub(offset) < MAGIC_LEN {
+            return Ok(false);
+        }
+        let mut magic = [0u8; MAGIC_LEN as usize];
+        self.read_at(offset, &mut magic)?;
+        Ok(magic == *mcap::MAGIC)
+    }
+
+    /// Another recording starts at `offset` (its magic there, or its header record when the magic
+    /// was lost): a lenient reader reads it as well and notes where it starts; for a strict one it
+    /// is damage.
+    fn new_recording(&mut self, offset: u64) -> Result<(), Stop> {
+        if !self.options.lenient {
+            let detail = "another MCAP recording starts here (files concatenated?): readers that go by the \
+                          summary see only one of them; `dc-record recover IN OUT` keeps both"
+                .to_string();
+            return Err(Stop::Fault(Fault { offset, opcode: None, detail }));
+        }
+        tracing::warn!(path = %self.path.display(), "another recording starts at byte {offset}");
+        self.recordings.push(offset);
+        self.summary = SummaryCheck::new(offset);
+        self.state = State::Data;
+        Ok(())
+    }
+
+    /// The MCAP magic at `offset`, where a record was expected: another recording starts.
+    fn start_recording(&mut self, offset: u64) -> Result<(), Stop> {
+        self.new_recording(offset)?;
+        self.pos = offset + MAGIC_LEN;
+        self.magic_end = Some(self.pos);
+        Ok(())
+    }
+
+    /// The footer at `offset`: its offsets and CRC checked against the summary as walked.
+    fn take_footer(&mut self, offset: u64, footer: Footer) -> Result<(), Stop> {
+        let crc_matches = match footer.summary_crc {
+            0 => None,
+            stored => {
+                let from = self.summary.summary_start(offset);
+                let to = offset + crate::summary::FOOTER_CRC_LEN;
+                Some(self.crc_between(from, to).map_err(|e| Stop::Error(self.io(e)))? == stored)
+            }
+        };
+        let base = self.summary.base();
+        let intact = !self.damage.iter().any(|d| d.offset >= base);
+        let check = std::mem::replace(&mut self.summary, SummaryCheck::new(offset));
+        let problems = check.footer(offset, footer.summary_start, footer.summary_offset_start, crc_matches, intact);
+        for p in &problems {
+            tracing::warn!(path = %self.path.display(), "summary section: {p}");
+        }
+        self.summary_problems.extend(problems);
+        Ok(())
+    }
+
+    /// CRC-32 of the bytes `from..to` of the file (within it: callers check), read in pieces.
+    fn crc_between(&mut self, from: u64, to: u64) -> std::io::Result<u32> {
+        let mut hasher = crc32fast::Hasher::new();
+        let mut buf = vec![0u8; READ_BUFFER_LEN.min(to.saturating_sub(from) as usize)];
+        let mut at = from;
+        while at < to {
+            let n = (to - at).min(buf.len() as u64) as usize;
+            self.read_at(at, &mut buf[..n])?;
+            hasher.update(&buf[..n]);
+            at += n as u64;
+        }
+        Ok(hasher.finalize())
     }
 
     fn check_end_magic(&mut self, at: u64) -> Result<(), Stop> {
@@ -536,23 +667,36 @@ impl RecordingReader {
             self.counting_skipped = false;
         }
         match opcode {
-            op::HEADER => self.take_header(parse_header(body).map_err(fault)?),
-            op::CHUNK => self.take_chunk(offset, parse_chunk(body).map_err(fault)?)?,
+            op::HEADER => self.take_header(offset, parse_header(body).map_err(fault)?)?,
+            op::CHUNK => {
+                let chunk = parse_chunk(body).map_err(fault)?;
+                let h = &chunk.header;
+                let record_len = RECORD_HEADER_LEN + body.len() as u64;
+                self.summary.chunk(offset, record_len, &h.compression, h.compressed_size, h.uncompressed_size);
+                self.take_chunk(offset, chunk)?
+            }
             op::CHANNEL => self.add_channel(parse_channel(body).map_err(fault)?)?,
             op::MESSAGE => {
                 let (header, data) = parse_message(body).map_err(fault)?;
                 self.add_message(offset, header, data.to_vec())?;
             }
             op::SCHEMA => parse_schema(body).map_err(fault)?,
-            op::METADATA => self.take_metadata(parse_metadata(body).map_err(fault)?),
-            op::MESSAGE_INDEX => self.take_message_index(parse_message_index(body).map_err(fault)?),
+            op::METADATA => {
+                let metadata = parse_metadata(body).map_err(fault)?;
+                self.summary.metadata(offset, RECORD_HEADER_LEN + body.len() as u64, &metadata.name);
+                self.take_metadata(metadata)
+            }
+            op::MESSAGE_INDEX => {
+                let index = parse_message_index(body).map_err(fault)?;
+                self.summary.message_index(offset, index.channel_id);
+                self.take_message_index(index)
+            }
             op::DATA_END => {
                 parse_data_end(body).map_err(fault)?;
+                self.summary.data_end(offset + RECORD_HEADER_LEN + DATA_END_LEN);
                 self.state = State::Summary;
             }
-            op::FOOTER => {
-                parse_footer(body).map_err(fault)?;
-            }
+            op::FOOTER => self.take_footer(offset, parse_footer(body).map_err(fault)?)?,
             op::ATTACHMENT
             | op::ATTACHMENT_INDEX
             | op::CHUNK_INDEX
@@ -567,9 +711,15 @@ impl RecordingReader {
         Ok(())
     }
 
-    /// A header record: whose profile the file has.
-    fn take_header(&mut self, header: mcap::records::Header) {
+    /// A header record: whose profile the file has. A second one, not right after a magic, starts
+    /// another recording whose magic was lost.
+    fn take_header(&mut self, offset: u64, header: mcap::records::Header) -> Result<(), Stop> {
+        if self.header_seen && self.magic_end != Some(offset) {
+            self.new_recording(offset)?;
+        }
+        self.header_seen = true;
         self.foreign = header.profile != OWN_PROFILE;
+        Ok(())
     }
 
     /// An intact chunk: its sizes, then the channels and messages it holds.
@@ -649,6 +799,7 @@ impl RecordingReader {
             }
         }
         let channel = self.channels[&id].clone();
+        self.summary.message();
         self.pending.push_back(Item::Message(Message {
             channel,
             sequence: header.sequence,
@@ -881,7 +1032,7 @@ fn is_known(opcode: u8) -> bool {
     (op::HEADER..=op::DATA_END).contains(&opcode)
 }
 
-fn record_name(opcode: u8) -> &'static str {
+pub(crate) fn record_name(opcode: u8) -> &'static str {
     match opcode {
         op::HEADER => "header record",
         op::FOOTER => "footer record",
@@ -917,26 +1068,26 @@ fn check_len(opcode: u8, len: u64, left: u64) -> Result<(), String> {
 }
 
 /// Reads the fields of one record (or chunk), every length checked against what is left.
-struct Fields<'a> {
+pub(crate) struct Fields<'a> {
     data: &'a [u8],
     at: usize,
 }
 
 impl<'a> Fields<'a> {
-    fn new(data: &'a [u8]) -> Fields<'a> {
+    pub(crate) fn new(data: &'a [u8]) -> Fields<'a> {
         Fields { data, at: 0 }
     }
 
-    fn left(&self) -> usize {
+    pub(crate) fn left(&self) -> usize {
         self.data.len() - self.at
     }
 
     /// The bytes not read yet.
-    fn rest(&self) -> &'a [u8] {
+    pub(crate) fn rest(&self) -> &'a [u8] {
         &self.data[self.at..]
     }
 
-    fn bytes(&mut self, n: u64, what: &str) -> Result<&'a [u8], String> {
+    pub(crate) fn bytes(&mut self, n: u64, what: &str) -> Result<&'a [u8], String> {
         match usize::try_from(n).ok().filter(|&n| n <= self.left()) {
             Some(n) => {
                 let out = &self.data[self.at..self.at + n];
@@ -951,29 +1102,29 @@ impl<'a> Fields<'a> {
         }
     }
 
-    fn array<const N: usize>(&mut self, what: &str) -> Result<[u8; N], String> {
+    pub(crate) fn array<const N: usize>(&mut self, what: &str) -> Result<[u8; N], String> {
         Ok(self.bytes(N as u64, what)?.try_into().expect("N bytes"))
     }
 
-    fn u16(&mut self, what: &str) -> Result<u16, String> {
+    pub(crate) fn u16(&mut self, what: &str) -> Result<u16, String> {
         Ok(u16::from_le_bytes(self.array(what)?))
     }
 
-    fn u32(&mut self, what: &str) -> Result<u32, String> {
+    pub(crate) fn u32(&mut self, what: &str) -> Result<u32, String> {
         Ok(u32::from_le_bytes(self.array(what)?))
     }
 
-    fn u64(&mut self, what: &str) -> Result<u64, String> {
+    pub(crate) fn u64(&mut self, what: &str) -> Result<u64, String> {
         Ok(u64::from_le_bytes(self.array(what)?))
     }
 
-    fn string(&mut self, what: &str) -> Result<String, String> {
+    pub(crate) fn string(&mut self, what: &str) -> Result<String, String> {
         let len = self.u32(what)?;
         let bytes = self.bytes(len.into(), what)?;
         String::from_utf8(bytes.to_vec()).map_err(|_| format!("{what} is not UTF-8"))
     }
 
-    fn string_map(&mut self, what: &str) -> Result<BTreeMap<String, String>, String> {
+    pub(crate) fn string_map(&mut self, what: &str) -> Result<BTreeMap<String, String>, String> {
         let len = self.u32(what)?;
         let mut map = Fields::new(self.bytes(len.into(), what)?);
         let mut out = BTreeMap::new();
@@ -987,7 +1138,7 @@ impl<'a> Fields<'a> {
         Ok(out)
     }
 
-    fn end(&self, what: &str) -> Result<(), String> {
+    pub(crate) fn end(&self, what: &str) -> Result<(), String> {
         match self.left() {
             0 => Ok(()),
             n => Err(format!("{n} bytes left over after the {what}")),
@@ -1091,9 +1242,9 @@ fn parse_footer(body: &[u8]) -> Result<Footer, String> {
     exact_len(body, FOOTER_LEN)?;
     let mut f = Fields::new(body);
     let summary_start = f.u64("the summary start")?;
-    let _summary_offset_start = f.u64("the summary offset start")?;
-    let _summary_crc = f.u32("the summary CRC")?;
-    Ok(Footer { summary_start })
+    let summary_offset_start = f.u64("the summary offset start")?;
+    let summary_crc = f.u32("the summary CRC")?;
+    Ok(Footer { summary_start, summary_offset_start, summary_crc })
 }
 
 /// A record of fixed length: exactly `len` bytes.

@@ -3,6 +3,7 @@
 //! every intact chunk: a damaged chunk is skipped and reading resumes at the next intact record.
 
 use crate::read::{Damage, Item, ReadOptions, RecordingReader};
+use crate::summary::SummaryProblem;
 use crate::write::RecordingWriter;
 use crate::{Error, Result};
 use std::collections::{BTreeMap, HashMap};
@@ -27,9 +28,19 @@ pub struct Recovered {
     pub bytes_read: u64,
     /// Size of the input in bytes.
     pub input_size: u64,
+    /// Where each recording after the first starts in the input (files concatenated): all of
+    /// them are copied, into one recording.
+    pub recordings: Vec<u64>,
+    /// What was wrong with the input's summary section (the output has a new one).
+    pub summary_problems: Vec<SummaryProblem>,
 }
 
 impl Recovered {
+    /// Whether the input was a sound recording: no damage, one recording, a sound summary.
+    pub fn input_was_sound(&self) -> bool {
+        self.damage.is_empty() && self.recordings.is_empty() && self.summary_problems.is_empty()
+    }
+
     /// Damaged chunks (and torn records, or records whose opcode was lost) that were skipped.
     pub fn skipped_chunks(&self) -> usize {
         self.damage.iter().filter(|d| d.may_be_chunk() && d.skipped_bytes(self.input_size) > 0).count()
@@ -49,30 +60,43 @@ impl fmt::Display for Recovered {
         for d in &self.damage {
             writeln!(f, "  skipped {d}")?;
         }
+        for at in &self.recordings {
+            writeln!(f, "  another recording starts at byte {at} of the input (files concatenated): kept too")?;
+        }
+        for p in &self.summary_problems {
+            writeln!(f, "  the input's summary section {p}: the output has a new one")?;
+        }
         Ok(())
     }
 }
 
-/// Copies every channel, metadata record and message of the intact parts of `input` into a new
-/// file `output`, which gets a summary, indexes and a footer. A file that is not MCAP at all, or
-/// a damaged one of which nothing could be kept, is an error (and leaves no output).
+/// Copies every channel, metadata record and message of the intact parts of `input` (of every
+/// recording in it, when files were concatenated) into a new file `output`, which gets a summary,
+/// indexes and a footer. A file that is not MCAP at all, or a damaged one of which nothing could
+/// be kept, is an error. The output is written under a temporary name and renamed over `output`
+/// when complete: an error leaves `output` as it was. An output that is the input under another
+/// name (a hard link, a symlink ...) is refused before anything is written.
 pub fn recover(input: &Path, output: &Path) -> Result<Recovered> {
-    if input.canonicalize().ok().is_some_and(|i| output.canonicalize().ok() == Some(i)) {
-        return Err(Error::Io {
-            path: output.to_path_buf(),
-            source: std::io::Error::new(std::io::ErrorKind::AlreadyExists, "recover would overwrite its input"),
-        });
-    }
+    refuse_same_file(input, output)?;
     let reader = RecordingReader::open_with(input, ReadOptions { any_wire_version: true, lenient: true })?;
-    let writer = RecordingWriter::create(output)?;
-    let result = recover_into(reader, writer);
-    // The empty output goes (a regular file only: never a device such as /dev/null).
-    if matches!(result, Err(Error::NothingRecovered { .. }))
-        && std::fs::symlink_metadata(output).is_ok_and(|m| m.file_type().is_file())
-    {
-        std::fs::remove_file(output).ok();
+    // A device or a pipe (`/dev/null`, `/dev/stdout`) is written to; a file is replaced.
+    let writer = match std::fs::metadata(output) {
+        Ok(m) if !m.is_file() && !m.is_dir() => RecordingWriter::create(output)?,
+        _ => RecordingWriter::create_replacing(output)?,
+    };
+    recover_into(reader, writer)
+}
+
+/// [`Error::SameFile`] when `output` exists and is the same file as `input` (same device and
+/// inode, whatever the paths: hard links, symlinks, `./a` and `a`).
+fn refuse_same_file(input: &Path, output: &Path) -> Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    let input_meta = std::fs::metadata(input).map_err(|source| Error::Io { path: input.to_path_buf(), source })?;
+    let Ok(output_meta) = std::fs::metadata(output) else { return Ok(()) };
+    if (input_meta.dev(), input_meta.ino()) == (output_meta.dev(), output_meta.ino()) {
+        return Err(Error::SameFile { input: input.to_path_buf(), output: output.to_path_buf() });
     }
-    result
+    Ok(())
 }
 
 /// [`recover`] from a reader (best opened lenient, with any wire version) into a writer.
@@ -108,6 +132,8 @@ pub fn recover_into(mut reader: RecordingReader, mut writer: RecordingWriter) ->
     }
     out.damage.splice(0..0, reader.damage().iter().cloned());
     out.skipped = reader.skipped().clone();
+    out.recordings = reader.recordings().to_vec();
+    out.summary_problems = reader.summary_problems().to_vec();
     out.bytes_read = reader.consumed();
     if out.messages == 0 && !out.damage.is_empty() {
         return Err(Error::NothingRecovered {

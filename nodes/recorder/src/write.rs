@@ -38,6 +38,9 @@ pub struct RecordingWriter {
     failed: Arc<Mutex<Option<std::io::Error>>>,
     /// The output file, for `sync_all` at the end (none for another kind of output).
     file: Option<File>,
+    /// The file is written under a temporary name, renamed over the path by `finish` (see
+    /// [`RecordingWriter::create_replacing`]).
+    replacement: Option<Replacement>,
     channels: HashMap<String, u16>,
     /// Every channel as declared (id -> topic, encoding, metadata), repeated in
     /// [`CHANNELS_METADATA`] records.
@@ -60,6 +63,18 @@ impl RecordingWriter {
         Self::start(path, Box::new(file), Some(sync))
     }
 
+    /// Writes a new file for `path` under a temporary name in the same folder, renamed over `path`
+    /// by [`RecordingWriter::finish`]: until then `path` keeps what it held (or stays absent), and
+    /// a writer dropped unfinished, or a failed `finish`, removes the temporary file.
+    pub fn create_replacing(path: &Path) -> Result<RecordingWriter> {
+        let (replacement, file) = Replacement::create(path)?;
+        let io = |source| Error::Io { path: path.to_path_buf(), source };
+        let sync = file.try_clone().map_err(io)?;
+        let mut w = Self::start(path, Box::new(file), Some(sync))?;
+        w.replacement = Some(replacement);
+        Ok(w)
+    }
+
     /// Writes to `out` (a pipe, a buffer, a test's failing writer ...); `name` is the path that
     /// errors name.
     pub fn to_output(name: &Path, out: impl Write + Send + 'static) -> Result<RecordingWriter> {
@@ -80,6 +95,7 @@ impl RecordingWriter {
             writer: None,
             failed,
             file,
+            replacement: None,
             channels: HashMap::new(),
             declared: BTreeMap::new(),
             repeat_pending: false,
@@ -211,8 +227,76 @@ impl RecordingWriter {
         if let Some(file) = &self.file {
             file.sync_all().map_err(|error| Error::WriteIo { path: self.path.clone(), error })?;
         }
+        if let Some(replacement) = self.replacement.take() {
+            replacement.commit()?;
+        }
         Ok(self.messages)
     }
+}
+
+/// A new file for a path, written under a temporary name in the same folder (so the rename is
+/// atomic) and renamed over the path only when complete: a failure never leaves the path
+/// half-written or truncated, and the file at the path is never opened for writing. Dropped
+/// without [`Replacement::commit`], the temporary file goes.
+pub struct Replacement {
+    path: PathBuf,
+    temp: Option<PathBuf>,
+}
+
+impl Replacement {
+    /// Creates the temporary file for `path` (and `path`'s folder); a symlink at `path` is
+    /// followed, so that its target is replaced and the link kept.
+    pub fn create(path: &Path) -> Result<(Replacement, File)> {
+        let io = |source| Error::Io { path: path.to_path_buf(), source };
+        let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
+        let path = match is_link {
+            true => std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf()),
+            false => path.to_path_buf(),
+        };
+        let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        std::fs::create_dir_all(dir).map_err(io)?;
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let mut attempt = 0u32;
+        loop {
+            let temp = dir.join(format!(".{name}.{}-{attempt}.tmp", std::process::id()));
+            match std::fs::OpenOptions::new().write(true).create_new(true).open(&temp) {
+                Ok(file) => return Ok((Replacement { path, temp: Some(temp) }, file)),
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && attempt < 100 => attempt += 1,
+                Err(source) => return Err(Error::Io { path: temp, source }),
+            }
+        }
+    }
+
+    /// Renames the temporary file over the path (its content written and synced by the caller).
+    pub fn commit(mut self) -> Result<()> {
+        let Some(temp) = self.temp.take() else { return Ok(()) };
+        if let Err(source) = std::fs::rename(&temp, &self.path) {
+            std::fs::remove_file(&temp).ok();
+            return Err(Error::Io { path: self.path.clone(), source });
+        }
+        // The rename itself made durable, best effort.
+        if let Some(dir) = self.path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            File::open(dir).and_then(|d| d.sync_all()).ok();
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Replacement {
+    fn drop(&mut self) {
+        if let Some(temp) = self.temp.take() {
+            std::fs::remove_file(temp).ok();
+        }
+    }
+}
+
+/// Writes `bytes` as the new content of `path` through a [`Replacement`].
+pub fn replace_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    let (replacement, mut file) = Replacement::create(path)?;
+    let io = |error| Error::WriteIo { path: path.to_path_buf(), error };
+    file.write_all(bytes).map_err(io)?;
+    file.sync_all().map_err(io)?;
+    replacement.commit()
 }
 
 impl Drop for RecordingWriter {

@@ -155,12 +155,53 @@ impl Args {
         match &self.seeds {
             Some(s) => Ok(sim::parse_seeds(s)?),
             None => {
-                if self.simulations == 0 {
-                    bail!("--simulations must be >= 1");
+                if !(1..=msgs::MAX_SEEDS).contains(&self.simulations) {
+                    bail!(
+                        "--simulations = {}: must be from 1 to {} (msgs::MAX_SEEDS)",
+                        self.simulations,
+                        msgs::MAX_SEEDS
+                    );
+                }
+                let last = self.seed.checked_add(self.simulations - 1).filter(|&l| l <= msgs::MAX_SEED);
+                if last.is_none() {
+                    bail!(
+                        "--seed = {} with --simulations = {}: the last seed must be at most {} (seeds are u32 simulation ids)",
+                        self.seed,
+                        self.simulations,
+                        msgs::MAX_SEED
+                    );
                 }
                 Ok((self.seed..self.seed + self.simulations).collect())
             }
         }
+    }
+
+    /// The run of `model_index` (its id follows the first run's) over `seeds`.
+    fn run_spec(&self, seeds: &[u64], first_run_id: u64, model_index: usize) -> RunSpec {
+        let params = self.world_params();
+        RunSpec {
+            scene: self.scene_config(seeds[0]),
+            params,
+            seeds: seeds.to_vec(),
+            steps: self.steps,
+            run_id: first_run_id + model_index as u64,
+            problems: self.publish_problem,
+            // Labels are the oracle's solve to their own tolerance.
+            label: self.label_tolerance.map(|tolerance| SolveParams { tolerance, ..params.oracle }),
+            shadow_builtin: self.shadow_builtin,
+        }
+    }
+
+    /// The benchmark's `n:steps` cases.
+    fn bench_cases(&self) -> Result<Vec<(usize, u32)>> {
+        let mut cases = Vec::new();
+        for part in self.bench_cases.split(',') {
+            let (n, steps) = part.split_once(':').context("--bench-cases: expected n:steps,...")?;
+            let n = n.trim().parse().with_context(|| format!("--bench-cases `{part}`: n"))?;
+            let steps = steps.trim().parse().with_context(|| format!("--bench-cases `{part}`: steps"))?;
+            cases.push((n, steps));
+        }
+        Ok(cases)
     }
 
     fn scene_config(&self, seed: u64) -> SceneConfig {
@@ -225,11 +266,7 @@ impl<H: msgs::FrameHeader, T: msgs::FrameItem> Inbox<msgs::Frame<H, T>> for BusI
 }
 
 fn run_bench(args: &Args) -> Result<()> {
-    let mut cases = Vec::new();
-    for part in args.bench_cases.split(',') {
-        let (n, steps) = part.split_once(':').context("--bench-cases: expected n:steps,...")?;
-        cases.push((n.trim().parse()?, steps.trim().parse()?));
-    }
+    let cases = args.bench_cases()?;
     let base = args.scene_config(args.seed);
     println!(
         "dc-sim benchmark: scene {}, seed {}, tolerance {}, max sweeps {}; rapier = its full PhysicsPipeline, default parameters",
@@ -250,10 +287,18 @@ fn run_bench(args: &Args) -> Result<()> {
 /// the scene.
 fn check(args: &Args) -> Result<()> {
     if args.bench {
+        // Each case is a run of its own size: the same bounds (counts, sizes, memory).
+        for (n, steps) in args.bench_cases()? {
+            let scene = SceneConfig { n, ..args.scene_config(args.seed) };
+            RunSpec { scene, steps, ..args.run_spec(&[args.seed], 0, 0) }
+                .validate()
+                .with_context(|| format!("--bench-cases {n}:{steps}"))?;
+        }
         return Ok(());
     }
     let seeds = args.seeds()?;
-    args.world_params().validate()?;
+    // Counts, sizes and the memory they imply, before anything is allocated.
+    args.run_spec(&seeds, 0, 0).validate()?;
     if args.fallback.is_grid_based() {
         bail!("--fallback must be a local model, not `{}`", args.fallback.name());
     }
@@ -278,7 +323,6 @@ fn try_main() -> Result<()> {
         return run_bench(&args);
     }
     let seeds = args.seeds()?;
-    let params = args.world_params();
 
     let node = runtime::Node::from_env("dc-sim")?;
     let models = if args.models.is_empty() { vec![args.model] } else { args.models.clone() };
@@ -315,18 +359,7 @@ fn try_main() -> Result<()> {
             break;
         }
         // Each model is its own run, so downstream nodes can tell them apart.
-        let spec = RunSpec {
-            scene: args.scene_config(seeds[0]),
-            params,
-            seeds: seeds.clone(),
-            steps: args.steps,
-            run_id: first_run_id + i as u64,
-            problems: args.publish_problem,
-            // Labels are the oracle's solve to their own tolerance.
-            label: args.label_tolerance.map(|tolerance| SolveParams { tolerance, ..params.oracle }),
-            shadow_builtin: args.shadow_builtin,
-        };
-        run(&args, &node, &mut pubs, model, &spec)?;
+        run(&args, &node, &mut pubs, model, &args.run_spec(&seeds, first_run_id, i))?;
     }
     Ok(())
 }

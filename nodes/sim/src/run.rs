@@ -29,6 +29,36 @@ pub struct RunSpec {
     pub shadow_builtin: bool,
 }
 
+/// Most steps of one simulation: 10^4 s simulated at the default 100 Hz. Nothing in the
+/// simulator grows with the steps, but the metrics keep per-step series (bands by step) and a
+/// recording every step's frames, so the step count sizes their memory and disk.
+pub const MAX_STEPS: u32 = 1_000_000;
+
+impl RunSpec {
+    /// Checks every count and size of the run before anything is allocated: the seeds (at most
+    /// [`msgs::MAX_SEEDS`], each at most [`msgs::MAX_SEED`]), the steps (at most [`MAX_STEPS`]),
+    /// the scene ([`SceneConfig::validate`]) and the solver parameters.
+    pub fn validate(&self) -> Result<(), SimError> {
+        let bad = |name, value: String, why: String| Err(SimError::InvalidParameter { name, value, why });
+        if self.seeds.is_empty() || self.seeds.len() as u64 > msgs::MAX_SEEDS {
+            let why = format!("from 1 to {} seeds (msgs::MAX_SEEDS)", msgs::MAX_SEEDS);
+            return bad("seeds", format!("{} seeds", self.seeds.len()), why);
+        }
+        if let Some(&seed) = self.seeds.iter().find(|&&s| s > msgs::MAX_SEED) {
+            return bad(
+                "seeds",
+                seed.to_string(),
+                format!("at most {} (seeds are u32 simulation ids)", msgs::MAX_SEED),
+            );
+        }
+        if self.steps > MAX_STEPS {
+            return bad("steps", self.steps.to_string(), format!("at most {MAX_STEPS} (sim::run::MAX_STEPS)"));
+        }
+        self.scene.validate()?;
+        self.params.validate()
+    }
+}
+
 /// One step's outputs, borrowed from the world.
 pub struct StepOutput<'a> {
     pub header: StepHeader,
@@ -73,6 +103,7 @@ pub fn run_params(spec: &RunSpec, warm: &WarmStarter) -> RunParams {
 
 /// Runs every seed of `spec` with `warm`, handing everything to `sink`; returns the run's totals.
 pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Result<RunSummary, SimError> {
+    spec.validate()?;
     let run_id = spec.run_id;
     let run_header = StepHeader { run_id, simulation: 0, step: 0 };
     sink.control(&ControlMsg::run_start(run_header, &run_params(spec, warm)))?;
@@ -194,6 +225,23 @@ mod tests {
             label: None,
             shadow_builtin: false,
         }
+    }
+
+    #[test]
+    fn a_run_beyond_its_bounds_is_refused_before_it_starts() {
+        let mut sink = Collect::default();
+        let mut warm = ModelKind::Builtin.starter(0).unwrap();
+        let e = run(&spec(vec![0], MAX_STEPS + 1), &mut warm, &mut sink).unwrap_err();
+        assert_eq!(e.to_string(), "invalid parameter `steps` = 1000001: at most 1000000 (sim::run::MAX_STEPS)");
+        let e = spec((0..=msgs::MAX_SEEDS).collect(), 1).validate().unwrap_err();
+        assert!(matches!(e, SimError::InvalidParameter { name: "seeds", .. }), "{e}");
+        let e = spec(vec![1 << 32], 1).validate().unwrap_err();
+        assert!(e.to_string().contains("at most 4294967295"), "{e}");
+        let e = RunSpec { scene: SceneConfig { n: 10_000_000, ..SceneConfig::default() }, ..spec(vec![0], 1) }
+            .validate()
+            .unwrap_err();
+        assert!(matches!(e, SimError::InvalidParameter { name: "n", .. }), "{e}");
+        assert!(sink.controls.is_empty(), "nothing was announced");
     }
 
     #[test]

@@ -199,6 +199,21 @@ pub struct Scene {
 /// Consecutive rejected samples after which placement gives up (as in the original code).
 pub const MAX_TRIES: usize = 10_000;
 
+/// Most dynamic bodies of a scene: 100x the largest benchmark case (10,000). A world costs about
+/// 2.5 KB a body (rapier's bodies, colliders and broad phase, the contacts, measured at 100,000
+/// bodies: 250 MB), so this bound keeps one simulation within ~2.5 GB.
+pub const MAX_BODIES: usize = 1_000_000;
+
+/// Largest box side. Positions are `f32`: at 4096 their spacing (2^-11, about 4.9e-4) reaches
+/// the position pass's default slop (5e-4), so a larger box could not resolve its contacts. The
+/// default side of [`MAX_BODIES`] bodies (1500) is well inside.
+pub const MAX_SIDE: f32 = 4096.0;
+
+/// Most cells of the placement grid (`(side / cell)^2`, a cell the diameter of the largest body,
+/// an empty cell list 24 bytes): 400 MB, what the largest side takes with the default radius 0.5.
+/// The grid depends on the side and the radius together, so it is estimated before it exists.
+pub const MAX_PLACER_CELLS: f64 = (1u64 << 24) as f64;
+
 impl SceneConfig {
     /// Side of the box interior for this configuration.
     pub fn side(&self) -> f32 {
@@ -212,9 +227,19 @@ impl SceneConfig {
         if self.n == 0 {
             return bad("n", self.n.to_string(), "at least one body");
         }
+        if self.n > MAX_BODIES {
+            return bad("n", self.n.to_string(), &format!("at most {MAX_BODIES} bodies (sim::scene::MAX_BODIES)"));
+        }
         let side = self.side();
         if !(side.is_finite() && side > 0.0) {
             return bad("side", side.to_string(), "must be positive");
+        }
+        if side > MAX_SIDE {
+            return bad(
+                "side",
+                side.to_string(),
+                &format!("at most {MAX_SIDE} (sim::scene::MAX_SIDE: f32 positions get coarser than the contact slop)"),
+            );
         }
         if !(self.radius.is_finite() && self.radius > 0.0) {
             return bad("radius", self.radius.to_string(), "must be positive");
@@ -231,6 +256,18 @@ impl SceneConfig {
         if !self.drum_omega.is_finite() {
             return bad("drum-omega", self.drum_omega.to_string(), "must be finite");
         }
+        let cells = placer_cols(side, self.placer_radius()).powi(2);
+        if cells > MAX_PLACER_CELLS {
+            return bad(
+                "side",
+                side.to_string(),
+                &format!(
+                    "with bodies of radius {} the placement grid needs {cells:.3e} cells, more than \
+                     {MAX_PLACER_CELLS:.3e} (sim::scene::MAX_PLACER_CELLS); use a smaller --side",
+                    self.placer_radius()
+                ),
+            );
+        }
         // Random close packing of discs covers ~82% of the plane; a Gaussian fill with rejection
         // gets nowhere near that, so refuse early rather than spin through MAX_TRIES.
         let r = self.typical_body_radius();
@@ -246,6 +283,14 @@ impl SceneConfig {
         Ok(())
     }
 
+    /// The largest bounding radius of the dynamic bodies: the placement grid's cells are its diameter.
+    fn placer_radius(&self) -> f64 {
+        match self.kind {
+            SceneKind::Mixed => MIXED_MAX_RADIUS as f64,
+            _ => self.radius as f64,
+        }
+    }
+
     /// A representative bounding radius of the dynamic bodies, for the density check.
     fn typical_body_radius(&self) -> f32 {
         match self.kind {
@@ -257,6 +302,17 @@ impl SceneConfig {
 
 /// Largest bounding radius of a mixed-scene body (a 0.5 x 0.5 half-extent box).
 const MIXED_MAX_RADIUS: f32 = 0.71;
+
+/// The placement grid's cell size for bodies up to `max_radius`.
+fn placer_cell(max_radius: f64) -> f64 {
+    (2.0 * max_radius).max(1e-3)
+}
+
+/// Columns (and rows) of the placement grid of a `side` box, as a float: [`SceneConfig::validate`]
+/// bounds it before [`Placer::new`] allocates it.
+fn placer_cols(side: f32, max_radius: f64) -> f64 {
+    (side as f64 / placer_cell(max_radius)).ceil().max(1.0)
+}
 
 /// Thickness of the box walls: thick enough that nothing crosses one in a step.
 fn wall_half_thickness(side: f32) -> f32 {
@@ -292,8 +348,8 @@ impl Placer {
             (((hi[0] - lo[0]) / 2.0) as f64 / scale).sqrt() * 1.2 * scale,
             (((hi[1] - lo[1]) / 2.0) as f64 / scale).sqrt() * 1.2 * scale,
         ];
-        let cell = (2.0 * max_radius).max(1e-3);
-        let cols = ((side as f64 / cell).ceil() as usize).max(1);
+        let cell = placer_cell(max_radius);
+        let cols = placer_cols(side, max_radius) as usize;
         Placer { lo, hi, mu, sigma, cell, cols, grid: vec![Vec::new(); cols * cols], placed: Vec::new() }
     }
 
@@ -458,7 +514,7 @@ impl Scene {
                 // `max_r - min_r` is 0 here, but the draw must happen: it moves the generator.
                 #[allow(clippy::eq_op)]
                 let radii: Vec<f64> = (0..config.n).map(|_| r + rng.uniform() * (r - r)).collect();
-                let mut placer = Placer::new(side, r);
+                let mut placer = Placer::new(side, config.placer_radius());
                 for (i, &rad) in radii.iter().enumerate() {
                     let p = placer.place(rng.as_mut(), rad).ok_or_else(|| too_dense(config, i))?;
                     bodies.push(BodySpec {
@@ -472,7 +528,7 @@ impl Scene {
             }
             SceneKind::Mixed => {
                 let obstacles = mixed_obstacles(side);
-                let mut placer = Placer::new(side, MIXED_MAX_RADIUS as f64);
+                let mut placer = Placer::new(side, config.placer_radius());
                 // Obstacles block placement through their bounding discs.
                 for o in &obstacles {
                     placer.add(o.position, o.shape.bounding_radius() as f64);
@@ -539,6 +595,24 @@ mod tests {
         let e = Scene::build(&c).unwrap_err();
         assert!(matches!(e, SimError::SceneTooDense(_)), "{e}");
         assert!(e.to_string().contains("--side"), "{e}");
+    }
+
+    #[test]
+    fn counts_and_sizes_beyond_their_bounds_are_refused_before_allocating() {
+        let e = Scene::build(&SceneConfig { n: 100_000_000, ..Default::default() }).unwrap_err();
+        assert_eq!(e.to_string(), "invalid parameter `n` = 100000000: at most 1000000 bodies (sim::scene::MAX_BODIES)");
+        for side in [1e6, 1e12, f32::MAX] {
+            let e = Scene::build(&SceneConfig { side: Some(side), ..Default::default() }).unwrap_err();
+            assert!(matches!(e, SimError::InvalidParameter { name: "side", .. }), "{e}");
+            assert!(e.to_string().contains("at most 4096"), "{e}");
+        }
+        // The grid depends on side and radius together: tiny bodies in a legal box.
+        let e = SceneConfig { radius: 1e-3, side: Some(4000.0), n: 10, ..Default::default() }.validate().unwrap_err();
+        assert!(matches!(e, SimError::InvalidParameter { name: "side", .. }), "{e}");
+        assert!(e.to_string().contains("MAX_PLACER_CELLS"), "{e}");
+        // The bounds themselves are usable.
+        assert!(SceneConfig { n: MAX_BODIES, ..Default::default() }.validate().is_ok());
+        assert!(SceneConfig { side: Some(MAX_SIDE), ..Default::default() }.validate().is_ok());
     }
 
     #[test]

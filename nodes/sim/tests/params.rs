@@ -33,8 +33,13 @@ fn library_rejects_bad_parameters_with_clear_errors() {
     assert!(matches!(e, SimError::SceneTooDense(_)), "{e}");
 }
 
+/// `dc-sim` under an address-space limit, so that a bound that regresses fails a test with an
+/// allocation abort instead of exhausting the machine.
 fn dc_sim(args: &[&str]) -> (i32, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_dc-sim"))
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg("ulimit -v 4000000; exec \"$0\" \"$@\"")
+        .arg(env!("CARGO_BIN_EXE_dc-sim"))
         .args(args)
         .env_remove("DC_BUS")
         .env_remove("DC_LAUNCHED")
@@ -76,4 +81,26 @@ fn binary_rejects_bad_parameters_with_clear_errors() {
     let (code, err) = dc_sim(&["--seeds", "5..2"]);
     assert_ne!(code, 0);
     assert!(err.contains("seeds"), "{err}");
+}
+
+#[test]
+fn binary_refuses_counts_and_sizes_beyond_their_bounds_without_allocating() {
+    for (args, wants) in [
+        (&["--seeds", "0..400000000"][..], &["seeds", "0..400000000", "more than 100000 seeds"][..]),
+        (&["--seeds", "0..4294967296"], &["seeds", "more than 100000 seeds"]),
+        (&["--simulations", "1000000000"], &["--simulations", "1000000000", "100000"]),
+        (&["--seed", "4294967295", "--simulations", "2"], &["--seed", "4294967295"]),
+        (&["--n", "100000000"], &["`n` = 100000000", "at most 1000000"]),
+        (&["--side", "1e6"], &["`side` = 1000000", "at most 4096"]),
+        (&["--side", "1e12"], &["`side` = 1000000000000", "at most 4096"]),
+        (&["--steps", "4000000000"], &["`steps` = 4000000000", "at most 1000000"]),
+        (&["--bench", "--bench-cases", "100000000:10"], &["--bench-cases 100000000:10", "at most 1000000"]),
+    ] {
+        let (code, err) = dc_sim(args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        for want in wants {
+            assert!(err.contains(want), "{args:?}: no `{want}` in\n{err}");
+        }
+        assert!(!err.contains("panicked") && !err.contains("backtrace"), "{args:?}: {err}");
+    }
 }

@@ -39,9 +39,12 @@ struct Args {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Topics, types, counts, time range, simulations and steps, size and compression of a recording.
+    /// Topics, types, counts, time range, simulations and steps, size and compression of a
+    /// recording; exits 1 on damage, recordings concatenated in one file or a summary section
+    /// that does not match the data.
     Info { file: PathBuf },
-    /// Rewrite a recording whose writer was killed into a valid indexed file.
+    /// Rewrite a recording whose writer was killed (or that is damaged, or several concatenated)
+    /// into a valid indexed file; OUTPUT is replaced only when complete, and never the input.
     Recover { input: PathBuf, output: PathBuf },
     /// Record a live simulator (dc-sim + dc-record through `dc launch`, 10,000 bodies by default)
     /// and print drops, msgs/s, MB/s, the recorder's CPU time and the compression ratio.
@@ -57,29 +60,30 @@ fn try_main() -> anyhow::Result<()> {
     runtime::init_logging();
     match &args.command {
         Some(Command::Info { file }) => {
-            // Lenient: everything intact is counted and the damage listed; damage still fails.
+            // Lenient: everything intact is counted and the damage listed; damage, recordings
+            // concatenated and a bad summary section still fail.
             let info = recorder::Info::read_with(file, ReadOptions { lenient: true, ..Default::default() })?;
-            print!("{info}");
-            match info.damage.first() {
-                Some(d) => Err(d.to_error(file).into()),
+            show(&info)?;
+            match info.problem() {
+                Some(e) => Err(e.into()),
                 None => Ok(()),
             }
         }
         Some(Command::Recover { input, output }) => {
             let r = recorder::recover::recover(input, output)?;
-            if r.damage.is_empty() {
+            if r.input_was_sound() {
                 tracing::info!("input was intact");
             }
-            println!(
-                "recovered {} messages on {} channels, {} metadata records into {}",
+            show(format_args!(
+                "recovered {} messages on {} channels, {} metadata records into {}\n",
                 r.messages,
                 r.channels,
                 r.metadata,
                 output.display()
-            );
-            // Per topic kept and skipped, then each damaged region skipped (the reader logged it).
-            print!("{r}");
-            Ok(())
+            ))?;
+            // Per topic kept and skipped, each damaged region skipped (the reader logged it), the
+            // recordings found after the first and what was wrong with the input's summary.
+            show(&r)
         }
         Some(Command::Bench(bench_args)) => bench::run(bench_args),
         None => record(&args),
@@ -379,10 +383,18 @@ fn record(args: &Args) -> anyhow::Result<()> {
             wall_s: elapsed,
             cpu_s: recorder::bench::process_cpu_seconds(),
         };
-        std::fs::write(path, serde_json::to_string_pretty(&stats)?)
-            .with_context(|| format!("writing {}", path.display()))?;
+        recorder::write::replace_file(path, serde_json::to_string_pretty(&stats)?.as_bytes())?;
     }
     Ok(())
+}
+
+/// Prints `text` on stdout; a closed stdout (`dc-record info FILE | head`) ends the output quietly.
+fn show(text: impl std::fmt::Display) -> anyhow::Result<()> {
+    use std::io::Write;
+    match write!(std::io::stdout().lock(), "{text}") {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("writing to stdout"),
+        _ => Ok(()),
+    }
 }
 
 /// A control message about the graph rather than a run (run id 0: node down / up).

@@ -17,8 +17,9 @@ struct Args {
     /// The recording (.mcap), or a folder of recordings played in name order.
     #[arg(long, alias = "file")]
     input: PathBuf,
-    /// Pace relative to the recording: 1 = as recorded, 2 = twice as fast, 0 = no pacing.
-    #[arg(long, default_value_t = 1.0, value_parser = non_negative)]
+    /// Pace relative to the recording: 1 = as recorded, 2 = twice as fast, 0 = no pacing;
+    /// otherwise from 0.001 to 1000000.
+    #[arg(long, default_value_t = 1.0, value_parser = rate)]
     rate: f64,
     /// Recorded topics to publish, comma separated (default: all).
     #[arg(long, value_delimiter = ',')]
@@ -31,10 +32,51 @@ struct Args {
     repeat: bool,
 }
 
-fn non_negative(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if v >= 0.0 && v.is_finite() => Ok(v),
-        _ => Err(format!("`{s}`: expected a rate >= 0")),
+/// Slowest pace: a thousand times slower than recorded (a 100 Hz stream at one frame each 10 s);
+/// slower rates turn a recording's milliseconds into hours (and overflow a wait at 1e-300).
+const MIN_RATE: f64 = 1e-3;
+/// Fastest pace: a recorded second in a microsecond; beyond it pacing means nothing (`--rate 0`).
+const MAX_RATE: f64 = 1e6;
+/// Longest recorded gap between two messages that the replay reproduces (at `--rate 1`). Nodes
+/// publish every step (milliseconds apart); a longer silence is the recorder idling between runs
+/// or a clock step (a log time 10^18 ns ahead would wait 31 years), not pace worth waiting for.
+const MAX_GAP: Duration = Duration::from_secs(5);
+
+/// A `--rate`: 0 (no pacing), or from [`MIN_RATE`] to [`MAX_RATE`].
+fn rate(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v == 0.0 || (MIN_RATE..=MAX_RATE).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}`: expected 0 (no pacing) or a rate from {MIN_RATE} to {MAX_RATE}")),
+    }
+}
+
+/// When each message is due, relative to the first, at a rate: the recorded gaps between
+/// messages, each clamped to [`MAX_GAP`], divided by the rate. A log time earlier than one before
+/// it is due at once (as before: no gap).
+#[derive(Debug, Clone, Copy)]
+struct Pacer {
+    rate: f64,
+    /// The latest log time seen, ns.
+    last: Option<u64>,
+    /// Recorded time since the first message, gaps clamped, ns.
+    elapsed_ns: u64,
+}
+
+impl Pacer {
+    fn new(rate: f64) -> Pacer {
+        Pacer { rate, last: None, elapsed_ns: 0 }
+    }
+
+    /// The wall-clock offset from the first message at which the message logged at `log_time`
+    /// is due, and whether its gap was clamped.
+    fn due(&mut self, log_time: u64) -> (Duration, bool) {
+        let gap = self.last.map_or(0, |last| log_time.saturating_sub(last));
+        let clamped = gap > MAX_GAP.as_nanos() as u64;
+        self.elapsed_ns += gap.min(MAX_GAP.as_nanos() as u64);
+        self.last = Some(self.last.map_or(log_time, |last| last.max(log_time)));
+        // Bounded: a file of 2^64 ns of clamped gaps at MIN_RATE is still a valid Duration.
+        let offset = Duration::try_from_secs_f64(self.elapsed_ns as f64 * 1e-9 / self.rate).unwrap_or(Duration::MAX);
+        (offset, clamped)
     }
 }
 
@@ -119,6 +161,13 @@ fn try_main() -> anyhow::Result<()> {
             tracing::info!(topic, to = out, "replaying");
         }
     }
+    if args.repeat && pubs.is_empty() {
+        anyhow::bail!(
+            "--loop: nothing to publish in {}: no recorded channel matches --topics {:?}; refusing to loop over it",
+            args.input.display(),
+            args.topics
+        );
+    }
     if !node.ready()? {
         return Ok(());
     }
@@ -126,10 +175,12 @@ fn try_main() -> anyhow::Result<()> {
     let mut published = 0u64;
     let mut skipped = 0u64;
     let started = Instant::now();
+    let mut said_clamped = false;
     'outer: loop {
+        let published_before = published;
         for file in &files {
             let mut reader = RecordingReader::open(file)?;
-            let mut clock: Option<(u64, Instant)> = None;
+            let mut clock: Option<(Pacer, Instant)> = None;
             while let Some(item) = reader.next_item() {
                 if node.is_shutdown() {
                     break 'outer;
@@ -150,8 +201,17 @@ fn try_main() -> anyhow::Result<()> {
                 };
                 let Some(out) = pubs.get_mut(&m.channel.topic) else { continue };
                 if args.rate > 0.0 {
-                    let (t0, w0) = *clock.get_or_insert((m.log_time, Instant::now()));
-                    let due = w0 + Duration::from_secs_f64(m.log_time.saturating_sub(t0) as f64 * 1e-9 / args.rate);
+                    let (pacer, w0) = clock.get_or_insert_with(|| (Pacer::new(args.rate), Instant::now()));
+                    let (offset, clamped) = pacer.due(m.log_time);
+                    if clamped && !said_clamped {
+                        said_clamped = true;
+                        tracing::warn!(
+                            file = %file.display(),
+                            log_time = m.log_time,
+                            "a gap between messages is longer than {MAX_GAP:?}: replayed as {MAX_GAP:?} (said once)"
+                        );
+                    }
+                    let due = w0.checked_add(offset).unwrap_or_else(|| *w0 + MAX_GAP);
                     while let Some(wait) = due.checked_duration_since(Instant::now()) {
                         if node.is_shutdown() {
                             break 'outer;
@@ -170,8 +230,57 @@ fn try_main() -> anyhow::Result<()> {
         if !args.repeat {
             break;
         }
+        if published == published_before {
+            // Another pass would publish nothing again: spinning through it forever helps no one.
+            anyhow::bail!(
+                "--loop: a whole pass over {} published nothing ({skipped} undecodable messages); refusing to loop over it",
+                args.input.display()
+            );
+        }
     }
     tracing::info!(published, skipped, seconds = format!("{:.2}", started.elapsed().as_secs_f64()), "replay done");
     println!("published {published}, skipped {skipped} undecodable");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rates_outside_their_bounds_are_refused() {
+        assert_eq!(rate("0"), Ok(0.0));
+        assert_eq!(rate("0.5"), Ok(0.5));
+        assert_eq!(rate("1e6"), Ok(1e6));
+        for bad in ["1e-300", "0.0009", "1e7", "inf", "nan", "-1", "x"] {
+            let e = rate(bad).unwrap_err();
+            assert!(e.contains("from 0.001 to 1000000"), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_long_gap_is_clamped_and_the_pace_of_the_rest_is_kept() {
+        let ms = 1_000_000u64;
+        let mut p = Pacer::new(2.0);
+        assert_eq!(p.due(1_000), (Duration::ZERO, false));
+        assert_eq!(p.due(1_000 + 100 * ms), (Duration::from_millis(50), false));
+        // 10^18 ns ahead: replayed as MAX_GAP, at the rate.
+        let far = 1_000 + 100 * ms + 1_000_000_000_000_000_000;
+        assert_eq!(p.due(far), (Duration::from_millis(50) + MAX_GAP / 2, true));
+        assert_eq!(p.due(far + 100 * ms), (Duration::from_millis(100) + MAX_GAP / 2, false));
+        // A log time going back is due at once; the pace resumes from the latest one.
+        assert_eq!(p.due(5), (Duration::from_millis(100) + MAX_GAP / 2, false));
+        assert_eq!(p.due(far + 200 * ms), (Duration::from_millis(150) + MAX_GAP / 2, false));
+    }
+
+    #[test]
+    fn the_slowest_rate_over_the_longest_file_still_gives_a_duration() {
+        let mut p = Pacer::new(MIN_RATE);
+        p.due(0);
+        for i in 1..100u64 {
+            p.due(i * (u64::MAX / 100));
+        }
+        let expected = 100.0 * MAX_GAP.as_secs_f64() / MIN_RATE;
+        assert!((p.due(u64::MAX).0.as_secs_f64() - expected).abs() < 1e-3, "{expected}");
+    }
 }
