@@ -25,6 +25,7 @@
 //! stage).
 
 pub mod bench;
+mod fields;
 pub mod info;
 pub mod join;
 pub mod read;

@@ -22,6 +22,7 @@
 //! ([`RecordingReader::recordings`]) and a strict one refuses. The summary section is checked,
 //! not used ([`RecordingReader::summary_problems`]).
 
+use crate::fields::{record_name, Fields};
 use crate::summary::{SummaryCheck, SummaryProblem};
 use crate::{Error, FrameKind, Result, MESSAGE_ENCODING, META_TYPE, META_WIRE_VERSION};
 use std::collections::{BTreeMap, HashMap, VecDeque};
@@ -947,7 +948,7 @@ impl RecordingReader {
         match opcode {
             op::CHUNK => match ChunkHeader::read(&mut content) {
                 Ok(chunk) => {
-                    let header_len = content.at as u64;
+                    let header_len = content.position() as u64;
                     matches!(chunk.compression.as_str(), "" | "zstd" | "lz4")
                         && len.checked_sub(header_len).is_some_and(|rest| chunk.compressed_size <= rest)
                         && chunk.uncompressed_size <= MAX_CHUNK_LEN
@@ -1032,27 +1033,6 @@ fn is_known(opcode: u8) -> bool {
     (op::HEADER..=op::DATA_END).contains(&opcode)
 }
 
-pub(crate) fn record_name(opcode: u8) -> &'static str {
-    match opcode {
-        op::HEADER => "header record",
-        op::FOOTER => "footer record",
-        op::SCHEMA => "schema record",
-        op::CHANNEL => "channel record",
-        op::MESSAGE => "message record",
-        op::CHUNK => "chunk",
-        op::MESSAGE_INDEX => "message index record",
-        op::CHUNK_INDEX => "chunk index record",
-        op::ATTACHMENT => "attachment record",
-        op::ATTACHMENT_INDEX => "attachment index record",
-        op::STATISTICS => "statistics record",
-        op::METADATA => "metadata record",
-        op::METADATA_INDEX => "metadata index record",
-        op::SUMMARY_OFFSET => "summary offset record",
-        op::DATA_END => "data end record",
-        _ => "record of unknown opcode",
-    }
-}
-
 /// A record's length against the bytes after its header and the cap.
 fn check_len(opcode: u8, len: u64, left: u64) -> Result<(), String> {
     let what = record_name(opcode);
@@ -1065,85 +1045,6 @@ fn check_len(opcode: u8, len: u64, left: u64) -> Result<(), String> {
         return Err(format!("a {what} of {len} bytes, more than the {MAX_RECORD_LEN} a record may hold"));
     }
     Ok(())
-}
-
-/// Reads the fields of one record (or chunk), every length checked against what is left.
-pub(crate) struct Fields<'a> {
-    data: &'a [u8],
-    at: usize,
-}
-
-impl<'a> Fields<'a> {
-    pub(crate) fn new(data: &'a [u8]) -> Fields<'a> {
-        Fields { data, at: 0 }
-    }
-
-    pub(crate) fn left(&self) -> usize {
-        self.data.len() - self.at
-    }
-
-    /// The bytes not read yet.
-    pub(crate) fn rest(&self) -> &'a [u8] {
-        &self.data[self.at..]
-    }
-
-    pub(crate) fn bytes(&mut self, n: u64, what: &str) -> Result<&'a [u8], String> {
-        match usize::try_from(n).ok().filter(|&n| n <= self.left()) {
-            Some(n) => {
-                let out = &self.data[self.at..self.at + n];
-                self.at += n;
-                Ok(out)
-            }
-            None => Err(format!(
-                "{what} of {n} bytes at byte {} of the record, which has only {} left",
-                self.at,
-                self.left()
-            )),
-        }
-    }
-
-    pub(crate) fn array<const N: usize>(&mut self, what: &str) -> Result<[u8; N], String> {
-        Ok(self.bytes(N as u64, what)?.try_into().expect("N bytes"))
-    }
-
-    pub(crate) fn u16(&mut self, what: &str) -> Result<u16, String> {
-        Ok(u16::from_le_bytes(self.array(what)?))
-    }
-
-    pub(crate) fn u32(&mut self, what: &str) -> Result<u32, String> {
-        Ok(u32::from_le_bytes(self.array(what)?))
-    }
-
-    pub(crate) fn u64(&mut self, what: &str) -> Result<u64, String> {
-        Ok(u64::from_le_bytes(self.array(what)?))
-    }
-
-    pub(crate) fn string(&mut self, what: &str) -> Result<String, String> {
-        let len = self.u32(what)?;
-        let bytes = self.bytes(len.into(), what)?;
-        String::from_utf8(bytes.to_vec()).map_err(|_| format!("{what} is not UTF-8"))
-    }
-
-    pub(crate) fn string_map(&mut self, what: &str) -> Result<BTreeMap<String, String>, String> {
-        let len = self.u32(what)?;
-        let mut map = Fields::new(self.bytes(len.into(), what)?);
-        let mut out = BTreeMap::new();
-        while map.left() > 0 {
-            let key = map.string("a metadata key")?;
-            let value = map.string("a metadata value")?;
-            if out.insert(key, value).is_some() {
-                return Err(format!("{what} repeats a key"));
-            }
-        }
-        Ok(out)
-    }
-
-    pub(crate) fn end(&self, what: &str) -> Result<(), String> {
-        match self.left() {
-            0 => Ok(()),
-            n => Err(format!("{n} bytes left over after the {what}")),
-        }
-    }
 }
 
 fn parse_header(body: &[u8]) -> Result<mcap::records::Header, String> {
@@ -1285,7 +1186,7 @@ fn parse_chunk_records(records: &[u8]) -> Result<Vec<Inner>, String> {
     let mut f = Fields::new(records);
     let mut out = Vec::new();
     while f.left() > 0 {
-        let at = f.at;
+        let at = f.position();
         let in_chunk = |e: String| format!("in the record at byte {at} of the decompressed chunk: {e}");
         let opcode = f.array::<1>("a record's opcode").map_err(in_chunk)?[0];
         let len = f.u64("a record's length").map_err(in_chunk)?;

@@ -5,7 +5,7 @@
 //! chunk is intact. Every value checked is a number read from the file, compared with what the
 //! walk found; none is used to read anything.
 
-use crate::read::Fields;
+use crate::fields::{record_name, Fields};
 use mcap::records::op;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
@@ -133,7 +133,7 @@ impl SummaryCheck {
             return;
         }
         let Some(body) = body else {
-            return self.problem(offset, format!("a {} of implausible length", crate::read::record_name(opcode)));
+            return self.problem(offset, format!("a {} of implausible length", record_name(opcode)));
         };
         let checked = match opcode {
             op::CHUNK_INDEX => self.chunk_index(offset, body),
@@ -142,7 +142,7 @@ impl SummaryCheck {
             _ => self.summary_offset(offset, body),
         };
         if let Err(detail) = checked {
-            self.problem(offset, format!("{}: {detail}", crate::read::record_name(opcode)));
+            self.problem(offset, format!("{}: {detail}", record_name(opcode)));
         }
     }
 
@@ -276,7 +276,7 @@ impl SummaryCheck {
             if !starts_group || !ends_at_record {
                 let detail = format!(
                     "summary offset record: a group of {}s at offset {} of {} bytes, which is not where they are",
-                    crate::read::record_name(g.opcode),
+                    record_name(g.opcode),
                     g.start,
                     g.len
                 );
