@@ -489,8 +489,15 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
     if args.models.is_empty() {
         bail!("--models is empty");
     }
+    // Each model once, by the name its statistics carry: two runs of one name would be merged
+    // into one row of the report (`builtin,builtin`; `blend,blend:0.5`).
+    let mut named = std::collections::BTreeSet::new();
     for m in &args.models {
-        msgs::models::parse(m).map_err(|e| anyhow::anyhow!("--models: {e}"))?;
+        let (info, param) = msgs::models::parse(m).map_err(|e| anyhow::anyhow!("--models: {e}"))?;
+        let name = msgs::models::spec_name(info, param);
+        if !named.insert(name.clone()) {
+            bail!("--models: `{m}` is `{name}`, already asked for: its runs would be merged into one report row");
+        }
     }
     let jobs = args.jobs.clamp(1, args.models.len());
     let title = format!(
@@ -652,6 +659,22 @@ mod tests {
             assert!(e.contains(&bad.display().to_string()), "{e}");
         }
         std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    #[test]
+    fn eval_refuses_a_model_asked_for_twice_under_one_name() {
+        let graph = |models: &str| {
+            let cli = Cli::try_parse_from(["dc", "eval", "--seeds", "0..2", "--models", models]).unwrap();
+            let Command::Eval(eval) = cli.command else { unreachable!("an eval command") };
+            eval_graph(&eval, std::path::Path::new("reports/unused")).map(|_| ())
+        };
+        for twice in ["builtin,builtin", "blend,blend:0.5", "none,extrapolate:1,extrapolate"] {
+            let e = format!("{:#}", graph(twice).unwrap_err());
+            assert!(e.contains("already asked for"), "{twice}: {e}");
+        }
+        if let Err(e) = graph("builtin,blend:0.5,blend:0.75") {
+            assert!(!format!("{e:#}").contains("already asked for"), "{e:#}");
+        }
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! says what is missing instead of quietly averaging what is there.
 
 use msgs::{Control, ControlKind};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 
 #[derive(Debug, Default, Clone)]
 struct RunInfo {
@@ -130,6 +130,22 @@ impl Completeness {
         }
         if sim.is_some_and(|s| s.seen.contains(&h.step.step)) {
             return Some(format!("step {} of simulation {} arrived twice", h.step.step, h.step.simulation));
+        }
+        None
+    }
+
+    /// The live path's checks over the steps of a file (`--from-steps`), in order: the index
+    /// of the first impossible step and why, or `None`. A step seen twice is impossible too, so
+    /// a duplicated row cannot overwrite or double an earlier one.
+    pub fn first_implausible<'a>(steps: impl IntoIterator<Item = &'a msgs::StepStats>) -> Option<(usize, String)> {
+        // Per model: a run has one model, but a file may hold models under one run id.
+        let mut seen: HashMap<&str, Completeness> = HashMap::new();
+        for (i, s) in steps.into_iter().enumerate() {
+            let model = seen.entry(s.model.as_str()).or_default();
+            if let Some(why) = model.implausible(&s.to_header()) {
+                return Some((i, why));
+            }
+            model.step(s.run_id, s.simulation, s.step, &s.model);
         }
         None
     }

@@ -151,3 +151,51 @@ fn a_report_rebuilt_from_its_steps_csv_has_the_same_tables() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("bad.csv"), "{}", String::from_utf8_lossy(&out.stderr));
 }
+
+/// `--from-steps` applies the live path's checks: an impossible row (more persisting contacts
+/// than contacts, an infinite time), a duplicated step and an empty file are errors naming the
+/// file and the record, never a report with wrong totals.
+#[test]
+fn a_steps_file_with_impossible_or_repeated_rows_is_refused_naming_the_record() {
+    let mut a = Aggregate::new();
+    for step in 0..20 {
+        a.add(stats("builtin", 0, step, 10 + step % 3));
+    }
+    let dir = scratch("from-steps-checks");
+    report::write(&a, &dir, "checks", &[]).unwrap();
+    let text = std::fs::read_to_string(dir.join("steps.csv")).unwrap();
+    let (header, rows) = text.split_once('\n').unwrap();
+    let rows: Vec<&str> = rows.lines().collect();
+    let column = |name: &str| header.split(',').position(|c| c == name).unwrap();
+    let edit = |row: &str, name: &str, value: &str| {
+        let mut cells: Vec<String> = row.split(',').map(String::from).collect();
+        cells[column(name)] = value.to_string();
+        cells.join(",")
+    };
+    let run = |name: &str, body: String| {
+        let file = dir.join(name);
+        std::fs::write(&file, body).unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_dc-metrics"))
+            .arg("--from-steps")
+            .arg(&file)
+            .arg("--out")
+            .arg(dir.join(format!("{name}-report")))
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{name} was accepted");
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let with_row = |i: usize, row: String| {
+        let mut r: Vec<String> = rows.iter().map(|s| s.to_string()).collect();
+        r[i] = row;
+        format!("{header}\n{}\n", r.join("\n"))
+    };
+    let e = run("persisting.csv", with_row(3, edit(rows[3], "persisting_contacts", "999")));
+    assert!(e.contains("persisting.csv") && e.contains("record 4") && e.contains("persisting of"), "{e}");
+    let e = run("inf.csv", with_row(7, edit(rows[7], "solve_us", "inf")));
+    assert!(e.contains("record 8") && e.contains("solve_us"), "{e}");
+    let e = run("twice.csv", format!("{header}\n{}\n{}\n", rows.join("\n"), rows[2]));
+    assert!(e.contains("record 21") && e.contains("arrived twice"), "{e}");
+    let e = run("empty.csv", format!("{header}\n"));
+    assert!(e.contains("empty.csv") && e.contains("no steps"), "{e}");
+}
