@@ -352,6 +352,10 @@ impl Graph {
             Path::new(file).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
         });
         let namespace = raw.graph.namespace.clone().unwrap_or_else(|| name.clone());
+        if let Err(why) = runtime::check_namespace(&namespace) {
+            let what = if raw.graph.namespace.is_some() { "namespace" } else { "name (the bus namespace)" };
+            problem(text.find("[graph]").unwrap_or(0), format!("graph {what}: {why}"));
+        }
 
         let mut hosts = BTreeMap::new();
         for (host_name, spanned) in &raw.hosts {
@@ -694,6 +698,17 @@ mod tests {
     fn params_become_flags() {
         let t: toml::Table = toml::from_str("a = 1\nb = true\nc = false\nd = 'x'\ne = [1, 2]\nf = 0.5").unwrap();
         assert_eq!(params_to_args(&t).unwrap(), ["--a=1", "--b", "--d=x", "--e=1", "--e=2", "--f=0.5"]);
+    }
+
+    #[test]
+    fn a_graph_name_that_cannot_name_a_bus_is_refused_by_the_check() {
+        let long = format!("[graph]\nname = \"{}\"\n[[nodes]]\nname = 'a'\nbinary = 'sh'\n", "g".repeat(5000));
+        let p = problems(&long);
+        assert!(p.iter().any(|p| p.line == 1 && p.message.contains("5000 bytes")), "{p:?}");
+        let p = problems("[graph]\nname = \"grafo-ñ\"\n[[nodes]]\nname = 'a'\nbinary = 'sh'\n");
+        assert!(p.iter().any(|p| p.message.contains("`ñ` is not allowed")), "{p:?}");
+        let p = problems("[graph]\nname = \"ok\"\nnamespace = \"a/b\"\n[[nodes]]\nname = 'a'\nbinary = 'sh'\n");
+        assert!(p.iter().any(|p| p.message.contains("graph namespace")), "{p:?}");
     }
 
     #[test]

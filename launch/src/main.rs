@@ -186,6 +186,7 @@ fn real_main(cli: Cli) -> Result<()> {
         Command::Launch { file, host, namespace, dry_run, wait_hosts } => {
             let mut graph = Graph::load(&file)?;
             if let Some(ns) = namespace {
+                runtime::check_namespace(&ns).map_err(|why| anyhow::anyhow!("--namespace `{ns}`: {why}"))?;
                 graph.namespace = ns;
             }
             let host = pick_host(&graph, host)?;

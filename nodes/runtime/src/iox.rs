@@ -225,3 +225,19 @@ pub(crate) fn cleanup_dead_nodes() -> Result<usize> {
     }
     Ok(cleaned)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_longest_namespace_gives_valid_service_names() {
+        let bus = BusConfig {
+            namespace: "n".repeat(crate::MAX_NAMESPACE_LEN),
+            host: "a-host-name-of-some-length".into(),
+            ..BusConfig::default()
+        };
+        let longest = msgs::topics::TABLE.iter().map(|t| t.name).max_by_key(|n| n.len()).unwrap();
+        assert!(service_name(&bus, longest, "/@event").is_ok());
+    }
+}

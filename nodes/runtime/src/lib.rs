@@ -172,6 +172,26 @@ fn default_queue_depth() -> usize {
     16
 }
 
+/// The longest bus namespace: with the longest topic, a host qualifier and an event suffix the
+/// iceoryx2 service name stays well inside its limit (tested).
+pub const MAX_NAMESPACE_LEN: usize = 64;
+
+/// Whether `namespace` can name a graph's bus: at most [`MAX_NAMESPACE_LEN`] ASCII letters,
+/// digits, `-`, `_` or `.`, so every iceoryx2 service name and zenoh key built from it is valid
+/// (checked when a launch file is read, not when its nodes start).
+pub fn check_namespace(namespace: &str) -> std::result::Result<(), String> {
+    if namespace.len() > MAX_NAMESPACE_LEN {
+        return Err(format!("{} bytes, more than the {MAX_NAMESPACE_LEN} a bus namespace may have", namespace.len()));
+    }
+    if let Some(c) = namespace.chars().find(|c| !(c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))) {
+        return Err(format!(
+            "`{}` is not allowed in a bus namespace (ASCII letters, digits, `-`, `_`, `.`)",
+            c.escape_debug()
+        ));
+    }
+    Ok(())
+}
+
 impl BusConfig {
     pub fn transport(&self, topic: &str) -> Transport {
         self.topics.get(topic).copied().unwrap_or(self.default_transport)

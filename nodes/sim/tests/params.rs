@@ -27,6 +27,10 @@ fn library_rejects_bad_parameters_with_clear_errors() {
     let sor = SolveParams { relaxation: 2.5, ..Default::default() };
     let e = World::new(&SceneConfig::default(), WorldParams { solve: sor, ..Default::default() }).err().unwrap();
     assert_eq!(e.to_string(), "invalid parameter `relaxation` = 2.5: must be in (0, 2)");
+    // An infinite slop would let every overlap stay (the position pass does nothing).
+    let position = sim::PositionParams { slop: f32::INFINITY, ..Default::default() };
+    let e = World::new(&SceneConfig::default(), WorldParams { position, ..Default::default() }).err().unwrap();
+    assert!(e.to_string().contains("slop finite"), "{e}");
     let e = World::new(&SceneConfig { n: 1000, side: Some(15.0), ..Default::default() }, WorldParams::default())
         .err()
         .unwrap();

@@ -73,8 +73,9 @@ impl WorldParams {
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return bad("dt", self.dt.to_string(), "must be > 0");
         }
-        if !(self.position.slop >= 0.0 && self.position.baumgarte >= 0.0 && self.position.baumgarte <= 1.0) {
-            return bad("baumgarte/slop", format!("{:?}", self.position), "baumgarte in [0, 1], slop >= 0");
+        let slop = self.position.slop;
+        if !(slop.is_finite() && slop >= 0.0 && self.position.baumgarte >= 0.0 && self.position.baumgarte <= 1.0) {
+            return bad("baumgarte/slop", format!("{:?}", self.position), "baumgarte in [0, 1], slop finite and >= 0");
         }
         Ok(())
     }
