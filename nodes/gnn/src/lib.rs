@@ -101,47 +101,50 @@ impl ModelFile {
     /// the model, another format, wrong shapes or weights that are not finite.
     pub fn load(path: &Path) -> Result<ModelFile, GnnError> {
         let file = ModelFile::read(path)?;
-        let p = path.display().to_string();
         if file.format != FORMAT {
             let how = if file.format == FORMAT_WEIGHTS_ONLY {
                 " whose checksum leaves the configuration unchecked: `dc-gnn upgrade FILE` rewrites it"
             } else {
                 ""
             };
-            return Err(GnnError::Format {
-                path: p,
-                why: format!("format {}{how} (this build reads {FORMAT})", file.format),
-            });
+            let why = format!("format {}{how} (this build reads {FORMAT})", file.format);
+            return Err(GnnError::Format { path: path.display().to_string(), why });
         }
         let found = content_checksum(file.format, &file.net, &file.provenance);
-        if found != file.checksum {
-            return Err(GnnError::Checksum { path: p, found, expected: file.checksum });
-        }
-        file.net.validate().map_err(|why| GnnError::Invalid { path: p, why })?;
-        Ok(file)
+        file.checked(path, found)
     }
 
     /// Rewrites a format-1 file (checked by its weights' checksum and shapes) as format 2 at
     /// `out`; a format-2 file is checked and copied as it is.
     pub fn upgrade(path: &Path, out: &Path) -> Result<ModelFile, GnnError> {
         let file = ModelFile::read(path)?;
-        let p = path.display().to_string();
         let upgraded = match file.format {
-            FORMAT => ModelFile::load(path)?,
+            FORMAT => {
+                let found = content_checksum(file.format, &file.net, &file.provenance);
+                file.checked(path, found)?
+            }
             FORMAT_WEIGHTS_ONLY => {
                 let found = checksum(&file.net);
-                if found != file.checksum {
-                    return Err(GnnError::Checksum { path: p, found, expected: file.checksum });
-                }
-                file.net.validate().map_err(|why| GnnError::Invalid { path: p, why })?;
+                let file = file.checked(path, found)?;
                 ModelFile::new(file.net, &file.provenance)
             }
             other => {
-                return Err(GnnError::Format { path: p, why: format!("format {other} (this build reads {FORMAT})") })
+                let why = format!("format {other} (this build reads {FORMAT})");
+                return Err(GnnError::Format { path: path.display().to_string(), why });
             }
         };
         upgraded.save(out)?;
         Ok(upgraded)
+    }
+
+    /// The file if its stored checksum is `found` and its network is valid.
+    fn checked(self, path: &Path, found: u64) -> Result<ModelFile, GnnError> {
+        let p = path.display().to_string();
+        if found != self.checksum {
+            return Err(GnnError::Checksum { path: p, found, expected: self.checksum });
+        }
+        self.net.validate().map_err(|why| GnnError::Invalid { path: p, why })?;
+        Ok(self)
     }
 
     /// The file's CBOR, all of it: bytes after the model are an error.

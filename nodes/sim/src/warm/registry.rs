@@ -205,11 +205,6 @@ impl ModelSpec {
         self.kind.served_on()
     }
 
-    /// Which room the model belongs to.
-    pub fn group(&self) -> ModelGroup {
-        self.kind.group()
-    }
-
     /// Builds a model computed in the simulator; models another node serves need
     /// [`ModelSpec::build_with`].
     pub fn build(&self, seed: u64) -> Result<Box<dyn WarmStartModel>, SimError> {

@@ -10,7 +10,7 @@
 //! All three solve on scratch copies of the solver bodies with their own solver.
 
 use crate::contact::{ContactPoint, ImpulseHistory};
-use crate::problem::{builtin_warm_start, Problem};
+use crate::problem::Problem;
 use crate::solver::{ContactRow, ContactSolver, Impulse, SolveParams, SolveReport, SolverBody};
 use msgs::{ProblemBody, ProblemContact, ProblemHeader, StepHeader};
 
@@ -30,9 +30,10 @@ pub(crate) struct StepView<'a> {
 pub(crate) struct Instruments {
     solver: ContactSolver,
     scratch_bodies: Vec<SolverBody>,
+    /// builtin's warm start of the step, where each solve starts.
+    start: Vec<Impulse>,
     exact: Vec<Impulse>,
     exact_report: Option<SolveReport>,
-    shadow_warm: Vec<Impulse>,
     /// Whether to capture each step's problem, and the reference solve's stopping rule if labelled.
     pub capture: Option<Option<SolveParams>>,
     /// Whether to solve each step from builtin's warm start too.
@@ -43,27 +44,20 @@ pub(crate) struct Instruments {
 impl Instruments {
     /// Solves the step from builtin's warm start with `params` on scratch velocities; the
     /// impulses are in the solver.
-    fn solve_from_builtin(
-        &mut self,
-        step: StepView<'_>,
-        start: &mut Vec<Impulse>,
-        params: &SolveParams,
-    ) -> SolveReport {
-        start.clear();
-        start.resize(step.contacts.len(), Impulse::default());
-        step.history.fill_previous(step.contacts, start);
+    fn solve_from_builtin(&mut self, step: StepView<'_>, params: &SolveParams) -> SolveReport {
+        self.start.clear();
+        self.start.resize(step.contacts.len(), Impulse::default());
+        step.history.fill_previous(step.contacts, &mut self.start);
         self.scratch_bodies.clear();
         self.scratch_bodies.extend_from_slice(step.bodies);
-        self.solver.solve(step.rows, &mut self.scratch_bodies, start, params)
+        self.solver.solve(step.rows, &mut self.scratch_bodies, &self.start, params)
     }
 
     /// The step's exact solution: solved from builtin's warm start to the oracle's stopping rule.
-    pub(crate) fn solve_exact(&mut self, step: StepView<'_>, oracle: &SolveParams) -> &[Impulse] {
-        let mut start = std::mem::take(&mut self.exact);
-        self.exact_report = Some(self.solve_from_builtin(step, &mut start, oracle));
-        start.copy_from_slice(self.solver.impulses());
-        self.exact = start;
-        &self.exact
+    pub(crate) fn solve_exact(&mut self, step: StepView<'_>, oracle: &SolveParams) {
+        self.exact_report = Some(self.solve_from_builtin(step, oracle));
+        self.exact.clear();
+        self.exact.extend_from_slice(self.solver.impulses());
     }
 
     /// The last exact solution computed.
@@ -83,10 +77,7 @@ impl Instruments {
 
     /// The sweeps builtin's warm start takes on this step with the run's stopping rule.
     pub(crate) fn builtin_sweeps(&mut self, step: StepView<'_>, solve: &SolveParams) -> u32 {
-        let mut start = std::mem::take(&mut self.shadow_warm);
-        let sweeps = self.solve_from_builtin(step, &mut start, solve).sweeps;
-        self.shadow_warm = start;
-        sweeps
+        self.solve_from_builtin(step, solve).sweeps
     }
 
     /// The last captured problem.
@@ -134,10 +125,7 @@ impl Instruments {
             ..ProblemHeader::default()
         };
         if let Some(params) = reference {
-            self.scratch_bodies.clear();
-            self.scratch_bodies.extend_from_slice(step.bodies);
-            let start = builtin_warm_start(&self.problem.contacts);
-            let report = self.solver.solve(step.rows, &mut self.scratch_bodies, &start, &params);
+            let report = self.solve_from_builtin(step, &params);
             let p = &mut self.problem;
             for (c, l) in p.contacts.iter_mut().zip(self.solver.impulses()) {
                 c.reference = [l.normal, l.tangent];

@@ -34,7 +34,7 @@ use crate::solver::position::rotate;
 use crate::solver::{
     correct_positions, ContactRow, ContactSolver, Impulse, PoseBody, PositionRow, SolveParams, SolveReport, SolverBody,
 };
-use crate::warm::{ModelKind, Needs, StepRows, WarmStartInput, WarmStarter};
+use crate::warm::{ModelKind, StepRows, WarmStartInput, WarmStarter};
 use collide::Collision;
 use instruments::{Instruments, StepView};
 use msgs::StepStats;
@@ -319,12 +319,11 @@ impl World {
     /// of the warm start's time: a model that reads the problem pays for its capture, and a
     /// reference pays for its oracle). Returns whether the model fell back.
     fn warm_start(&mut self, warm: &mut WarmStarter) -> bool {
-        let needs: Needs = warm.needs();
+        let needs = warm.needs();
         if needs.problem && self.instruments.capture.is_none() {
             self.instruments.capture_problem(step_view!(self), &self.params.solve, None);
         }
-        let exact_wanted = needs.exact;
-        if exact_wanted {
+        if needs.exact {
             self.instruments.solve_exact(step_view!(self), &self.params.oracle);
         } else {
             self.instruments.clear_exact();
@@ -343,7 +342,7 @@ impl World {
                 bodies: &self.solver_bodies,
                 compliance: self.params.solve.compliance,
             }),
-            exact: exact_wanted.then(|| self.instruments.exact()),
+            exact: needs.exact.then(|| self.instruments.exact()),
         };
         warm.warm_start(&input, &mut self.warm)
     }
