@@ -71,7 +71,7 @@ struct EvalArgs {
         long,
         value_delimiter = ',',
         default_value = "none,builtin,copy,copy2,bad,random,grid,copy-grid,unet",
-        long_help = models_help("Warm-start models to compare, `name` or `name:param` (`blend:0.75`).")
+        long_help = msgs::models::option_help("Warm-start models to compare, `name` or `name:param` (`blend:0.75`).")
     )]
     models: Vec<String>,
     /// Model file of the `unet` model (`dc train` writes one; the repository ships a demo model).
@@ -629,11 +629,6 @@ fn exec_node(node: &str, args: &[String]) -> Result<()> {
     use std::os::unix::process::CommandExt;
     let err = std::process::Command::new(&program).args(args).exec();
     bail!("cannot run {}: {err}", program.display())
-}
-
-/// A `--models` help text followed by the models in their groups.
-fn models_help(what: &str) -> String {
-    format!("{what}\n{}", msgs::models::groups_help())
 }
 
 #[cfg(test)]

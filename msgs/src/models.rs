@@ -210,6 +210,11 @@ pub fn groups_help() -> String {
         .join("\n")
 }
 
+/// A model option's help: `what`, then the models by group ([`groups_help`]).
+pub fn option_help(what: &str) -> String {
+    format!("{what}\n{}", groups_help())
+}
+
 /// Every model name, comma-separated (for help texts and errors).
 pub fn names_list() -> String {
     MODELS.iter().map(|m| m.name).collect::<Vec<_>>().join(", ")

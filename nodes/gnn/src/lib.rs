@@ -84,17 +84,10 @@ impl ModelFile {
     /// Writes the file through a temporary beside it, renamed into place: a failed write never
     /// leaves a truncated model where a good one was.
     pub fn save(&self, path: &Path) -> Result<(), GnnError> {
-        let io = |source| GnnError::Io { path: path.display().to_string(), source };
         let mut bytes = Vec::new();
         ciborium::into_writer(self, &mut bytes).expect("a model serialises to a Vec");
-        let mut temporary = path.as_os_str().to_owned();
-        temporary.push(format!(".{}.tmp", std::process::id()));
-        let temporary = std::path::PathBuf::from(temporary);
-        std::fs::write(&temporary, bytes).map_err(io)?;
-        std::fs::rename(&temporary, path).map_err(|e| {
-            let _ = std::fs::remove_file(&temporary);
-            io(e)
-        })
+        runtime::files::replace_file(path, &bytes)
+            .map_err(|source| GnnError::Io { path: path.display().to_string(), source })
     }
 
     /// Loads a model, refusing a damaged file (checksum over everything it holds), bytes after

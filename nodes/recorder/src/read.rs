@@ -59,6 +59,9 @@ const DATA_END_LEN: u64 = 4;
 /// Bytes of a footer record's content: `summary_start: u64, summary_offset_start: u64,
 /// summary_crc: u32`.
 const FOOTER_LEN: u64 = 20;
+/// Bytes of the footer record that its CRC covers after the summary: its header,
+/// `summary_start` and `summary_offset_start` (all but the CRC itself).
+const FOOTER_CRC_LEN: u64 = RECORD_HEADER_LEN + FOOTER_LEN - 4;
 /// Bytes of a message record's fields before its data ([`MessageHeader`]).
 const MESSAGE_HEADER_LEN: u64 = 22;
 /// Bytes of a message index record's fields before its entries ([`MessageIndexHeader`]).
@@ -526,12 +529,17 @@ impl RecordingReader {
         let offset = self.pos;
         let left = self.size.saturating_sub(offset);
         let fault = |opcode, detail: String| Stop::Fault(Fault { offset, opcode, detail });
-        if std::mem::take(&mut self.after_end) && !self.magic_at(offset).map_err(|e| Stop::Error(self.io(e)))? {
+        // The record header, or as much of it as the file holds, read once: it may be a magic.
+        let mut head = [0u8; RECORD_HEADER_LEN as usize];
+        let head_len = left.min(RECORD_HEADER_LEN) as usize;
+        self.read_at(offset, &mut head[..head_len]).map_err(|e| Stop::Error(self.io(e)))?;
+        let is_magic = head[..head_len].starts_with(mcap::MAGIC);
+        if std::mem::take(&mut self.after_end) && !is_magic {
             let detail =
                 format!("{left} bytes after the recording's closing magic, and they are not another recording");
             return Err(fault(None, detail));
         }
-        if left >= MAGIC_LEN && self.magic_at(offset).map_err(|e| Stop::Error(self.io(e)))? {
+        if is_magic {
             return self.start_recording(offset);
         }
         if left == 0 {
@@ -541,8 +549,7 @@ impl RecordingReader {
         if left < RECORD_HEADER_LEN {
             return Err(fault(None, format!("the file ends inside a record header ({left} bytes left)")));
         }
-        let RecordHeader { opcode, length: len } =
-            self.read_record_header(offset).map_err(|e| Stop::Error(self.io(e)))?;
+        let RecordHeader { opcode, length: len } = RecordHeader::parse(&head);
         check_len(opcode, len, left - RECORD_HEADER_LEN).map_err(|d| fault(Some(opcode), d))?;
         let body_at = offset + RECORD_HEADER_LEN;
         let end = body_at + len; // <= size, checked above
@@ -614,7 +621,7 @@ impl RecordingReader {
             0 => None,
             stored => {
                 let from = self.summary.summary_start(offset);
-                let to = offset + crate::summary::FOOTER_CRC_LEN;
+                let to = offset + FOOTER_CRC_LEN;
                 Some(self.crc_between(from, to).map_err(|e| Stop::Error(self.io(e)))? == stored)
             }
         };
@@ -651,9 +658,7 @@ impl RecordingReader {
                 self.size - at
             )));
         }
-        let mut magic = [0u8; MAGIC_LEN as usize];
-        self.read_at(at, &mut magic).map_err(|e| Stop::Error(self.io(e)))?;
-        if magic != *mcap::MAGIC {
+        if !self.magic_at(at).map_err(|e| Stop::Error(self.io(e)))? {
             return Err(fault("no MCAP magic after the footer".into()));
         }
         Ok(())
@@ -987,9 +992,7 @@ impl RecordingReader {
         let body_at = p + RECORD_HEADER_LEN;
         let end = body_at + len;
         if opcode == op::FOOTER {
-            let mut magic = [0u8; MAGIC_LEN as usize];
-            self.read_at(end, &mut magic)?;
-            return Ok(magic == *mcap::MAGIC);
+            return self.magic_at(end);
         }
         let mut body = vec![0u8; len as usize];
         self.read_at(body_at, &mut body)?;

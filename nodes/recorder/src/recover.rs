@@ -77,22 +77,23 @@ impl fmt::Display for Recovered {
 /// when complete: an error leaves `output` as it was. An output that is the input under another
 /// name (a hard link, a symlink ...) is refused before anything is written.
 pub fn recover(input: &Path, output: &Path) -> Result<Recovered> {
-    refuse_same_file(input, output)?;
+    let output_meta = std::fs::metadata(output).ok();
+    refuse_same_file(input, output, output_meta.as_ref())?;
     let reader = RecordingReader::open_with(input, ReadOptions { any_wire_version: true, lenient: true })?;
     // A device or a pipe (`/dev/null`, `/dev/stdout`) is written to; a file is replaced.
-    let writer = match std::fs::metadata(output) {
-        Ok(m) if !m.is_file() && !m.is_dir() => RecordingWriter::create(output)?,
+    let writer = match output_meta {
+        Some(m) if !m.is_file() && !m.is_dir() => RecordingWriter::create(output)?,
         _ => RecordingWriter::create_replacing(output)?,
     };
     recover_into(reader, writer)
 }
 
-/// [`Error::SameFile`] when `output` exists and is the same file as `input` (same device and
-/// inode, whatever the paths: hard links, symlinks, `./a` and `a`).
-fn refuse_same_file(input: &Path, output: &Path) -> Result<()> {
+/// [`Error::SameFile`] when `output` exists (`output_meta`) and is the same file as `input` (same
+/// device and inode, whatever the paths: hard links, symlinks, `./a` and `a`).
+fn refuse_same_file(input: &Path, output: &Path, output_meta: Option<&std::fs::Metadata>) -> Result<()> {
     use std::os::unix::fs::MetadataExt;
     let input_meta = std::fs::metadata(input).map_err(|source| Error::Io { path: input.to_path_buf(), source })?;
-    let Ok(output_meta) = std::fs::metadata(output) else { return Ok(()) };
+    let Some(output_meta) = output_meta else { return Ok(()) };
     if (input_meta.dev(), input_meta.ino()) == (output_meta.dev(), output_meta.ino()) {
         return Err(Error::SameFile { input: input.to_path_buf(), output: output.to_path_buf() });
     }

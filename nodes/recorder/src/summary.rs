@@ -66,10 +66,6 @@ pub(crate) struct SummaryCheck {
     problems: Vec<SummaryProblem>,
 }
 
-/// Bytes of the footer record that its CRC covers after the summary: opcode, length,
-/// `summary_start`, `summary_offset_start`.
-pub(crate) const FOOTER_CRC_LEN: u64 = 9 + 16;
-
 impl SummaryCheck {
     /// The checks of a recording whose magic is at `base`.
     pub(crate) fn new(base: u64) -> SummaryCheck {
@@ -136,9 +132,9 @@ impl SummaryCheck {
             return self.problem(offset, format!("a {} of implausible length", record_name(opcode)));
         };
         let checked = match opcode {
-            op::CHUNK_INDEX => self.chunk_index(offset, body),
+            op::CHUNK_INDEX => self.chunk_index(body),
             op::STATISTICS => self.statistics(offset, body),
-            op::METADATA_INDEX => self.metadata_index(offset, body),
+            op::METADATA_INDEX => self.metadata_index(body),
             _ => self.summary_offset(offset, body),
         };
         if let Err(detail) = checked {
@@ -146,7 +142,7 @@ impl SummaryCheck {
         }
     }
 
-    fn chunk_index(&mut self, _at: u64, body: &[u8]) -> Result<(), String> {
+    fn chunk_index(&mut self, body: &[u8]) -> Result<(), String> {
         let mut f = Fields::new(body);
         let _start_time = f.u64("the start time")?;
         let _end_time = f.u64("the end time")?;
@@ -159,11 +155,9 @@ impl SummaryCheck {
         let uncompressed = f.u64("the uncompressed size")?;
         f.end("chunk index")?;
         self.chunk_indexes += 1;
-        let offset = self.base.checked_add(start);
-        let Some((offset, chunk)) = offset.and_then(|o| self.chunks.get(&o).map(|c| (o, c.clone()))) else {
+        let Some((&offset, chunk)) = self.base.checked_add(start).and_then(|o| self.chunks.get_key_value(&o)) else {
             return Err(format!("its chunk start offset {start} is no intact chunk of the data section"));
         };
-        self.indexed.insert(offset);
         let mut wrong = Vec::new();
         if length != chunk.record_len {
             wrong.push(format!("a chunk length of {length} (the chunk's record has {})", chunk.record_len));
@@ -183,6 +177,7 @@ impl SummaryCheck {
                 wrong.push(format!("channel {channel}'s message index at offset {o}, where there is none of it"));
             }
         }
+        self.indexed.insert(offset);
         match wrong.is_empty() {
             true => Ok(()),
             false => Err(format!("the chunk at byte {offset}: {}", wrong.join("; "))),
@@ -201,7 +196,7 @@ impl SummaryCheck {
         Ok(())
     }
 
-    fn metadata_index(&mut self, _at: u64, body: &[u8]) -> Result<(), String> {
+    fn metadata_index(&mut self, body: &[u8]) -> Result<(), String> {
         let mut f = Fields::new(body);
         let offset = f.u64("the offset")?;
         let length = f.u64("the length")?;

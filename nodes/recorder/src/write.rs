@@ -1,6 +1,7 @@
 //! Writing recordings.
 
 use crate::{Error, FrameKind, Result, CHANNELS_METADATA, MESSAGE_ENCODING, META_TYPE, META_WIRE_VERSION};
+use runtime::files::Replacement;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
@@ -58,20 +59,23 @@ impl RecordingWriter {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
-        let file = File::create(path).map_err(io)?;
-        let sync = file.try_clone().map_err(io)?;
-        Self::start(path, Box::new(file), Some(sync))
+        Self::to_file(path, File::create(path).map_err(io)?, None)
     }
 
     /// Writes a new file for `path` under a temporary name in the same folder, renamed over `path`
     /// by [`RecordingWriter::finish`]: until then `path` keeps what it held (or stays absent), and
     /// a writer dropped unfinished, or a failed `finish`, removes the temporary file.
     pub fn create_replacing(path: &Path) -> Result<RecordingWriter> {
-        let (replacement, file) = Replacement::create(path)?;
-        let io = |source| Error::Io { path: path.to_path_buf(), source };
-        let sync = file.try_clone().map_err(io)?;
+        let (replacement, file) =
+            Replacement::create(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+        Self::to_file(path, file, Some(replacement))
+    }
+
+    /// Writes to `file`, opened for `path` (synced by `finish`, then `replacement` committed).
+    fn to_file(path: &Path, file: File, replacement: Option<Replacement>) -> Result<RecordingWriter> {
+        let sync = file.try_clone().map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
         let mut w = Self::start(path, Box::new(file), Some(sync))?;
-        w.replacement = Some(replacement);
+        w.replacement = replacement;
         Ok(w)
     }
 
@@ -228,75 +232,15 @@ impl RecordingWriter {
             file.sync_all().map_err(|error| Error::WriteIo { path: self.path.clone(), error })?;
         }
         if let Some(replacement) = self.replacement.take() {
-            replacement.commit()?;
+            replacement.commit().map_err(|source| Error::Io { path: self.path.clone(), source })?;
         }
         Ok(self.messages)
     }
 }
 
-/// A new file for a path, written under a temporary name in the same folder (so the rename is
-/// atomic) and renamed over the path only when complete: a failure never leaves the path
-/// half-written or truncated, and the file at the path is never opened for writing. Dropped
-/// without [`Replacement::commit`], the temporary file goes.
-pub struct Replacement {
-    path: PathBuf,
-    temp: Option<PathBuf>,
-}
-
-impl Replacement {
-    /// Creates the temporary file for `path` (and `path`'s folder); a symlink at `path` is
-    /// followed, so that its target is replaced and the link kept.
-    pub fn create(path: &Path) -> Result<(Replacement, File)> {
-        let io = |source| Error::Io { path: path.to_path_buf(), source };
-        let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
-        let path = match is_link {
-            true => std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf()),
-            false => path.to_path_buf(),
-        };
-        let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        std::fs::create_dir_all(dir).map_err(io)?;
-        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let mut attempt = 0u32;
-        loop {
-            let temp = dir.join(format!(".{name}.{}-{attempt}.tmp", std::process::id()));
-            match std::fs::OpenOptions::new().write(true).create_new(true).open(&temp) {
-                Ok(file) => return Ok((Replacement { path, temp: Some(temp) }, file)),
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && attempt < 100 => attempt += 1,
-                Err(source) => return Err(Error::Io { path: temp, source }),
-            }
-        }
-    }
-
-    /// Renames the temporary file over the path (its content written and synced by the caller).
-    pub fn commit(mut self) -> Result<()> {
-        let Some(temp) = self.temp.take() else { return Ok(()) };
-        if let Err(source) = std::fs::rename(&temp, &self.path) {
-            std::fs::remove_file(&temp).ok();
-            return Err(Error::Io { path: self.path.clone(), source });
-        }
-        // The rename itself made durable, best effort.
-        if let Some(dir) = self.path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            File::open(dir).and_then(|d| d.sync_all()).ok();
-        }
-        Ok(())
-    }
-}
-
-impl Drop for Replacement {
-    fn drop(&mut self) {
-        if let Some(temp) = self.temp.take() {
-            std::fs::remove_file(temp).ok();
-        }
-    }
-}
-
 /// Writes `bytes` as the new content of `path` through a [`Replacement`].
 pub fn replace_file(path: &Path, bytes: &[u8]) -> Result<()> {
-    let (replacement, mut file) = Replacement::create(path)?;
-    let io = |error| Error::WriteIo { path: path.to_path_buf(), error };
-    file.write_all(bytes).map_err(io)?;
-    file.sync_all().map_err(io)?;
-    replacement.commit()
+    runtime::files::replace_file(path, bytes).map_err(|error| Error::WriteIo { path: path.to_path_buf(), error })
 }
 
 impl Drop for RecordingWriter {

@@ -24,6 +24,7 @@
 //!   and subscribe as JSON ([`Ports`]) and returns false (the node returns), so the launcher can
 //!   route every topic.
 
+pub mod files;
 mod iox;
 mod pubsub;
 mod zen;

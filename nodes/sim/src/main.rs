@@ -66,7 +66,7 @@ struct Args {
         long,
         default_value = "builtin",
         value_parser = |s: &str| s.parse::<ModelSpec>(),
-        long_help = format!("Warm-start model, `name` or `name:param` (`blend:0.75`).\n{}", msgs::models::groups_help())
+        long_help = msgs::models::option_help("Warm-start model, `name` or `name:param` (`blend:0.75`).")
     )]
     model: ModelSpec,
     /// Several models, each run in turn as its own run (`none,builtin,copy`); overrides --model.
@@ -154,25 +154,11 @@ impl Args {
     fn seeds(&self) -> Result<Vec<u64>> {
         match &self.seeds {
             Some(s) => Ok(sim::parse_seeds(s)?),
-            None => {
-                if !(1..=msgs::MAX_SEEDS).contains(&self.simulations) {
-                    bail!(
-                        "--simulations = {}: must be from 1 to {} (msgs::MAX_SEEDS)",
-                        self.simulations,
-                        msgs::MAX_SEEDS
-                    );
-                }
-                let last = self.seed.checked_add(self.simulations - 1).filter(|&l| l <= msgs::MAX_SEED);
-                if last.is_none() {
-                    bail!(
-                        "--seed = {} with --simulations = {}: the last seed must be at most {} (seeds are u32 simulation ids)",
-                        self.seed,
-                        self.simulations,
-                        msgs::MAX_SEED
-                    );
-                }
-                Ok((self.seed..self.seed + self.simulations).collect())
-            }
+            // The seed list's own bounds (count, largest seed), checked before it is built.
+            None => msgs::parse_seeds(&format!("{}..{}", self.seed, self.seed.saturating_add(self.simulations)))
+                .map_err(|why| {
+                    anyhow::anyhow!("--seed = {} with --simulations = {}: {why}", self.seed, self.simulations)
+                }),
         }
     }
 

@@ -118,11 +118,8 @@ pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Re
     };
     let (mut bodies, mut contacts) = (Vec::new(), Vec::new());
     'run: for &seed in &spec.seeds {
-        let simulation = u32::try_from(seed).map_err(|_| SimError::InvalidParameter {
-            name: "seeds",
-            value: seed.to_string(),
-            why: "seeds must fit in u32 (they are simulation ids)".into(),
-        })?;
+        // At most msgs::MAX_SEED: checked by `spec.validate()` above.
+        let simulation = seed as u32;
         let mut world = World::new(&SceneConfig { seed, ..spec.scene.clone() }, spec.params)?;
         world.set_ids(run_id, simulation);
         if spec.problems {

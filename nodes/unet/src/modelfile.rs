@@ -105,12 +105,7 @@ impl ModelFile {
         out.extend_from_slice(&(weights.len() as u64).to_le_bytes());
         out.extend_from_slice(&weights);
         out.extend_from_slice(&checksum(&[&json, &weights]).to_le_bytes());
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).map_err(io)?;
-        }
-        let tmp = path.with_extension("partial");
-        std::fs::write(&tmp, &out).map_err(io)?;
-        std::fs::rename(&tmp, path).map_err(io)
+        runtime::files::replace_file(path, &out).map_err(io)
     }
 
     /// Reads a model file onto `device`. A file that is not a model, is cut short, or whose weights

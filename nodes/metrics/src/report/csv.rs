@@ -11,7 +11,7 @@ use ::csv::{Reader, StringRecord, Writer};
 use serde::{Serialize, Serializer};
 use std::path::{Path, PathBuf};
 
-/// A number as `Display` writes it (`900`, `0.25`, `NaN`): the files' format from before they
+/// A number as `Display` writes it (`900`, `0.25`, `NaN`; `Option<Num>`: an empty cell for none): the files' format from before they
 /// were serialised (the csv crate writes floats as `900.0`).
 #[derive(Debug, Clone, Copy, Default)]
 struct Num(f64);
@@ -20,11 +20,6 @@ impl Serialize for Num {
     fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         serializer.collect_str(&self.0)
     }
-}
-
-/// An optional number: an empty cell for none.
-fn num(v: Option<f64>) -> Option<Num> {
-    v.map(Num)
 }
 
 /// `steps.csv`: every step, models in report order, simulations then steps in order. No steps:
@@ -88,10 +83,10 @@ impl<'a> From<&'a ModelSummary> for SummaryRow<'a> {
             simulations: m.simulations,
             steps: m.all.steps,
             total_sweeps: m.all.total_sweeps,
-            ratio_to_builtin: num(m.ratio_to_builtin),
-            same_states_ratio_to_builtin: num(m.same_states.map(|p| p.ratio)),
+            ratio_to_builtin: m.ratio_to_builtin.map(Num),
+            same_states_ratio_to_builtin: m.same_states.map(|p| Num(p.ratio)),
             same_states_worst_simulation: m.same_states.map(|p| p.worst_simulation),
-            same_states_worst_ratio: num(m.same_states.map(|p| p.worst_ratio)),
+            same_states_worst_ratio: m.same_states.map(|p| Num(p.worst_ratio)),
             median_sweeps: Num(m.all.median_sweeps),
             mean_sweeps: Num(m.all.mean_sweeps),
             falling_steps: m.falling.steps,
@@ -149,8 +144,8 @@ impl<'a> From<&'a PhaseRow> for PhasesRow<'a> {
             total_sweeps: r.total_sweeps,
             model_total_sweeps: r.model_total_sweeps,
             share_of_model: Num(r.share_of_model),
-            ratio_to_builtin_total: num(r.ratio_to_builtin_total),
-            same_states_ratio: num(r.same_states_ratio),
+            ratio_to_builtin_total: r.ratio_to_builtin_total.map(Num),
+            same_states_ratio: r.same_states_ratio.map(Num),
             cap_hits: r.cap_hits,
             cap_sweeps: r.cap_sweeps,
             cap_sweeps_share: Num(r.cap_sweeps_share),
@@ -223,15 +218,15 @@ impl<'a> From<&'a AccuracyRow> for AccuracyCsvRow<'a> {
             late_steps_persisting: r.late_steps,
             median_warm_error_normal_mse: Num(r.median_warm_error_normal_mse),
             mean_warm_error_normal_mse: Num(r.mean_warm_error_normal_mse),
-            error_vs_builtin: num(r.error_vs_builtin),
+            error_vs_builtin: r.error_vs_builtin.map(Num),
             total_sweeps: r.total_sweeps,
-            sweeps_vs_builtin: num(r.sweeps_vs_builtin),
+            sweeps_vs_builtin: r.sweeps_vs_builtin.map(Num),
             late_sweeps: r.late_sweeps,
-            late_sweeps_vs_builtin: num(r.late_sweeps_vs_builtin),
-            same_states_vs_builtin: num(r.same_states_vs_builtin),
-            blend_fraction_by_error: num(r.blend_by_error.and_then(|f| f.fraction())),
+            late_sweeps_vs_builtin: r.late_sweeps_vs_builtin.map(Num),
+            same_states_vs_builtin: r.same_states_vs_builtin.map(Num),
+            blend_fraction_by_error: r.blend_by_error.and_then(|f| f.fraction()).map(Num),
             blend_place_by_error: r.blend_by_error.map(|f| f.label()),
-            blend_fraction_by_sweeps: num(r.blend_by_sweeps.and_then(|f| f.fraction())),
+            blend_fraction_by_sweeps: r.blend_by_sweeps.and_then(|f| f.fraction()).map(Num),
             blend_place_by_sweeps: r.blend_by_sweeps.map(|f| f.label()),
             blend_placed_on_same_states: r.placed_on_same_states,
         }
@@ -278,7 +273,7 @@ mod tests {
     #[test]
     fn numbers_are_written_as_display_writes_them() {
         let mut w = Writer::from_writer(Vec::new());
-        w.serialize((Num(900.0), Num(0.25), Num(f64::NAN), num(None), Some(Num(1e-7)))).unwrap();
+        w.serialize((Num(900.0), Num(0.25), Num(f64::NAN), None::<Num>, Some(Num(1e-7)))).unwrap();
         w.flush().unwrap();
         assert_eq!(String::from_utf8_lossy(w.get_ref()), "900,0.25,NaN,,0.0000001\n");
     }

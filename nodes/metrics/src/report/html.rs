@@ -2,20 +2,17 @@
 
 use super::error::{io, ReportError};
 use super::plots::{Plot, Plots};
-use super::tables::{escape, AccuracyTable, PhaseTable, SummaryTable, ACCURACY_NOTE, PHASES_NOTE, SUMMARY_NOTE};
-use crate::aggregate::ModelSummary;
-use crate::phases::{AccuracyRow, PhaseRow};
+use super::tables::{escape, Tables, ACCURACY_NOTE, PHASES_NOTE, SUMMARY_NOTE};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// `report.html`: what is missing, the summary, the per-phase and accuracy sections with their
-/// plots (`details`: none when no statistics arrived), the per-step plots, and links to the CSVs.
+/// plots (none when no statistics arrived), the per-step plots, and links to the CSVs.
 pub fn write(
     dir: &Path,
     title: &str,
     missing: &[String],
-    summaries: &[ModelSummary],
-    details: Option<(&[PhaseRow], &[AccuracyRow])>,
+    tables: &Tables,
     plots: &Plots,
 ) -> Result<PathBuf, ReportError> {
     let path = dir.join("report.html");
@@ -31,27 +28,27 @@ pub fn write(
         }
         html.push_str("</ul>");
     }
-    if details.is_none() {
+    if tables.details.is_none() {
         html.push_str("<p><b>No solver statistics arrived.</b> Nothing to summarise or plot.</p>");
     }
     html.push_str("<h2>Summary</h2>");
-    html.push_str(&SummaryTable::new(summaries).to_html());
+    html.push_str(&tables.summary.to_html());
     let _ = write!(html, "<p>{}</p>", escape(&SUMMARY_NOTE.replace(['*', '`'], "")));
     html.push_str("<p>Phases: a step is <i>settled</i> once every body of its simulation stays slower than the settle speed (default 0.1 m/s) for the rest of the simulation; earlier steps are <i>falling</i> (a dash: no step settled). Times are wall-clock on the machine that ran the simulator.</p>");
-    if let Some((phases, accuracy)) = details {
+    if let Some(d) = &tables.details {
         html.push_str("<h2>Sweeps per phase</h2>");
-        html.push_str(&PhaseTable::new(phases).to_html());
+        html.push_str(&d.phases.to_html());
         let _ = write!(html, "<p>{}</p>", escape(PHASES_NOTE));
         images(&mut html, "h3", &plots.phases);
-        let late = accuracy.first().map(|r| r.late_phase.label()).unwrap_or_default();
+        let late = d.accuracy_rows.first().map(|r| r.late_phase.label()).unwrap_or_default();
         let _ = write!(html, "<h2>Accuracy &rarr; sweeps (late phase: steps {})</h2>", escape(&late));
-        html.push_str(&AccuracyTable::new(accuracy).to_html());
+        html.push_str(&d.accuracy.to_html());
         let _ = write!(
             html,
             "<p>{} In the accuracy plot a model whose error is 0 sits at the left end of a log axis (tick 0, label marked (0)); the scatter plot leaves out steps whose error or sweeps are 0 (log axes).</p>",
             escape(ACCURACY_NOTE)
         );
-        let notes = crate::phases::placement_notes(accuracy);
+        let notes = crate::phases::placement_notes(d.accuracy_rows);
         if !notes.is_empty() {
             html.push_str("<p>On the ablation curve:</p><ul>");
             for n in &notes {

@@ -3,7 +3,7 @@
 //!
 //! [`write`] computes the tables once and hands them to one writer per output: `csv` (five files),
 //! `markdown` (`summary.md`), `plots` (the PNGs) and `html` (the page); `tables` formats the cells
-//! that markdown and HTML share.
+//! that markdown and HTML share, once for both.
 
 mod csv;
 mod error;
@@ -47,8 +47,7 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
     let phases = aggregate.phase_rows();
     let accuracy = aggregate.accuracy();
     let histograms = aggregate.sweeps_histograms();
-    // The per-phase and accuracy sections, left out when no statistics arrived.
-    let details = (!aggregate.is_empty()).then_some((phases.as_slice(), accuracy.as_slice()));
+    let tables = tables::Tables::new(&summaries, &phases, &accuracy, aggregate.is_empty());
 
     let mut files = vec![
         csv::steps(dir, aggregate, &models)?,
@@ -56,10 +55,10 @@ pub fn write(aggregate: &Aggregate, dir: &Path, title: &str, missing: &[String])
         csv::phases(dir, &phases)?,
         csv::sweeps_histogram(dir, &histograms)?,
         csv::accuracy(dir, &accuracy)?,
-        markdown::write(dir, title, &summaries, details, missing)?,
+        markdown::write(dir, title, &tables, missing)?,
     ];
     let plots = plots::write(dir, aggregate, &models, &histograms, &accuracy)?;
     files.extend(plots.files().cloned());
-    files.push(html::write(dir, title, missing, &summaries, details, &plots)?);
+    files.push(html::write(dir, title, missing, &tables, &plots)?);
     Ok(Written { dir: dir.to_path_buf(), files, summaries, phases, accuracy })
 }

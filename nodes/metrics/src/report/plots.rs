@@ -185,14 +185,7 @@ fn accuracy_vs_sweeps(dir: &Path, accuracy: &[AccuracyRow]) -> Result<Option<Plo
 
 /// Per step: sweeps against the warm start's error.
 fn sweeps_vs_warm_error(dir: &Path, aggregate: &Aggregate, models: &[String]) -> Result<Plot, ReportError> {
-    let scatter: Vec<Series> = models
-        .iter()
-        .map(|m| Series {
-            name: m.clone(),
-            points: aggregate.sweeps_vs_warm_error(m, SCATTER_POINTS_PER_MODEL),
-            band: None,
-        })
-        .collect();
+    let scatter = per_model(models, |m| aggregate.sweeps_vs_warm_error(m, SCATTER_POINTS_PER_MODEL));
     let caption =
         format!("Sweeps vs warm-start error per step (every k-th step, at most {SCATTER_POINTS_PER_MODEL} per model)");
     let panel = Panel::new(
@@ -204,100 +197,99 @@ fn sweeps_vs_warm_error(dir: &Path, aggregate: &Aggregate, models: &[String]) ->
     draw(dir, "sweeps_vs_warm_error.png", &caption, &[panel])
 }
 
-/// The per-step curves: a line per model of a statistic per step (median across simulations,
-/// some with the 10-90% band), then the convergence curves per sweep.
+/// A series per model, named by the model, with `points` of it and no band.
+fn per_model(models: &[String], points: impl Fn(&str) -> Vec<(f64, f64)>) -> Vec<Series> {
+    models.iter().map(|m| Series { name: m.clone(), points: points(m), band: None }).collect()
+}
+
+/// A per-step curve: its file, caption, y axis, the statistic whose median across simulations
+/// it draws, and whether the 10-90% band is drawn beneath it.
+type PerStep = (&'static str, &'static str, fn() -> Axis, fn(&StepRecord) -> f64, bool);
+
+/// The per-step curves, in page order.
+const PER_STEP: [PerStep; 6] = [
+    (
+        "sweeps_per_step.png",
+        "Sweeps per step (median, 10-90% band across simulations)",
+        || Axis::counts("sweeps per step"),
+        |r| r.sweeps as f64,
+        true,
+    ),
+    (
+        "contacts_per_step.png",
+        "Contacts per step (median, 10-90% band)",
+        || Axis::counts("contacts"),
+        |r| r.contacts as f64,
+        true,
+    ),
+    (
+        "solve_time_per_step.png",
+        "Solve time per step (velocity solve only, median)",
+        || Axis::linear("solve time (µs)").from_zero(),
+        |r| r.solve_us as f64,
+        false,
+    ),
+    (
+        "step_time_per_step.png",
+        "Whole step time (collision + warm start + solve + integrate, median)",
+        || Axis::linear("step time (µs)").from_zero(),
+        |r| r.step_us as f64,
+        false,
+    ),
+    (
+        "warm_error_normal.png",
+        "Warm-start error vs solution, normal impulse (median MSE)",
+        || Axis::log("MSE ((N·s)²)"),
+        |r| r.warm_error_normal_mse as f64,
+        false,
+    ),
+    (
+        "warm_error_tangent.png",
+        "Warm-start error vs solution, tangent impulse (median MSE)",
+        || Axis::log("MSE ((N·s)²)"),
+        |r| r.warm_error_tangent_mse as f64,
+        false,
+    ),
+];
+
+/// The per-step curves: a line per model of a statistic per step ([`PER_STEP`]), then the
+/// convergence curves per sweep.
 fn per_step_curves(dir: &Path, aggregate: &Aggregate, models: &[String]) -> Result<Vec<Plot>, ReportError> {
-    let median_per_step = |f: &dyn Fn(&StepRecord) -> f64, band: bool| -> Vec<Series> {
-        models
+    let lines = |file: &str, caption: &str, x: Axis, y: Axis, series: Vec<Series>| {
+        draw(dir, file, caption, &[Panel::new(x, y, &series, Mark::Lines)])
+    };
+    let mut plots = Vec::new();
+    for (file, caption, y, statistic, band) in PER_STEP {
+        let series = models
             .iter()
             .map(|m| {
-                let b = aggregate.per_step(m, f);
+                let b = aggregate.per_step(m, statistic);
                 Series {
                     name: m.clone(),
                     points: b.iter().map(|b| (b.step as f64, b.median)).collect(),
                     band: band.then(|| b.iter().map(|b| (b.step as f64, b.p10, b.p90)).collect()),
                 }
             })
-            .collect()
-    };
-    let lines = |file: &str, caption: &str, x: Axis, y: Axis, series: Vec<Series>| {
-        draw(dir, file, caption, &[Panel::new(x, y, &series, Mark::Lines)])
-    };
-    let step = || Axis::counts("step");
+            .collect();
+        plots.push(lines(file, caption, Axis::counts("step"), y(), series)?);
+    }
     let max_sweeps =
         models.iter().flat_map(|m| aggregate.records(m).map(|r| r.sweeps)).max().unwrap_or(1).clamp(1, 1000);
-    let within: Vec<Series> = models
-        .iter()
-        .map(|m| Series {
-            name: m.clone(),
-            points: aggregate.converged_within(m, max_sweeps).into_iter().map(|(n, f)| (n as f64, f)).collect(),
-            band: None,
-        })
-        .collect();
-    let convergence: Vec<Series> = models
-        .iter()
-        .map(|m| Series {
-            name: m.clone(),
-            points: aggregate.convergence(m, 1000).into_iter().map(|(n, r)| (n as f64, r)).collect(),
-            band: None,
-        })
-        .collect();
-    Ok(vec![
-        lines(
-            "sweeps_per_step.png",
-            "Sweeps per step (median, 10-90% band across simulations)",
-            step(),
-            Axis::counts("sweeps per step"),
-            median_per_step(&|r| r.sweeps as f64, true),
-        )?,
-        lines(
-            "contacts_per_step.png",
-            "Contacts per step (median, 10-90% band)",
-            step(),
-            Axis::counts("contacts"),
-            median_per_step(&|r| r.contacts as f64, true),
-        )?,
-        lines(
-            "solve_time_per_step.png",
-            "Solve time per step (velocity solve only, median)",
-            step(),
-            Axis::linear("solve time (µs)").from_zero(),
-            median_per_step(&|r| r.solve_us as f64, false),
-        )?,
-        lines(
-            "step_time_per_step.png",
-            "Whole step time (collision + warm start + solve + integrate, median)",
-            step(),
-            Axis::linear("step time (µs)").from_zero(),
-            median_per_step(&|r| r.step_us as f64, false),
-        )?,
-        lines(
-            "warm_error_normal.png",
-            "Warm-start error vs solution, normal impulse (median MSE)",
-            step(),
-            Axis::log("MSE ((N·s)²)"),
-            median_per_step(&|r| r.warm_error_normal_mse as f64, false),
-        )?,
-        lines(
-            "warm_error_tangent.png",
-            "Warm-start error vs solution, tangent impulse (median MSE)",
-            step(),
-            Axis::log("MSE ((N·s)²)"),
-            median_per_step(&|r| r.warm_error_tangent_mse as f64, false),
-        )?,
-        lines(
-            "converged_within.png",
-            "Share of steps converged within n sweeps",
-            Axis::counts("sweeps n"),
-            Axis::linear("share of steps").from_zero(),
-            within,
-        )?,
-        lines(
-            "convergence.png",
-            "Convergence: median residual after n sweeps",
-            Axis::counts("sweeps n"),
-            Axis::log("largest impulse change (N·s)"),
-            convergence,
-        )?,
-    ])
+    plots.push(lines(
+        "converged_within.png",
+        "Share of steps converged within n sweeps",
+        Axis::counts("sweeps n"),
+        Axis::linear("share of steps").from_zero(),
+        per_model(models, |m| {
+            aggregate.converged_within(m, max_sweeps).into_iter().map(|(n, f)| (n as f64, f)).collect()
+        }),
+    )?);
+    plots.push(lines(
+        "convergence.png",
+        "Convergence: median residual after n sweeps",
+        Axis::counts("sweeps n"),
+        Axis::log("largest impulse change (N·s)"),
+        per_model(models, |m| aggregate.convergence(m, 1000).into_iter().map(|(n, r)| (n as f64, r)).collect()),
+    )?);
+    Ok(plots)
 }

@@ -25,28 +25,27 @@ const fn headers<T, const N: usize>(columns: &[Column<T>; N]) -> [&'static str; 
 /// A formatted table of `T`s: one row of cells per item, a cell per column; its first
 /// `key_columns` columns are left-aligned in markdown, the numbers right-aligned.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Table<T, const N: usize> {
-    headers: &'static [&'static str; N],
+pub struct Table<T: 'static, const N: usize> {
+    columns: &'static [Column<T>; N],
     key_columns: usize,
     /// One row per item, a cell per column.
     pub rows: Vec<[String; N]>,
-    of: std::marker::PhantomData<fn(&T)>,
 }
 
 impl<T, const N: usize> Table<T, N> {
-    fn build(columns: &[Column<T>; N], headers: &'static [&'static str; N], key_columns: usize, items: &[T]) -> Self {
+    fn build(columns: &'static [Column<T>; N], key_columns: usize, items: &[T]) -> Self {
         let rows = items.iter().map(|item| columns.map(|(_, cell)| cell(item))).collect();
-        Table { headers, key_columns, rows, of: std::marker::PhantomData }
+        Table { columns, key_columns, rows }
     }
 
     /// A markdown table.
     pub fn to_markdown(&self) -> String {
-        markdown_table(self.headers, self.key_columns, &self.rows)
+        markdown_table(&headers(self.columns), self.key_columns, &self.rows)
     }
 
     /// An HTML `<table>`: a header row, then one row per item (cells escaped).
     pub fn to_html(&self) -> String {
-        html_table(self.headers, &self.rows)
+        html_table(&headers(self.columns), &self.rows)
     }
 }
 
@@ -114,7 +113,7 @@ pub type SummaryTable = Table<ModelSummary, { SUMMARY.len() }>;
 impl SummaryTable {
     /// The cells of `summaries`, in their order.
     pub fn new(summaries: &[ModelSummary]) -> SummaryTable {
-        Table::build(&SUMMARY, &SUMMARY_COLUMNS, 1, summaries)
+        Table::build(&SUMMARY, 1, summaries)
     }
 }
 
@@ -142,7 +141,7 @@ pub type PhaseTable = Table<PhaseRow, { PHASE.len() }>;
 impl PhaseTable {
     /// The cells of `rows`, in their order.
     pub fn new(rows: &[PhaseRow]) -> PhaseTable {
-        Table::build(&PHASE, &PHASE_COLUMNS, 2, rows)
+        Table::build(&PHASE, 2, rows)
     }
 }
 
@@ -169,7 +168,39 @@ pub type AccuracyTable = Table<AccuracyRow, { ACCURACY.len() }>;
 impl AccuracyTable {
     /// The cells of `rows`, in their order.
     pub fn new(rows: &[AccuracyRow]) -> AccuracyTable {
-        Table::build(&ACCURACY, &ACCURACY_COLUMNS, 1, rows)
+        Table::build(&ACCURACY, 1, rows)
+    }
+}
+
+/// The report's tables formatted once, for both `summary.md` and `report.html`.
+pub(super) struct Tables<'a> {
+    /// A row per model.
+    pub summary: SummaryTable,
+    /// The per-phase and accuracy sections: none when no statistics arrived.
+    pub details: Option<Details<'a>>,
+}
+
+/// The per-phase and accuracy -> sweeps sections' tables.
+pub(super) struct Details<'a> {
+    /// Per model and step-range phase.
+    pub phases: PhaseTable,
+    /// A row per model.
+    pub accuracy: AccuracyTable,
+    /// The rows `accuracy` formats: its late phase and the placement notes.
+    pub accuracy_rows: &'a [AccuracyRow],
+}
+
+impl<'a> Tables<'a> {
+    /// The tables of `summaries`, and of `phases` and `accuracy` unless `empty`.
+    pub fn new(summaries: &[ModelSummary], phases: &[PhaseRow], accuracy: &'a [AccuracyRow], empty: bool) -> Self {
+        Tables {
+            summary: SummaryTable::new(summaries),
+            details: (!empty).then(|| Details {
+                phases: PhaseTable::new(phases),
+                accuracy: AccuracyTable::new(accuracy),
+                accuracy_rows: accuracy,
+            }),
+        }
     }
 }
 

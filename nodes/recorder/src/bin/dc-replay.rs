@@ -41,6 +41,8 @@ const MAX_RATE: f64 = 1e6;
 /// publish every step (milliseconds apart); a longer silence is the recorder idling between runs
 /// or a clock step (a log time 10^18 ns ahead would wait 31 years), not pace worth waiting for.
 const MAX_GAP: Duration = Duration::from_secs(5);
+/// [`MAX_GAP`] in ns, the unit of log times.
+const MAX_GAP_NS: u64 = MAX_GAP.as_nanos() as u64;
 
 /// A `--rate`: 0 (no pacing), or from [`MIN_RATE`] to [`MAX_RATE`].
 fn rate(s: &str) -> Result<f64, String> {
@@ -71,8 +73,8 @@ impl Pacer {
     /// is due, and whether its gap was clamped.
     fn due(&mut self, log_time: u64) -> (Duration, bool) {
         let gap = self.last.map_or(0, |last| log_time.saturating_sub(last));
-        let clamped = gap > MAX_GAP.as_nanos() as u64;
-        self.elapsed_ns += gap.min(MAX_GAP.as_nanos() as u64);
+        let clamped = gap > MAX_GAP_NS;
+        self.elapsed_ns += gap.min(MAX_GAP_NS);
         self.last = Some(self.last.map_or(log_time, |last| last.max(log_time)));
         // Bounded: a file of 2^64 ns of clamped gaps at MIN_RATE is still a valid Duration.
         let offset = Duration::try_from_secs_f64(self.elapsed_ns as f64 * 1e-9 / self.rate).unwrap_or(Duration::MAX);
