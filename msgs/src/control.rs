@@ -33,6 +33,13 @@ pub struct RunParams {
     /// [`crate::recorded_relaxation`]).
     #[serde(default = "plain_gauss_seidel")]
     pub relaxation: f32,
+    /// The solver setting as `dc-sim --solver` spells it (`sor:1.4/down`; empty in older
+    /// recordings: the solver `relaxation` says).
+    #[serde(default)]
+    pub solver: String,
+    /// The stopping rule, `change` or `natural` (empty in older recordings: `change`).
+    #[serde(default)]
+    pub stop: String,
 }
 
 fn plain_gauss_seidel() -> f32 {
@@ -191,6 +198,8 @@ mod tests {
             dt: 0.01,
             compliance: 0.0,
             relaxation: 1.0,
+            solver: "sor:1.4/down".into(),
+            stop: "natural".into(),
         }
     }
 

@@ -295,6 +295,12 @@ pub struct SolveStatsHeader {
     pub builtin_sweeps: u32,
     #[serde(default)]
     pub builtin_measured: u32,
+    /// The natural residual of the final impulses (max over rows, RMS); 0 in recordings made
+    /// before it existed.
+    #[serde(default)]
+    pub natural_max: f32,
+    #[serde(default)]
+    pub natural_rms: f32,
 }
 
 /// Most residuals a [`SolveStatsHeader`] frame carries (one per sweep; longer solves keep the first ones).

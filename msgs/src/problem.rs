@@ -52,6 +52,10 @@ pub struct ProblemContact {
     pub before_previous: [f32; 2],
     /// The reference solution (normal, tangent) when the run labels its problems, NaN otherwise.
     pub reference: [f32; 2],
+    /// Height of the contact point (world y): the top-down row order's key (0 in recordings
+    /// made before it existed, where that order is the recorded one).
+    #[serde(default)]
+    pub height: f32,
 }
 
 /// The header of a step's contact rows: the stopping rule the step was solved with, and the
@@ -78,6 +82,19 @@ pub struct ProblemHeader {
     /// recorded, see [`crate::recorded_relaxation`]).
     #[serde(default)]
     pub relaxation: f32,
+    /// The solver's momentum step: 0 none, 1 NNCG with restart threshold `restart` (absent in
+    /// older recordings: none).
+    #[serde(default)]
+    pub momentum: u32,
+    #[serde(default)]
+    pub restart: f32,
+    /// Row order: 0 recorded, 1 top-down (absent in older recordings: recorded).
+    #[serde(default)]
+    pub order: u32,
+    /// Stopping rule: 0 the largest change of a sweep, 1 the natural residual (absent in older
+    /// recordings: the change rule, the only one then).
+    #[serde(default)]
+    pub stop: u32,
 }
 
 /// A step's bodies of the problem.
@@ -92,7 +109,7 @@ mod tests {
     #[test]
     fn layouts_are_packed() {
         assert_eq!(std::mem::size_of::<ProblemBody>(), 20);
-        assert_eq!(std::mem::size_of::<ProblemContact>(), 72);
+        assert_eq!(std::mem::size_of::<ProblemContact>(), 76);
         assert_eq!(std::mem::size_of::<ProblemHeader>() % 8, 0);
     }
 

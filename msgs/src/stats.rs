@@ -54,6 +54,13 @@ pub struct StepStats {
     /// Whether `builtin_sweeps` was measured (absent in statistics written before it existed).
     #[serde(default)]
     pub builtin_measured: bool,
+    /// The natural residual of the final impulses, whatever the stopping rule: the largest
+    /// change one projected Jacobi step would still make (impulse units), and its RMS over the
+    /// rows' normal and tangent parts (0 where not recorded).
+    #[serde(default)]
+    pub natural_max: f32,
+    #[serde(default)]
+    pub natural_rms: f32,
 }
 
 impl StepStats {
@@ -83,6 +90,8 @@ impl StepStats {
             max_speed: h.max_speed,
             builtin_sweeps: h.builtin_sweeps,
             builtin_measured: h.builtin_measured != 0,
+            natural_max: h.natural_max,
+            natural_rms: h.natural_rms,
         }
     }
 
@@ -110,6 +119,8 @@ impl StepStats {
             max_speed: self.max_speed,
             builtin_sweeps: self.builtin_sweeps,
             builtin_measured: self.builtin_measured as u32,
+            natural_max: self.natural_max,
+            natural_rms: self.natural_rms,
         }
     }
 

@@ -271,7 +271,7 @@ mod tests {
         let u = Unrolled::new(&bodies, &contacts);
         // The simulator's solver, converged far below its usual tolerance, then one sweep here:
         // (almost) nothing left to change.
-        let params = sim::SolveParams { tolerance: 1e-9, max_sweeps: 100_000, compliance: 0.0, relaxation: 1.0 };
+        let params = sim::SolveParams { tolerance: 1e-9, max_sweeps: 100_000, ..Default::default() };
         let (_, solved) =
             sim::problem::solve(&bodies, &contacts, &vec![sim::Impulse::default(); contacts.len()], &params);
         let warm: Vec<[f64; 2]> = solved.iter().map(|s| [s.normal as f64, s.tangent as f64]).collect();

@@ -97,6 +97,7 @@ fn synthetic_pile(bodies: usize, contacts: usize) -> (Vec<ProblemBody>, Vec<Prob
                 previous: [0.3 + 0.01 * (i % 13) as f32, 0.01],
                 before_previous: [0.3, 0.0],
                 reference: [f32::NAN; 2],
+                height: 0.0,
             }
         })
         .collect();

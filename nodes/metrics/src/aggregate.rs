@@ -511,6 +511,8 @@ mod tests {
             max_speed: 0.0,
             builtin_sweeps: 0,
             builtin_measured: false,
+            natural_max: 0.0,
+            natural_rms: 0.0,
         };
         StepRecord { stats, residuals: (0..sweeps).map(|i| 1.0 / (i + 1) as f32).collect() }
     }

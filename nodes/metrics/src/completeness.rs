@@ -25,10 +25,22 @@ struct SimInfo {
 }
 
 /// `PGS, tolerance 0.0001, cap 1000`, or with `projected SOR 1.4` and `compliance 0.01` where
-/// the run used them.
+/// the run used them; a run that names its solver and stopping rule (`sor:1.4/down, natural
+/// residual`) says them.
 fn solver_in_words(p: &msgs::RunParams) -> String {
     let relaxation = msgs::recorded_relaxation(p.relaxation);
-    let mut words = if relaxation != 1.0 { format!("projected SOR {relaxation}") } else { "PGS".to_string() };
+    let mut words = if !p.solver.is_empty() {
+        p.solver.clone()
+    } else if relaxation != 1.0 {
+        format!("projected SOR {relaxation}")
+    } else {
+        "PGS".to_string()
+    };
+    match p.stop.as_str() {
+        "" => {}
+        "natural" => words += ", natural residual",
+        rule => words += &format!(", {rule} rule"),
+    }
     if p.compliance > 0.0 {
         words += &format!(", compliance {}", p.compliance);
     }
@@ -242,9 +254,19 @@ mod tests {
             ..Default::default()
         };
         k.control(&c(2, 0, ControlKind::RunStart, 1), &msgs::ControlMsg::run_start(StepHeader::default(), &p).items);
+        let named =
+            msgs::RunParams { solver: "nncg/down".into(), stop: "natural".into(), compliance: 0.0, ..p.clone() };
+        k.control(
+            &c(3, 0, ControlKind::RunStart, 1),
+            &msgs::ControlMsg::run_start(StepHeader::default(), &named).items,
+        );
         assert_eq!(
             k.solvers(),
-            vec!["PGS, tolerance 0, cap 1000", "projected SOR 1.4, compliance 0.01, tolerance 0.0001, cap 1000"]
+            vec![
+                "PGS, tolerance 0, cap 1000",
+                "nncg/down, natural residual, tolerance 0.0001, cap 1000",
+                "projected SOR 1.4, compliance 0.01, tolerance 0.0001, cap 1000"
+            ]
         );
     }
 

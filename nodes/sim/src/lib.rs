@@ -8,8 +8,9 @@
 //! bodies with [`solver::ContactSolver`].
 //!
 //! Three rooms, and what they stand on:
-//! - [`solver`]: the contact solver — rows and their algebra, PGS to a tolerance, Box2D's
-//!   position pass; plain data in, impulses out;
+//! - [`solver`]: the contact solver — rows and their algebra, the PGS family (PGS, SOR, NNCG,
+//!   top-down order) to a stopping rule (the change of a sweep, or the natural residual),
+//!   Box2D's position pass; plain data in, impulses out;
 //! - [`world`]: one step as named stages (collide, external forces, warm start, solve,
 //!   integrate, correct positions), measurement in its own module;
 //! - [`warm`]: the warm-start trait and registry, and the models in three groups: product,
@@ -20,9 +21,12 @@
 //! - [`run`]: the step loop of a run, its control messages, a sink for each step's outputs;
 //! - [`source`]: grids from another node as warm starts, with the producer's fault handling;
 //! - [`bench`]: ms/step against rapier's full pipeline;
+//! - [`compare`]: solvers side by side on the same states, the hindsight ceiling, a learned
+//!   per-step choice of solver;
 //! - [`rng`]: MT19937 / numpy legacy `RandomState`, xoshiro256++.
 
 pub mod bench;
+pub mod compare;
 pub mod contact;
 pub mod error;
 pub mod problem;
@@ -38,7 +42,10 @@ pub use contact::{ContactKey, ContactPoint, ImpulseHistory, SolveTrail};
 pub use error::SimError;
 pub use msgs::StepStats;
 pub use scene::{SamplerKind, Scene, SceneConfig, SceneKind};
-pub use solver::{ContactSolver, Impulse, PositionParams, SolveParams, SolveReport};
+pub use solver::{
+    ContactSolver, Impulse, NaturalResidual, PositionParams, RowOrder, SolveParams, SolveReport, SolverSetting,
+    StopRule,
+};
 pub use warm::{ModelFiles, ModelKind, ModelSpec, WarmStartModel, WarmStarter};
 pub use world::{World, WorldParams};
 

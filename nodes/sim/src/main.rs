@@ -42,6 +42,10 @@ fn required_duration(s: &str) -> Result<Duration, String> {
 #[derive(Debug, Clone, Copy)]
 struct Deadline(Option<Duration>);
 
+/// A list of solver settings. A newtype because clap reads `Option<Vec<T>>` as "many values".
+#[derive(Debug, Clone)]
+struct SolverMenu(Vec<sim::SolverSetting>);
+
 /// Simulator node parameters.
 #[derive(clap::Parser, Debug)]
 #[command(name = "dc-sim", about = "Deep Contact simulator node")]
@@ -75,7 +79,22 @@ struct Args {
     /// Model standing in when a grid is late (a local model).
     #[arg(long, default_value = "builtin", value_parser = |s: &str| s.parse::<ModelSpec>())]
     fallback: ModelSpec,
-    /// Convergence tolerance: largest impulse change of a sweep.
+    /// The velocity solver: pgs (projected Gauss-Seidel, the thesis's), sor:W (projected SOR,
+    /// W in (0, 2)), nncg or nncg:R (nonsmooth nonlinear conjugate gradient, restarting when
+    /// beta > R; nncg = nncg:1); `/down` visits the rows top-down (sor:1.4/down). The oracle,
+    /// labels and shadow solves use the same.
+    #[arg(long, default_value = "pgs", value_parser = |s: &str| s.parse::<sim::SolverSetting>())]
+    solver: sim::SolverSetting,
+    /// Row order of the solver's sweeps: recorded (contact keys) or down (by contact height, top
+    /// first, every step); overrides the order --solver names.
+    #[arg(long, value_parser = |s: &str| s.parse::<sim::RowOrder>())]
+    order: Option<sim::RowOrder>,
+    /// Stopping rule: change (the largest impulse change of a sweep <= --tolerance, the
+    /// thesis's) or natural (the natural residual, what one projected Jacobi step would still
+    /// change, <= --tolerance: the same accuracy for every solver).
+    #[arg(long, default_value = "change", value_parser = |s: &str| s.parse::<sim::StopRule>())]
+    stop: sim::StopRule,
+    /// Convergence tolerance of the stopping rule, in impulse units.
     #[arg(long, default_value_t = 1e-4, value_parser = positive_f32)]
     tolerance: f32,
     /// Sweep cap.
@@ -85,10 +104,10 @@ struct Args {
     /// the labels and the shadow solves use the same. See `sim::SolveParams::compliance`.
     #[arg(long, default_value_t = 0.0, value_parser = compliance)]
     compliance: f32,
-    /// Over-relaxation factor of the solver's row updates (1: projected Gauss-Seidel, the
-    /// thesis's solver); in (0, 2). The oracle, labels and shadow solves use the same.
-    #[arg(long, default_value_t = 1.0, value_parser = relaxation)]
-    relaxation: f32,
+    /// Over-relaxation factor of the solver's row updates; in (0, 2). The same as
+    /// `--solver sor:W`.
+    #[arg(long, value_parser = relaxation, conflicts_with = "solver")]
+    relaxation: Option<f32>,
     /// The oracle's tolerance (`copy` and the oracle ablations solve each step from builtin's
     /// warm start to it).
     #[arg(long, default_value_t = 2e-6, value_parser = positive_f32)]
@@ -142,6 +161,23 @@ struct Args {
     /// Run id stamped on every message (0: derived from the clock).
     #[arg(long, default_value_t = 0)]
     run_id: u64,
+    /// Compare solvers instead of running the node (no bus): every setting of this list
+    /// (`pgs,sor:1.4,nncg,sor:1.4/down`) solves every step of --seeds from builtin's warm start
+    /// to the same stopping rule (--stop, --tolerance), the trajectory driven by the first; prints
+    /// and writes the side-by-side table (with the hindsight ceiling) and every step's figures.
+    #[arg(long, value_parser = |s: &str| sim::solver::parse_settings(s).map(SolverMenu))]
+    compare_solvers: Option<SolverMenu>,
+    /// With --compare-solvers: train a per-step choice among the settings on these seeds'
+    /// same states and judge it on --seeds (never the evaluation seeds 0..29).
+    #[arg(long, requires = "compare_solvers")]
+    train_seeds: Option<String>,
+    /// With --compare-solvers: also run every seed with each setting (and the learned choice)
+    /// driving its own trajectory.
+    #[arg(long, requires = "compare_solvers")]
+    whole_runs: bool,
+    /// With --compare-solvers: the folder for `solvers.md` and `solver-steps.csv`.
+    #[arg(long, requires = "compare_solvers")]
+    out: Option<std::path::PathBuf>,
     /// Run the benchmark and print it instead of running the node.
     #[arg(long)]
     bench: bool,
@@ -203,12 +239,21 @@ impl Args {
     }
 
     fn world_params(&self) -> WorldParams {
+        let mut setting = self.solver;
+        if let Some(w) = self.relaxation {
+            setting.relaxation = w;
+        }
+        if let Some(order) = self.order {
+            setting.order = order;
+        }
         let solve = SolveParams {
             tolerance: self.tolerance,
             max_sweeps: self.max_sweeps,
             compliance: self.compliance,
-            relaxation: self.relaxation,
-        };
+            stop: self.stop,
+            ..SolveParams::default()
+        }
+        .with_setting(setting);
         // The oracle solves the same problem with the same solver, only further.
         let oracle = SolveParams { tolerance: self.oracle_tolerance, max_sweeps: self.oracle_max_sweeps, ..solve };
         let mut p = WorldParams { solve, oracle, ..WorldParams::default() };
@@ -268,6 +313,137 @@ fn run_bench(args: &Args) -> Result<()> {
     Ok(())
 }
 
+/// Seeds 0..29 are the evaluation's: nothing is trained on them.
+const EVALUATION_SEEDS: std::ops::Range<u64> = 0..30;
+
+/// `dc-sim --compare-solvers`: the same-states table, the chooser, whole runs.
+fn compare_solvers(args: &Args, menu: &[sim::SolverSetting]) -> Result<()> {
+    use sim::compare::{self, CompareSpec, SolverChooser};
+    let seeds = args.seeds()?;
+    let spec = CompareSpec {
+        scene: args.scene_config(seeds[0]),
+        params: args.world_params(),
+        steps: args.steps,
+        menu: menu.to_vec(),
+    };
+    let bar = |len: usize, what: &str| {
+        let bar = indicatif::ProgressBar::new(len as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} seeds, {elapsed}")
+                .expect("a valid template"),
+        );
+        bar.set_message(what.to_string());
+        bar
+    };
+    let describe = format!(
+        "{} steps, stop {} <= {}, cap {}, {} bodies",
+        args.steps,
+        spec.params.solve.stop.name(),
+        spec.params.solve.tolerance,
+        spec.params.solve.max_sweeps,
+        args.n
+    );
+    let chooser = match &args.train_seeds {
+        Some(list) => {
+            let train = sim::parse_seeds(list)?;
+            if let Some(s) = train.iter().find(|&&s| EVALUATION_SEEDS.contains(&s)) {
+                bail!("--train-seeds {list}: seed {s} is an evaluation seed (0..29 are never trained on)");
+            }
+            let p = bar(train.len(), "same states, training seeds");
+            let steps = compare::same_states(&spec, &train, |_| p.inc(1))?;
+            p.finish_and_clear();
+            Some(SolverChooser::fit(menu, &steps)?)
+        }
+        None => None,
+    };
+    let p = bar(seeds.len(), "same states");
+    let steps = compare::same_states(&spec, &seeds, |_| p.inc(1))?;
+    p.finish_and_clear();
+    // The chooser's inference, timed over every evaluated step (its median per step is charged).
+    let inference_us = chooser.as_ref().map(|c| {
+        let mut times: Vec<f64> = steps
+            .iter()
+            .map(|s| {
+                let t = std::time::Instant::now();
+                std::hint::black_box(c.choose(std::hint::black_box(&s.features)));
+                t.elapsed().as_secs_f64() * 1e6
+            })
+            .collect();
+        times.sort_by(f64::total_cmp);
+        times[times.len() / 2]
+    });
+    let rows = compare::same_states_table(menu, &steps, chooser.as_ref().zip(inference_us));
+    let mut report = format!(
+        "# Solvers on the same states
+
+`dc-sim {}`
+
+Seeds {}, {describe}; builtin's warm start; the trajectory is {}'s.
+
+{}",
+        std::env::args().skip(1).collect::<Vec<_>>().join(" "),
+        args.seeds.clone().unwrap_or_else(|| format!("{}..{}", args.seed, args.seed + args.simulations)),
+        menu[0],
+        compare::markdown(&rows)
+    );
+    if let (Some(c), Some(us)) = (&chooser, inference_us) {
+        let mut picks = vec![0u64; menu.len()];
+        for s in &steps {
+            picks[c.choose(&s.features)] += 1;
+        }
+        let shares: Vec<String> = menu.iter().zip(&picks).map(|(m, k)| format!("{m} {k}")).collect();
+        report += &format!(
+            "
+The learned choice's picks (steps): {}; inference {us:.2} us per step (median).
+",
+            shares.join(", ")
+        );
+    }
+    if args.whole_runs {
+        let mut whole = Vec::new();
+        for &setting in menu {
+            let p = bar(1, &format!("whole runs, {setting}"));
+            whole.push((setting.to_string(), compare::whole_run(&spec, &seeds, |_| setting)?));
+            p.finish_and_clear();
+        }
+        if let Some(c) = &chooser {
+            whole.push(("learned choice".to_string(), compare::whole_run(&spec, &seeds, |f| menu[c.choose(f)])?));
+        }
+        report += "
+## Whole runs (each solver drives its own trajectory)
+
+| solver | sweeps | vs first | solve time (s) | vs first | capped steps | worst seed |
+|---|---:|---:|---:|---:|---:|---:|
+";
+        let first = whole[0].1.clone();
+        for (name, t) in &whole {
+            let worst =
+                t.per_seed.iter().zip(&first.per_seed).map(|(a, b)| *a as f64 / (*b).max(1) as f64).fold(0.0, f64::max);
+            report += &format!(
+                "| {name} | {} | {:.3}x | {:.2} | {:.3}x | {} | {worst:.3}x |
+",
+                t.sweeps,
+                t.sweeps as f64 / first.sweeps.max(1) as f64,
+                t.solve_us / 1e6,
+                t.solve_us / first.solve_us.max(1e-9),
+                t.capped
+            );
+        }
+    }
+    println!("{report}");
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let write = |name: &str, text: &str| {
+            let path = dir.join(name);
+            std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))
+        };
+        write("solvers.md", &report)?;
+        write("solver-steps.csv", &compare::csv(menu, &steps))?;
+        eprintln!("wrote {}/solvers.md and solver-steps.csv", dir.display());
+    }
+    Ok(())
+}
+
 /// Everything that would fail once the run started, checked before it starts (and when the
 /// launcher checks a launch file): seeds, world parameters, the models (a learned model's file),
 /// the scene.
@@ -307,6 +483,9 @@ fn try_main() -> Result<()> {
     runtime::init_logging();
     if args.bench {
         return run_bench(&args);
+    }
+    if let Some(SolverMenu(menu)) = &args.compare_solvers {
+        return compare_solvers(&args, menu);
     }
     let seeds = args.seeds()?;
 

@@ -3,8 +3,10 @@
 //! problem re-solved from the warm start its run used takes the same sweeps. What a learned warm
 //! start trains on, and the solver it can be judged by in the loop.
 
-use crate::solver::{ContactRow, ContactSolver, Impulse, SolveParams, SolveReport, SolverBody};
-use msgs::{ProblemBody, ProblemContact, ProblemHeader};
+use crate::solver::{
+    ContactRow, ContactSolver, Impulse, Momentum, RowOrder, SolveParams, SolveReport, SolverBody, StopRule,
+};
+use msgs::{ProblemBody, ProblemContact, ProblemHeader, StepHeader};
 use rapier2d::math::Vec2;
 
 /// A step's problem: its header, bodies and contact rows.
@@ -26,6 +28,7 @@ pub fn rows_of(contacts: &[ProblemContact]) -> Vec<ContactRow> {
             rb: Vec2::from(c.rb),
             normal: Vec2::from(c.normal),
             friction: c.friction,
+            height: c.height,
         })
         .collect()
 }
@@ -56,14 +59,39 @@ pub fn solve(
     (report, solver.impulses().to_vec())
 }
 
+/// The header of a step's problem solved with `solve` (no reference yet).
+pub fn header_of(step: StepHeader, bodies: u32, solve: &SolveParams) -> ProblemHeader {
+    let (momentum, restart) = match solve.momentum {
+        Momentum::None => (0, 0.0),
+        Momentum::Nncg { restart } => (1, restart),
+    };
+    ProblemHeader {
+        step,
+        bodies,
+        tolerance: solve.tolerance,
+        max_sweeps: solve.max_sweeps,
+        compliance: solve.compliance,
+        relaxation: solve.relaxation,
+        momentum,
+        restart,
+        order: (solve.order == RowOrder::Down) as u32,
+        stop: (solve.stop == StopRule::Natural) as u32,
+        ..ProblemHeader::default()
+    }
+}
+
 impl Problem {
-    /// The stopping rule the step was solved with.
+    /// The solver and stopping rule the step was solved with.
     pub fn params(&self) -> SolveParams {
+        let h = &self.header;
         SolveParams {
-            tolerance: self.header.tolerance,
-            max_sweeps: self.header.max_sweeps,
-            compliance: self.header.compliance,
-            relaxation: msgs::recorded_relaxation(self.header.relaxation),
+            tolerance: h.tolerance,
+            max_sweeps: h.max_sweeps,
+            compliance: h.compliance,
+            relaxation: msgs::recorded_relaxation(h.relaxation),
+            momentum: if h.momentum == 1 { Momentum::Nncg { restart: h.restart } } else { Momentum::None },
+            order: if h.order == 1 { RowOrder::Down } else { RowOrder::Recorded },
+            stop: if h.stop == 1 { StopRule::Natural } else { StopRule::Change },
         }
     }
 

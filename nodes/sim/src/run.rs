@@ -98,6 +98,8 @@ pub fn run_params(spec: &RunSpec, warm: &WarmStarter) -> RunParams {
         dt: spec.params.dt,
         compliance: spec.params.solve.compliance,
         relaxation: spec.params.solve.relaxation,
+        solver: spec.params.solve.setting().to_string(),
+        stop: spec.params.solve.stop.name().to_string(),
     }
 }
 

@@ -13,7 +13,7 @@ fn library_rejects_bad_parameters_with_clear_errors() {
     let e = World::new(
         &SceneConfig::default(),
         WorldParams {
-            solve: SolveParams { tolerance: 0.0, max_sweeps: 10, compliance: 0.0, relaxation: 1.0 },
+            solve: SolveParams { tolerance: 0.0, max_sweeps: 10, ..Default::default() },
             ..Default::default()
         },
     )
@@ -77,6 +77,26 @@ fn binary_rejects_bad_parameters_with_clear_errors() {
         assert_ne!(code, 0);
         assert!(err.contains("--relaxation") && err.contains("(0, 2)"), "{bad}: {err}");
     }
+
+    for (bad, says) in [
+        ("--solver=sor:2", "out of range"),
+        ("--solver=jacobi", "unknown method `jacobi`"),
+        ("--solver=nncg:-1", "out of range"),
+        ("--order=up", "unknown row order `up`"),
+        ("--stop=tight", "unknown stopping rule `tight`"),
+        ("--compare-solvers=pgs,pgs", "asked for twice"),
+    ] {
+        let (code, err) = dc_sim(&[bad]);
+        assert_ne!(code, 0);
+        assert!(err.contains(says), "{bad}: {err}");
+    }
+    let (code, err) = dc_sim(&["--solver", "nncg", "--relaxation", "1.2"]);
+    assert_ne!(code, 0);
+    assert!(err.contains("--relaxation") && err.contains("--solver"), "{err}");
+    // Nothing is trained on the evaluation seeds.
+    let (code, err) = dc_sim(&["--compare-solvers", "pgs,sor:1.4", "--train-seeds", "25..35", "--steps", "2"]);
+    assert_ne!(code, 0);
+    assert!(err.contains("--train-seeds 25..35") && err.contains("evaluation seed"), "{err}");
 
     let (code, err) = dc_sim(&["--n", "1000", "--side", "15"]);
     assert_ne!(code, 0);

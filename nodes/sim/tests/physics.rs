@@ -100,7 +100,7 @@ fn nothing_tunnels_out_of_the_box_in_1000_steps_at_n_1000() {
     // A 10x looser tolerance than the default keeps this test near 20 s; looser solves leave more
     // residual approach velocity, so containment here implies containment at the default.
     let params = WorldParams {
-        solve: SolveParams { tolerance: 1e-3, max_sweeps: 1000, compliance: 0.0, relaxation: 1.0 },
+        solve: SolveParams { tolerance: 1e-3, max_sweeps: 1000, ..Default::default() },
         ..Default::default()
     };
     let mut world = World::new(&SceneConfig { n: 1000, seed: 4, ..Default::default() }, params).unwrap();

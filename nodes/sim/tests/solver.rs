@@ -1,8 +1,9 @@
 //! The contact solver checked independently of itself: complementarity at convergence, the
 //! oracle warm start, and the ordering of warm-start models by total sweeps.
 
-use sim::solver::{relative_velocity, row_masses};
-use sim::{ModelKind, SceneConfig, SolveParams, World, WorldParams};
+use sim::compare::{self, CompareSpec, SolverChooser};
+use sim::solver::{natural_residual, relative_velocity, row_masses};
+use sim::{ModelKind, SceneConfig, SolveParams, SolverSetting, StopRule, World, WorldParams};
 
 /// Checks the velocity-level LCP of the last step to tolerance; returns the number of contacts checked.
 ///
@@ -127,7 +128,7 @@ fn copy_with_friction_restarts_from_a_converged_solution_cheaply() {
 #[test]
 fn unconverged_solves_are_reported_as_such() {
     let params = WorldParams {
-        solve: SolveParams { tolerance: 1e-7, max_sweeps: 3, compliance: 0.0, relaxation: 1.0 },
+        solve: SolveParams { tolerance: 1e-7, max_sweeps: 3, ..Default::default() },
         ..Default::default()
     };
     let mut world = World::new(&SceneConfig { seed: 4, ..Default::default() }, params).unwrap();
@@ -168,4 +169,108 @@ fn total_sweeps_order_bad_none_builtin_copy2_copy() {
     for (w, m) in totals.windows(2).zip(models.windows(2)) {
         assert!(w[0] > w[1], "{} ({}) should need more sweeps than {} ({})", m[0].name(), w[0], m[1].name(), w[1]);
     }
+}
+
+/// Params with `setting` stopping on the natural residual at `tolerance`.
+fn natural(setting: &str, tolerance: f32) -> WorldParams {
+    let solve = SolveParams { tolerance, stop: StopRule::Natural, ..Default::default() };
+    WorldParams { solve: solve.with_setting(setting.parse().unwrap()), ..Default::default() }
+}
+
+/// Every step's statistics (but the timings) and the final body states of a 150-step run.
+fn trajectory(params: WorldParams, seed: u64) -> (Vec<(u32, bool, f32, f32)>, Vec<sim::world::BodyState>) {
+    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, params).unwrap();
+    let mut warm = ModelKind::Builtin.starter(0).unwrap();
+    warm.begin_simulation(0, seed);
+    let stats = (0..150)
+        .map(|_| {
+            let s = world.step(&mut warm);
+            (s.sweeps, s.converged, s.final_residual, s.natural_max)
+        })
+        .collect();
+    (stats, world.bodies().to_vec())
+}
+
+#[test]
+fn every_solver_meets_the_natural_residual_and_the_lcp_at_convergence() {
+    for setting in ["pgs", "sor:1.4", "nncg", "sor:1.4/down"] {
+        let params = natural(setting, 1e-4);
+        let mut world = World::new(&SceneConfig { seed: 6, ..Default::default() }, params).unwrap();
+        let mut warm = ModelKind::Builtin.starter(0).unwrap();
+        warm.begin_simulation(0, 6);
+        let (mut checked, mut converged) = (0, 0);
+        for _ in 0..200 {
+            let s = world.step(&mut warm).clone();
+            if s.converged {
+                converged += 1;
+                assert!(s.natural_max <= 1e-4 && s.final_residual == s.natural_max, "{setting}: {s:?}");
+                // Measured from outside on the world's own rows, velocities and impulses.
+                let measured = natural_residual(world.rows(), world.solver_bodies(), world.impulses(), 0.0);
+                assert_eq!(measured.max, s.natural_max, "{setting}, step {}", s.step);
+                checked += check_complementarity(&world, 1e-4);
+            }
+        }
+        assert!(converged > 150 && checked > 10_000, "{setting}: {converged} steps, {checked} contacts");
+    }
+}
+
+#[test]
+fn nncg_that_always_restarts_is_pgs_bit_for_bit_on_a_pile() {
+    let pgs = trajectory(natural("pgs", 1e-4), 3);
+    assert_eq!(trajectory(natural("nncg:0", 1e-4), 3), pgs);
+    assert_ne!(trajectory(natural("nncg", 1e-4), 3).0, pgs.0, "real NNCG takes other steps");
+}
+
+#[test]
+fn the_top_down_order_is_deterministic_and_changes_the_sweeps() {
+    let down = trajectory(natural("sor:1.4/down", 1e-4), 5);
+    assert_eq!(trajectory(natural("sor:1.4/down", 1e-4), 5), down);
+    assert_ne!(trajectory(natural("sor:1.4", 1e-4), 5).0, down.0);
+}
+
+#[test]
+fn the_menu_on_the_trajectory_solvers_own_states_repeats_its_sweeps() {
+    // The trajectory's own solver re-solving its own states from the same warm start must take
+    // exactly the sweeps the run took: the comparison is on the same states, bit for bit.
+    let spec = CompareSpec {
+        scene: SceneConfig::default(),
+        params: natural("pgs", 1e-4),
+        steps: 120,
+        menu: ["pgs", "sor:1.4/down", "nncg"].iter().map(|s| s.parse().unwrap()).collect(),
+    };
+    let steps = compare::same_states(&spec, &[40, 41], |_| ()).unwrap();
+    assert_eq!(steps.len(), 240);
+    let run = compare::whole_run(&spec, &[40, 41], |_| spec.menu[0]).unwrap();
+    assert_eq!(run.sweeps, steps.iter().map(|s| s.solves[0].sweeps as u64).sum::<u64>());
+    let rows = compare::same_states_table(&spec.menu, &steps, None);
+    let ceiling = &rows[spec.menu.len()];
+    assert!(rows[..spec.menu.len()].iter().all(|r| ceiling.sweeps <= r.sweeps), "{rows:?}");
+    assert!(steps.iter().all(|s| s.solves.iter().all(|m| !m.converged || m.natural_max <= 1e-4)));
+    assert!(compare::markdown(&rows).contains("hindsight best"));
+}
+
+#[test]
+fn the_chooser_learns_which_setting_a_feature_favours() {
+    // Two settings; the first is cheap when the pile is high (feature 2), the second otherwise.
+    let menu: Vec<SolverSetting> = vec!["pgs".parse().unwrap(), "sor:1.4".parse().unwrap()];
+    let solve = |sweeps| sim::world::MenuSolve { sweeps, converged: true, us: sweeps as f32, natural_max: 0.0 };
+    let steps: Vec<compare::ComparedStep> = (0..200)
+        .map(|i| {
+            let height = (i % 10) as f64;
+            let mut features = compare::StepFeatures::default();
+            features.0[2] = height;
+            features.0[0] = (i % 7) as f64; // noise the regression must ignore
+            let (a, b) = if height >= 5.0 { (10, 40) } else { (40, 10) };
+            compare::ComparedStep { seed: 1000, step: i, features, solves: vec![solve(a), solve(b)] }
+        })
+        .collect();
+    let chooser = SolverChooser::fit(&menu, &steps).unwrap();
+    for s in &steps {
+        let want = if s.features.0[2] >= 5.0 { 0 } else { 1 };
+        // The boundary steps (height 4 and 5) may go either way for a linear fit.
+        if !(4.0..=5.0).contains(&s.features.0[2]) {
+            assert_eq!(chooser.choose(&s.features), want, "{:?}", s.features);
+        }
+    }
+    assert!(SolverChooser::fit(&menu, &steps[..5]).unwrap_err().to_string().contains("training steps"));
 }

@@ -3,14 +3,22 @@
 //!
 //! - [`rows`]: contact rows, solver bodies and impulses, and the row algebra every solver and
 //!   warm-start model shares;
-//! - [`pgs`]: the velocity phase, projected Gauss-Seidel (or SOR) iterated to a tolerance from any
-//!   warm start, its sweeps counted ([`ContactSolver::solve`]);
+//! - [`pgs`]: the velocity phase, the projected Gauss-Seidel family (PGS, SOR, NNCG; recorded or
+//!   top-down row order) iterated from any warm start to a stopping rule, its sweeps counted
+//!   ([`ContactSolver::solve`]);
+//! - [`setting`]: which member of the family ([`SolverSetting`]) and which stopping rule, spelled
+//!   as the command lines spell them;
 //! - [`position`]: Box2D 2.3's position pass after integration ([`correct_positions`]).
 
 pub mod pgs;
 pub mod position;
 pub mod rows;
+pub mod setting;
 
-pub use pgs::{convergence_rate, ContactSolver, SolveParams, SolveReport, RATE_WINDOW, TRAIL_SWEEPS};
+pub use pgs::{
+    convergence_rate, natural_residual, ContactSolver, NaturalResidual, SolveParams, SolveReport, RATE_WINDOW,
+    TRAIL_SWEEPS,
+};
 pub use position::{correct_positions, measure, PoseBody, PositionGeometry, PositionParams, PositionRow};
 pub use rows::{relative_velocity, row_masses, tangent_of, ContactRow, Impulse, SolverBody};
+pub use setting::{parse_settings, Momentum, RowOrder, SolverSetting, StopRule};

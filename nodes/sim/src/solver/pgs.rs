@@ -1,24 +1,36 @@
-//! Projected Gauss-Seidel, in the style of Box2D 2.3 (sequential impulses), but iterated to a
-//! tolerance from any warm start and with its sweeps counted.
+//! The velocity solve: the projected Gauss-Seidel family, in the style of Box2D 2.3 (sequential
+//! impulses), iterated from any warm start to a stopping rule with its sweeps counted.
 //!
-//! Apply the warm-start impulses to the velocities (Box2D's `WarmStart`), then projected
-//! Gauss-Seidel sweeps over the contact rows, each contact's tangent row (bounded by
-//! `mu * lambda_n`) before its normal row (`lambda_n >= 0`). A sweep's residual is the largest
-//! absolute impulse change it made; the solve has converged when that is at most the tolerance.
-//! No Baumgarte bias enters the velocity solve (restitution 0), so the converged impulses solve
-//! the plain velocity-level LCP and can be checked against it.
+//! Apply the warm-start impulses to the velocities (Box2D's `WarmStart`), then sweeps over the
+//! contact rows, each contact's tangent row (bounded by `mu * lambda_n`) before its normal row
+//! (`lambda_n >= 0`). The family, all on the same rows, warm start and stopping rule:
+//! - **PGS**: each row moves to its projected Gauss-Seidel target (the thesis's solver);
+//! - **projected SOR**: each row moves `omega` times its step before projection;
+//! - **NNCG** (Silcowitz, Niebe & Erleben 2010; Bullet's `btNNCGConstraintSolver`): after each
+//!   sweep with change `dx`, `beta = |dx|^2 / |dx_prev|^2`; restart (`p = 0`) when beta exceeds
+//!   the restart threshold, else `x += beta p` (projected onto the friction cone here, so the
+//!   impulses stay feasible) and `p = beta p + dx`;
+//! - rows visited in the recorded order (contact keys) or **top-down** (by contact height, top
+//!   first: load flows down a pile within one sweep).
+//!
+//! Stopping rules ([`StopRule`]): the thesis's "largest impulse change of a sweep", or the
+//! solver-independent **natural residual**: per row, what one projected Jacobi step would change
+//! ([`NaturalResidual`]), checked after every sweep (a pass over the rows, counted in the solve's
+//! time). No Baumgarte bias enters the velocity solve (restitution 0), so the converged impulses
+//! solve the plain velocity-level LCP and can be checked against it.
 //!
 //! No Box2D block solver for two-point manifolds: every point is its own row, which keeps the
 //! iteration count comparable across warm-start models and the complementarity check simple.
 //! The solver owns only reusable buffers; bodies and contact rows are passed in.
 
 use super::rows::{cross, cross_sv, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
+use super::setting::{valid_relaxation, Momentum, RowOrder, SolverSetting, StopRule, RELAXATION_LIMIT};
 use rapier2d::math::Vec2;
 
-/// Stopping rule of the velocity solve.
+/// The velocity solve's iteration and stopping rule.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SolveParams {
-    /// Converged when the largest absolute impulse change of a sweep is at most this.
+    /// Converged when the stopping rule's residual is at most this (impulse units).
     pub tolerance: f32,
     /// Sweep cap (the thesis: 1000).
     pub max_sweeps: u32,
@@ -30,13 +42,27 @@ pub struct SolveParams {
     pub compliance: f32,
     /// Over-relaxation factor `omega` of every row update (1: plain projected Gauss-Seidel, the
     /// thesis's solver). Each row moves `omega` times its Gauss-Seidel step before projection
-    /// (projected SOR); in (0, 2). Jammed piles converge in fewer sweeps with omega ~1.5.
+    /// (projected SOR); in (0, 2).
     pub relaxation: f32,
+    /// A momentum step after each sweep (NNCG), or none.
+    pub momentum: Momentum,
+    /// The order the rows are visited in.
+    pub order: RowOrder,
+    /// What "converged" means.
+    pub stop: StopRule,
 }
 
 impl Default for SolveParams {
     fn default() -> Self {
-        SolveParams { tolerance: 1e-4, max_sweeps: 1000, compliance: 0.0, relaxation: 1.0 }
+        SolveParams {
+            tolerance: 1e-4,
+            max_sweeps: 1000,
+            compliance: 0.0,
+            relaxation: 1.0,
+            momentum: Momentum::None,
+            order: RowOrder::Recorded,
+            stop: StopRule::Change,
+        }
     }
 }
 
@@ -44,15 +70,24 @@ impl SolveParams {
     /// The largest compliance: contacts eleven times softer than their effective mass says; more
     /// is not a contact any more.
     pub const MAX_COMPLIANCE: f32 = 10.0;
-    /// Relaxation lies strictly between 0 and this: outside, projected SOR does not converge.
-    pub const RELAXATION_LIMIT: f32 = 2.0;
+    pub const RELAXATION_LIMIT: f32 = RELAXATION_LIMIT;
 
     pub fn valid_compliance(gamma: f32) -> bool {
         gamma.is_finite() && (0.0..=Self::MAX_COMPLIANCE).contains(&gamma)
     }
 
     pub fn valid_relaxation(omega: f32) -> bool {
-        omega.is_finite() && omega > 0.0 && omega < Self::RELAXATION_LIMIT
+        valid_relaxation(omega)
+    }
+
+    /// The solver these parameters pick.
+    pub fn setting(&self) -> SolverSetting {
+        SolverSetting { relaxation: self.relaxation, momentum: self.momentum, order: self.order }
+    }
+
+    /// These parameters with `setting`'s iteration and row order.
+    pub fn with_setting(self, setting: SolverSetting) -> SolveParams {
+        SolveParams { relaxation: setting.relaxation, momentum: setting.momentum, order: setting.order, ..self }
     }
 
     /// What a compliance must be, in words: `in [0, 10]`.
@@ -66,15 +101,28 @@ impl SolveParams {
     }
 }
 
+/// The natural residual of a state: per row, what one projected Jacobi step from it would change,
+/// in impulse units — normal `|ln - max(0, ln - m_n v_n)|`, tangent
+/// `|lt - clip(lt - m_t v_t, +-mu ln)|` (with compliance, the step's target is scaled by
+/// `1 / (1 + gamma)` as the sweep's is). Zero exactly at a solution of the LCP, whatever solver
+/// got there; `max` over all rows and parts, `rms` over all rows' two parts.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct NaturalResidual {
+    pub max: f32,
+    pub rms: f32,
+}
+
 /// Outcome of one velocity solve; the impulses and residuals stay in the solver's buffers.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SolveReport {
-    /// Sweeps performed.
+    /// Sweeps performed (a momentum method's vector update belongs to its sweep).
     pub sweeps: u32,
-    /// Whether the tolerance was reached before the sweep cap.
+    /// Whether the stopping rule was met before the sweep cap.
     pub converged: bool,
-    /// Residual of the last sweep (0 without contacts).
+    /// The stopping rule's residual after the last sweep (0 without contacts).
     pub final_residual: f32,
+    /// The natural residual of the final impulses (whatever the stopping rule).
+    pub natural: NaturalResidual,
 }
 
 /// A row with its precomputed effective masses.
@@ -91,19 +139,50 @@ struct Prepared {
     tangent_mass: f32,
 }
 
+impl Prepared {
+    fn of(r: &ContactRow, bodies: &[SolverBody]) -> Prepared {
+        let (a, b) = (r.body_a as usize, r.body_b as usize);
+        let t = tangent_of(r.normal);
+        Prepared {
+            a,
+            b,
+            ra: r.ra,
+            rb: r.rb,
+            n: r.normal,
+            t,
+            mu: r.friction,
+            normal_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, r.normal),
+            tangent_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, t),
+        }
+    }
+}
+
 /// Sequential-impulse contact solver: reusable buffers only, no world state.
 #[derive(Debug, Default, Clone)]
 pub struct ContactSolver {
+    /// Row indices in the order the sweeps visit them; the work buffers below are in this order.
+    visit: Vec<u32>,
     prepared: Vec<Prepared>,
+    work: Vec<Impulse>,
+    work_trail: Vec<[Impulse; TRAIL_SWEEPS]>,
+    /// NNCG's search direction.
+    direction: Vec<Impulse>,
+    /// The final impulses, in row order.
     impulses: Vec<Impulse>,
     residuals: Vec<f32>,
     /// Each row's impulse changes in the last [`TRAIL_SWEEPS`] sweeps (the directions the
-    /// iteration was still moving in: its slowest modes), most recent first once a solve ends.
+    /// iteration was still moving in: its slowest modes), most recent first, in row order.
     trail: Vec<[Impulse; TRAIL_SWEEPS]>,
 }
 
 /// How many of a solve's last sweeps [`ContactSolver::trail`] keeps per row.
 pub const TRAIL_SWEEPS: usize = 4;
+
+/// What one sweep did: its largest absolute change and the sum of the squared changes.
+struct SweepChange {
+    max: f32,
+    squared: f64,
+}
 
 impl ContactSolver {
     /// An empty solver (buffers grow on first use).
@@ -113,7 +192,7 @@ impl ContactSolver {
 
     /// Solves the velocity-level contact problem of `rows` starting from `warm_start` (one impulse
     /// per row), updating the body velocities in place. The final impulses are in
-    /// [`Self::impulses`], the residual after every sweep in [`Self::residuals`].
+    /// [`Self::impulses`], the stopping rule's residual after every sweep in [`Self::residuals`].
     pub fn solve(
         &mut self,
         rows: &[ContactRow],
@@ -122,57 +201,77 @@ impl ContactSolver {
         params: &SolveParams,
     ) -> SolveReport {
         assert_eq!(rows.len(), warm_start.len(), "one warm-start impulse per contact row");
+        self.visit.clear();
+        self.visit.extend(0..rows.len() as u32);
+        if params.order == RowOrder::Down {
+            // Top first; a stable sort keeps the recorded order between equal heights.
+            self.visit.sort_by(|&i, &j| rows[j as usize].height.total_cmp(&rows[i as usize].height));
+        }
         self.prepared.clear();
-        self.prepared.extend(rows.iter().map(|r| {
-            let (a, b) = (r.body_a as usize, r.body_b as usize);
-            let t = tangent_of(r.normal);
-            Prepared {
-                a,
-                b,
-                ra: r.ra,
-                rb: r.rb,
-                n: r.normal,
-                t,
-                mu: r.friction,
-                normal_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, r.normal),
-                tangent_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, t),
-            }
-        }));
-        self.impulses.clear();
+        self.prepared.extend(self.visit.iter().map(|&i| Prepared::of(&rows[i as usize], bodies)));
+        self.work.clear();
         // A guess outside the friction cone (a learned model may predict a negative normal
         // impulse, or NaN) is projected onto it first: the sweeps assume normal >= 0.
-        self.impulses.extend(self.prepared.iter().zip(warm_start).map(|(c, w)| {
+        self.work.extend(self.prepared.iter().zip(&self.visit).map(|(c, &i)| {
+            let w = warm_start[i as usize];
             let normal = if w.normal.is_finite() { w.normal.max(0.0) } else { 0.0 };
             let max_t = c.mu * normal;
             let tangent = if w.tangent.is_finite() { w.tangent.clamp(-max_t, max_t) } else { 0.0 };
             Impulse { normal, tangent }
         }));
         self.residuals.clear();
-        self.trail.clear();
-        self.trail.resize(self.impulses.len(), [Impulse::default(); TRAIL_SWEEPS]);
+        self.work_trail.clear();
+        self.work_trail.resize(self.work.len(), [Impulse::default(); TRAIL_SWEEPS]);
 
         // Box2D's WarmStart: the (projected) guess is applied as it is.
-        for (c, l) in self.prepared.iter().zip(&self.impulses) {
+        for (c, l) in self.prepared.iter().zip(&self.work) {
             let p = c.n * l.normal + c.t * l.tangent;
             apply(bodies, c, p);
-        }
-
-        if self.prepared.is_empty() {
-            return SolveReport { sweeps: 0, converged: true, final_residual: 0.0 };
         }
 
         // The compliant update is the rigid one scaled by 1 / (1 + gamma): exactly 1 when rigid.
         let softness = 1.0 / (1.0 + params.compliance);
         let mut report = SolveReport::default();
+        if self.prepared.is_empty() {
+            report.converged = true;
+            self.finish(&report);
+            return report;
+        }
+        let restart = match params.momentum {
+            Momentum::None => None,
+            Momentum::Nncg { restart } => {
+                self.direction.clear();
+                self.direction.resize(self.work.len(), Impulse::default());
+                Some(restart)
+            }
+        };
+        let mut previous_squared = 0.0f64;
         while report.sweeps < params.max_sweeps {
             let slot = report.sweeps as usize % TRAIL_SWEEPS;
             // Plain Gauss-Seidel keeps its own loop: the unrelaxed solver bit for bit, at its speed.
-            let residual = if params.relaxation == 1.0 {
+            let change = if params.relaxation == 1.0 {
                 self.sweep::<false>(bodies, slot, softness, 1.0)
             } else {
                 self.sweep::<true>(bodies, slot, softness, params.relaxation)
             };
+            if let Some(restart) = restart {
+                // The first sweep has no earlier change: it starts the direction.
+                let beta = if report.sweeps == 0 || previous_squared == 0.0 {
+                    f64::INFINITY
+                } else {
+                    change.squared / previous_squared
+                };
+                self.momentum_step(bodies, slot, beta, restart as f64);
+                previous_squared = change.squared;
+            }
             report.sweeps += 1;
+            let residual = match params.stop {
+                StopRule::Change => change.max,
+                StopRule::Natural => {
+                    report.natural = self.natural_residual(bodies, softness);
+                    report.natural.max
+                }
+            };
             report.final_residual = residual;
             self.residuals.push(residual);
             if residual <= params.tolerance {
@@ -180,27 +279,37 @@ impl ContactSolver {
                 break;
             }
         }
-        // The sweeps wrote a ring; put the last sweep first.
-        let newest = (report.sweeps as usize + TRAIL_SWEEPS - 1) % TRAIL_SWEEPS;
-        for t in &mut self.trail {
-            let ring = *t;
-            *t = std::array::from_fn(|j| ring[(newest + TRAIL_SWEEPS - j) % TRAIL_SWEEPS]);
+        if params.stop != StopRule::Natural {
+            report.natural = self.natural_residual(bodies, softness);
         }
+        self.finish(&report);
         report
     }
 
-    /// One projected Gauss-Seidel sweep, its changes written to slot `slot` of the trail; returns
-    /// the largest absolute impulse change.
+    /// The final impulses and trail back in row order, the trail's last sweep first.
+    fn finish(&mut self, report: &SolveReport) {
+        let newest = (report.sweeps as usize + TRAIL_SWEEPS - 1) % TRAIL_SWEEPS;
+        self.impulses.clear();
+        self.impulses.resize(self.work.len(), Impulse::default());
+        self.trail.clear();
+        self.trail.resize(self.work.len(), [Impulse::default(); TRAIL_SWEEPS]);
+        for ((&i, l), ring) in self.visit.iter().zip(&self.work).zip(&self.work_trail) {
+            self.impulses[i as usize] = *l;
+            self.trail[i as usize] = std::array::from_fn(|j| ring[(newest + TRAIL_SWEEPS - j) % TRAIL_SWEEPS]);
+        }
+    }
+
+    /// One projected Gauss-Seidel (or SOR) sweep, its changes written to slot `slot` of the trail.
     fn sweep<const RELAXED: bool>(
         &mut self,
         bodies: &mut [SolverBody],
         slot: usize,
         softness: f32,
         relaxation: f32,
-    ) -> f32 {
+    ) -> SweepChange {
         let relax = |old: f32, target: f32| if RELAXED { old + relaxation * (target - old) } else { target };
-        let mut residual = 0.0f32;
-        for ((c, l), trail) in self.prepared.iter().zip(self.impulses.iter_mut()).zip(self.trail.iter_mut()) {
+        let mut change = SweepChange { max: 0.0, squared: 0.0 };
+        for ((c, l), trail) in self.prepared.iter().zip(self.work.iter_mut()).zip(self.work_trail.iter_mut()) {
             // Tangent first, bounded by the current normal impulse (Box2D's order).
             let dv = relative(bodies, c);
             let vt = dv.dot(c.t);
@@ -218,9 +327,51 @@ impl ContactSolver {
             apply(bodies, c, c.n * dn);
 
             trail[slot] = Impulse { normal: dn, tangent: dt };
-            residual = residual.max(dt.abs()).max(dn.abs());
+            change.max = change.max.max(dt.abs()).max(dn.abs());
+            change.squared += (dn as f64).powi(2) + (dt as f64).powi(2);
         }
-        residual
+        change
+    }
+
+    /// NNCG's vector update after a sweep whose changes are in trail slot `slot`: restart when
+    /// `beta > restart`, else move `beta` along the direction (projected onto the friction cone,
+    /// the velocities following) and extend the direction by the sweep's change.
+    fn momentum_step(&mut self, bodies: &mut [SolverBody], slot: usize, beta: f64, restart: f64) {
+        if !(beta <= restart) {
+            self.direction.fill(Impulse::default());
+            return;
+        }
+        let beta = beta as f32;
+        for (((c, l), p), trail) in
+            self.prepared.iter().zip(self.work.iter_mut()).zip(self.direction.iter_mut()).zip(&self.work_trail)
+        {
+            if beta > 0.0 {
+                let normal = (l.normal + beta * p.normal).max(0.0);
+                let max_t = c.mu * normal;
+                let tangent = (l.tangent + beta * p.tangent).clamp(-max_t, max_t);
+                let (dn, dt) = (normal - l.normal, tangent - l.tangent);
+                *l = Impulse { normal, tangent };
+                apply(bodies, c, c.n * dn + c.t * dt);
+            }
+            let dx = trail[slot];
+            *p = Impulse { normal: beta * p.normal + dx.normal, tangent: beta * p.tangent + dx.tangent };
+        }
+    }
+
+    /// The natural residual of the current impulses and velocities.
+    fn natural_residual(&self, bodies: &[SolverBody], softness: f32) -> NaturalResidual {
+        let (mut max, mut squared) = (0.0f32, 0.0f64);
+        for (c, l) in self.prepared.iter().zip(&self.work) {
+            let dv = relative(bodies, c);
+            let (vn, vt) = (dv.dot(c.n), dv.dot(c.t));
+            let rn = (l.normal - ((l.normal - c.normal_mass * vn) * softness).max(0.0)).abs();
+            let max_t = c.mu * l.normal;
+            let rt = (l.tangent - ((l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t)).abs();
+            max = max.max(rn).max(rt);
+            squared += (rn as f64).powi(2) + (rt as f64).powi(2);
+        }
+        let parts = 2 * self.prepared.len().max(1);
+        NaturalResidual { max, rms: (squared / parts as f64).sqrt() as f32 }
     }
 
     /// The impulses of the last solve, one per row.
@@ -228,7 +379,7 @@ impl ContactSolver {
         &self.impulses
     }
 
-    /// The residual after every sweep of the last solve.
+    /// The stopping rule's residual after every sweep of the last solve.
     pub fn residuals(&self) -> &[f32] {
         &self.residuals
     }
@@ -251,6 +402,20 @@ impl ContactSolver {
     pub fn convergence_rate(&self) -> f32 {
         convergence_rate(&self.residuals)
     }
+}
+
+/// The natural residual of `impulses` on `rows` with the velocities `bodies` they led to (the
+/// solver's own measure, for checks from outside: a test, a recorded solution).
+pub fn natural_residual(
+    rows: &[ContactRow],
+    bodies: &[SolverBody],
+    impulses: &[Impulse],
+    compliance: f32,
+) -> NaturalResidual {
+    let mut solver = ContactSolver::new();
+    solver.prepared.extend(rows.iter().map(|r| Prepared::of(r, bodies)));
+    solver.work.extend_from_slice(impulses);
+    solver.natural_residual(bodies, 1.0 / (1.0 + compliance))
 }
 
 /// How many of the last sweeps [`ContactSolver::convergence_rate`] averages over.
@@ -301,7 +466,7 @@ mod tests {
         let row = floor_row(1);
         let mut bodies = [SolverBody::default(), ball(Vec2::new(0.0, -1.0))];
         let warm = warm.map(|normal| Impulse { normal, tangent: 0.0 });
-        let params = SolveParams { tolerance: 1e-7, max_sweeps: 10_000, compliance, relaxation: 1.0 };
+        let params = SolveParams { tolerance: 1e-7, max_sweeps: 10_000, compliance, ..Default::default() };
         let mut s = ContactSolver::new();
         assert!(s.solve(&[row, row], &mut bodies, &warm, &params).converged);
         [s.impulses()[0].normal, s.impulses()[1].normal]
@@ -355,6 +520,7 @@ mod tests {
             rb: Vec2::new(0.0, -0.5),
             normal: Vec2::Y,
             friction: 0.5,
+            height: 0.0,
         };
         let mut s = ContactSolver::new();
         let rep = s.solve(&[row], &mut bodies, &[Impulse::default()], &SolveParams::default());
@@ -398,5 +564,166 @@ mod tests {
         assert!(rep.converged);
         assert_eq!(s.impulses()[0], Impulse::default());
         assert!((bodies[1].v.y - 2.0).abs() < 1e-5);
+    }
+
+    /// Body `i` (1-based) of a stack of unit balls on the floor (body 0), all falling at `v`.
+    fn stack(n: usize, v: f32) -> (Vec<SolverBody>, Vec<ContactRow>) {
+        let mut bodies = vec![SolverBody::default()];
+        bodies.extend((0..n).map(|_| ball(Vec2::new(0.0, v))));
+        let rows = (0..n as u32)
+            .map(|i| ContactRow {
+                body_a: i,
+                body_b: i + 1,
+                // The floor's point is its own origin; a ball's top is 0.5 above its centre.
+                ra: if i == 0 { Vec2::ZERO } else { Vec2::new(0.0, 0.5) },
+                rb: Vec2::new(0.0, -0.5),
+                normal: Vec2::Y,
+                friction: 0.5,
+                height: i as f32,
+            })
+            .collect();
+        (bodies, rows)
+    }
+
+    /// Every member of the family the issue names, each under the natural rule.
+    fn family() -> Vec<SolveParams> {
+        ["pgs", "sor:1.4", "sor:0.8", "nncg", "pgs/down", "sor:1.4/down", "nncg/down"]
+            .iter()
+            .map(|s| SolveParams {
+                tolerance: 1e-6,
+                max_sweeps: 10_000,
+                stop: StopRule::Natural,
+                ..SolveParams::default().with_setting(s.parse().unwrap())
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_natural_residual_measures_a_known_violation() {
+        let row = floor_row(1);
+        let zero = Impulse::default();
+        // Approaching at 1 with no impulse: the normal row is 1 (its effective mass) short.
+        let r = natural_residual(&[row], &[SolverBody::default(), ball(Vec2::new(0.0, -1.0))], &[zero], 0.0);
+        assert!((r.max - 1.0).abs() < 1e-6 && (r.rms - 0.5f32.sqrt()).abs() < 1e-6, "{r:?}");
+        // Separating at 2 while pushing with 0.5: the push should be 0.
+        let push = Impulse { normal: 0.5, tangent: 0.0 };
+        let r = natural_residual(&[row], &[SolverBody::default(), ball(Vec2::new(0.0, 2.0))], &[push], 0.0);
+        assert!((r.max - 0.5).abs() < 1e-6, "{r:?}");
+        // Sliding at 3 with no friction: the tangent row wants the cone's edge, -mu * 1 = -0.5
+        // (its mass, 1 / (1 + 2 * 0.5^2), would ask for -2 unbounded).
+        let rest = Impulse { normal: 1.0, tangent: 0.0 };
+        let r = natural_residual(&[row], &[SolverBody::default(), ball(Vec2::new(3.0, 0.0))], &[rest], 0.0);
+        assert!((r.max - 0.5).abs() < 1e-6, "{r:?}");
+        // At rest with the load carried: a solution, residual 0.
+        let r = natural_residual(&[row], &[SolverBody::default(), ball(Vec2::ZERO)], &[rest], 0.0);
+        assert_eq!(r, NaturalResidual::default());
+    }
+
+    #[test]
+    fn every_solver_stops_a_stack_of_three_with_the_same_loads() {
+        // The floor carries all three balls, the top contact one: unique impulses.
+        for params in family() {
+            let (mut bodies, rows) = stack(3, -0.1);
+            let mut s = ContactSolver::new();
+            let rep = s.solve(&rows, &mut bodies, &[Impulse::default(); 3], &params);
+            assert!(rep.converged && rep.natural.max <= 1e-6, "{}: {rep:?}", params.setting());
+            for (i, l) in s.impulses().iter().enumerate() {
+                let load = 0.1 * (3 - i) as f32;
+                assert!(
+                    (l.normal - load).abs() < 1e-5 && l.tangent.abs() < 1e-6,
+                    "{}: row {i} {l:?}",
+                    params.setting()
+                );
+            }
+            assert!(bodies[1..].iter().all(|b| b.v.length() < 1e-5), "{}: {bodies:?}", params.setting());
+        }
+    }
+
+    #[test]
+    fn every_solver_stops_a_ball_driven_into_a_corner_with_friction() {
+        // Floor below, wall on the left (normal +x, its tangent (0, -1)); the ball moves into
+        // both. Sticking at rest is feasible (wall 2, floor 1, no friction needed), so every
+        // solver must bring it to rest with the natural residual ~0 (the impulses themselves
+        // are not unique: friction can trade against the normals).
+        let wall =
+            ContactRow { ra: Vec2::ZERO, rb: Vec2::new(-0.5, 0.0), normal: Vec2::X, height: 0.5, ..floor_row(1) };
+        for params in family() {
+            let mut bodies = [SolverBody::default(), ball(Vec2::new(-2.0, -1.0))];
+            let mut s = ContactSolver::new();
+            let rep = s.solve(&[floor_row(1), wall], &mut bodies, &[Impulse::default(); 2], &params);
+            assert!(rep.converged, "{}: {rep:?}", params.setting());
+            let b = bodies[1];
+            assert!(b.v.length() < 1e-5 && b.w.abs() < 1e-5, "{}: {b:?}", params.setting());
+            let [floor, wall] = [s.impulses()[0], s.impulses()[1]];
+            assert!(floor.normal > 0.0 && wall.normal > 0.0, "{}: {floor:?} {wall:?}", params.setting());
+            assert!(floor.tangent.abs() <= 0.5 * floor.normal + 1e-6 && wall.tangent.abs() <= 0.5 * wall.normal + 1e-6);
+        }
+    }
+
+    #[test]
+    fn every_solver_stops_the_ball_on_the_floor() {
+        for params in family() {
+            let mut bodies = [SolverBody::default(), ball(Vec2::new(0.0, -1.0))];
+            let mut s = ContactSolver::new();
+            let rep = s.solve(&[floor_row(1)], &mut bodies, &[Impulse::default()], &params);
+            assert!(rep.converged && (s.impulses()[0].normal - 1.0).abs() < 1e-6, "{}: {rep:?}", params.setting());
+        }
+    }
+
+    #[test]
+    fn nncg_that_always_restarts_is_pgs_bit_for_bit() {
+        let (bodies, rows) = stack(12, -0.1);
+        let warm: Vec<Impulse> = (0..12).map(|i| Impulse { normal: 0.05 * i as f32, tangent: 0.01 }).collect();
+        let solve = |setting: &str| {
+            let params =
+                SolveParams { tolerance: 1e-6, ..SolveParams::default().with_setting(setting.parse().unwrap()) };
+            let mut b = bodies.clone();
+            let mut s = ContactSolver::new();
+            let rep = s.solve(&rows, &mut b, &warm, &params);
+            (rep, s.impulses().to_vec(), b, s.residuals().to_vec())
+        };
+        let pgs = solve("pgs");
+        assert_eq!(solve("nncg:0"), pgs);
+        // The real NNCG takes other steps (and here fewer sweeps: a stack is its best case).
+        let nncg = solve("nncg");
+        assert_ne!(nncg.1, pgs.1);
+        assert!(nncg.0.sweeps < pgs.0.sweeps, "nncg {} vs pgs {}", nncg.0.sweeps, pgs.0.sweeps);
+    }
+
+    #[test]
+    fn the_top_down_order_visits_higher_rows_first_and_is_deterministic() {
+        // A stack at rest, listed bottom-up, and its top ball landing: visited top-down, each
+        // sweep carries the blow the whole way down; in the recorded order only one row further.
+        let (mut bodies, rows) = stack(20, 0.0);
+        bodies[20].v.y = -1.0;
+        let run = |order: RowOrder| {
+            let params = SolveParams { tolerance: 1e-6, max_sweeps: 10_000, order, ..SolveParams::default() };
+            let mut b = bodies.clone();
+            let mut s = ContactSolver::new();
+            let rep = s.solve(&rows, &mut b, &[Impulse::default(); 20], &params);
+            (rep, s.impulses().to_vec(), b)
+        };
+        let (up, down) = (run(RowOrder::Recorded), run(RowOrder::Down));
+        assert!(up.0.converged && down.0.converged);
+        assert!(down.0.sweeps < up.0.sweeps, "down {:?}, recorded {:?}", down.0, up.0);
+        assert_eq!(run(RowOrder::Down), down, "same rows, same order, same bits");
+        // The impulses come back in row order whatever the visiting order: the same solution.
+        for (i, (u, d)) in up.1.iter().zip(&down.1).enumerate() {
+            assert!((u.normal - d.normal).abs() < 1e-4, "row {i}: {u:?} {d:?}");
+        }
+    }
+
+    #[test]
+    fn the_natural_rule_stops_on_the_natural_residual() {
+        let (mut bodies, rows) = stack(8, -0.1);
+        let params = SolveParams { stop: StopRule::Natural, ..SolveParams::default() };
+        let mut s = ContactSolver::new();
+        let rep = s.solve(&rows, &mut bodies, &[Impulse::default(); 8], &params);
+        assert!(rep.converged && rep.final_residual == rep.natural.max && rep.natural.max <= params.tolerance);
+        assert_eq!(natural_residual(&rows, &bodies, s.impulses(), 0.0), rep.natural);
+        // The change rule's report measures its final state by the same residual.
+        let (mut bodies, rows) = stack(8, -0.1);
+        let rep = s.solve(&rows, &mut bodies, &[Impulse::default(); 8], &SolveParams::default());
+        assert_eq!(natural_residual(&rows, &bodies, s.impulses(), 0.0), rep.natural);
     }
 }

@@ -61,6 +61,8 @@ pub struct ContactRow {
     pub normal: Vec2,
     /// Friction coefficient.
     pub friction: f32,
+    /// Height of the contact point (world y): the top-down row order's key.
+    pub height: f32,
 }
 
 /// Effective mass `1 / (J M^-1 J^T)` of a row with direction `d` (0 when both bodies are fixed).
@@ -150,6 +152,14 @@ pub(crate) mod fixtures {
 
     /// The contact row of ball `body` (radius 0.5) resting on body 0, the floor, below its centre.
     pub(crate) fn floor_row(body: u32) -> ContactRow {
-        ContactRow { body_a: 0, body_b: body, ra: Vec2::ZERO, rb: Vec2::new(0.0, -0.5), normal: Vec2::Y, friction: 0.5 }
+        ContactRow {
+            body_a: 0,
+            body_b: body,
+            ra: Vec2::ZERO,
+            rb: Vec2::new(0.0, -0.5),
+            normal: Vec2::Y,
+            friction: 0.5,
+            height: 0.0,
+        }
     }
 }

@@ -5,14 +5,17 @@
 //! - the shadow builtin solve: the same step solved from builtin's warm start on scratch
 //!   velocities (the report's *same states vs builtin*);
 //! - problem capture: the step's velocity problem as data (`problem/*`), optionally labelled
-//!   with a reference solution.
+//!   with a reference solution;
+//! - the solver menu: the same step solved from builtin's warm start by each of several solver
+//!   settings, sweeps and time each (`dc-sim --compare-solvers`: solvers side by side on the
+//!   same states).
 //!
-//! All three solve on scratch copies of the solver bodies with their own solver.
+//! All of them solve on scratch copies of the solver bodies with their own solver.
 
 use crate::contact::{ContactPoint, ImpulseHistory};
 use crate::problem::Problem;
 use crate::solver::{ContactRow, ContactSolver, Impulse, SolveParams, SolveReport, SolverBody};
-use msgs::{ProblemBody, ProblemContact, ProblemHeader, StepHeader};
+use msgs::{ProblemBody, ProblemContact, StepHeader};
 
 /// The step as the instruments read it: its contacts, rows, bodies after external forces and the
 /// contacts' history.
@@ -39,6 +42,20 @@ pub(crate) struct Instruments {
     /// Whether to solve each step from builtin's warm start too.
     pub shadow_builtin: bool,
     problem: Problem,
+    /// Solver settings each step is also solved with, from builtin's warm start.
+    pub menu: Vec<SolveParams>,
+    menu_solves: Vec<MenuSolve>,
+}
+
+/// One solver setting's solve of a step, from builtin's warm start on scratch velocities.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MenuSolve {
+    pub sweeps: u32,
+    pub converged: bool,
+    /// Wall time of the solve, microseconds (its setup, sweeps and residual passes).
+    pub us: f32,
+    /// The natural residual of its final impulses.
+    pub natural_max: f32,
 }
 
 impl Instruments {
@@ -80,6 +97,24 @@ impl Instruments {
         self.solve_from_builtin(step, solve).sweeps
     }
 
+    /// Solves the step with every setting of the menu, each from builtin's warm start.
+    pub(crate) fn solve_menu(&mut self, step: StepView<'_>) {
+        self.menu_solves.clear();
+        for i in 0..self.menu.len() {
+            let params = self.menu[i];
+            let started = std::time::Instant::now();
+            let report = self.solve_from_builtin(step, &params);
+            let us = started.elapsed().as_secs_f32() * 1e6;
+            let (sweeps, converged, natural_max) = (report.sweeps, report.converged, report.natural.max);
+            self.menu_solves.push(MenuSolve { sweeps, converged, us, natural_max });
+        }
+    }
+
+    /// The last step's menu solves, one per setting of the menu.
+    pub(crate) fn menu_solves(&self) -> &[MenuSolve] {
+        &self.menu_solves
+    }
+
     /// The last captured problem.
     pub(crate) fn problem(&self) -> &Problem {
         &self.problem
@@ -113,17 +148,10 @@ impl Instruments {
                 previous: pair(history.previous(&c.key)),
                 before_previous: pair(history.before_previous(&c.key)),
                 reference: [f32::NAN; 2],
+                height: r.height,
             });
         }
-        p.header = ProblemHeader {
-            step: step.header,
-            bodies: p.bodies.len() as u32,
-            tolerance: solve.tolerance,
-            max_sweeps: solve.max_sweeps,
-            compliance: solve.compliance,
-            relaxation: solve.relaxation,
-            ..ProblemHeader::default()
-        };
+        p.header = crate::problem::header_of(step.header, p.bodies.len() as u32, solve);
         if let Some(params) = reference {
             let report = self.solve_from_builtin(step, &params);
             let p = &mut self.problem;

@@ -24,6 +24,7 @@ mod instruments;
 mod params;
 
 pub use body::BodyState;
+pub use instruments::MenuSolve;
 pub use params::WorldParams;
 
 use crate::contact::{ContactPoint, ImpulseHistory, SolveTrail};
@@ -118,6 +119,23 @@ impl World {
     /// velocities (not part of the step's time): the step statistics' `builtin_sweeps`.
     pub fn shadow_builtin(&mut self, on: bool) {
         self.instruments.shadow_builtin = on;
+    }
+
+    /// From the next step on, solve with `setting` (the rest of the stopping rule unchanged): a
+    /// per-step choice of solver.
+    pub fn set_solver(&mut self, setting: crate::solver::SolverSetting) {
+        self.params.solve = self.params.solve.with_setting(setting);
+    }
+
+    /// From the next step on, also solve each step with every solver of `menu` from builtin's
+    /// warm start, on scratch velocities and outside the step's time ([`World::menu_solves`]).
+    pub fn solver_menu(&mut self, menu: Vec<SolveParams>) {
+        self.instruments.menu = menu;
+    }
+
+    /// The last step's solves by the menu's solvers, in the menu's order.
+    pub fn menu_solves(&self) -> &[MenuSolve] {
+        self.instruments.menu_solves()
     }
 
     /// From the next step on, capture each step's velocity problem before solving it
@@ -266,6 +284,9 @@ impl World {
         let t_shadow = Instant::now();
         let shadow = (self.instruments.shadow_builtin && used != ModelKind::Builtin.name())
             .then(|| self.instruments.builtin_sweeps(step_view!(self), &self.params.solve));
+        if !self.instruments.menu.is_empty() {
+            self.instruments.solve_menu(step_view!(self));
+        }
         let shadow_time = t_shadow.elapsed();
 
         let t_solve = Instant::now();
@@ -311,6 +332,7 @@ impl World {
                 rb: c.point - b.x,
                 normal: c.normal,
                 friction: c.friction,
+                height: c.point.y,
             });
         }
     }
@@ -452,6 +474,8 @@ impl World {
             max_speed: 0.0,
             builtin_sweeps: builtin_sweeps.unwrap_or(0),
             builtin_measured: builtin_sweeps.is_some(),
+            natural_max: report.natural.max,
+            natural_rms: report.natural.rms,
         };
         // Measured after the step's timer stopped: bookkeeping, not simulation.
         (self.stats.kinetic_energy, self.stats.max_speed) = self.motion();

@@ -67,6 +67,11 @@ impl WorldParams {
                 return bad("relaxation", w.to_string(), &format!("must be {}", SolveParams::relaxation_range()));
             }
         }
+        for p in [self.solve, self.oracle] {
+            if !p.setting().is_valid() {
+                return bad("solver", p.setting().to_string(), crate::solver::SolverSetting::SPELLING);
+            }
+        }
         if !(self.oracle.tolerance.is_finite() && self.oracle.tolerance > 0.0) || self.oracle.max_sweeps == 0 {
             return bad("oracle", format!("{:?}", self.oracle), "tolerance > 0 and max sweeps >= 1");
         }

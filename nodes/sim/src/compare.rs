@@ -1,0 +1,352 @@
+//! Solvers side by side (`dc-sim --compare-solvers`): every setting of a menu solves the same
+//! states from the same warm start (builtin's) to the same stopping rule, the trajectory driven by
+//! the menu's first setting; the hindsight ceiling (each step's cheapest setting); a learned
+//! per-step choice ([`SolverChooser`]) trained on other seeds and judged on these states; and
+//! optionally whole runs, each setting (and the chooser) driving its own trajectory.
+
+use crate::error::SimError;
+use crate::scene::SceneConfig;
+use crate::solver::SolverSetting;
+use crate::warm::ModelKind;
+use crate::world::{MenuSolve, World, WorldParams};
+use std::time::Instant;
+
+/// What the chooser reads: the state a step starts from, i.e. the previous step's outputs, so
+/// that it is known before the step (and the same whichever solver produced it, up to the
+/// solution's accuracy).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StepFeatures(pub [f64; FEATURES]);
+
+/// How many features a [`StepFeatures`] has.
+pub const FEATURES: usize = 8;
+
+/// The features' names, in order (the CSV's columns).
+pub const FEATURE_NAMES: [&str; FEATURES] =
+    ["ln_contacts", "new_fraction", "pile_height", "mean_load", "max_load", "time", "ln_kinetic_energy", "max_speed"];
+
+impl StepFeatures {
+    /// The features of the step `world` is about to take (from its last step's outputs).
+    pub fn of(world: &World) -> StepFeatures {
+        let stats = world.stats();
+        let contacts = world.rows().len();
+        let (mut low, mut high) = (f32::INFINITY, f32::NEG_INFINITY);
+        for r in world.rows() {
+            low = low.min(r.height);
+            high = high.max(r.height);
+        }
+        let (mut sum, mut max) = (0.0f64, 0.0f32);
+        for l in world.impulses() {
+            sum += l.normal as f64;
+            max = max.max(l.normal);
+        }
+        let n = contacts.max(1) as f64;
+        StepFeatures([
+            (1.0 + contacts as f64).ln(),
+            if contacts == 0 { 0.0 } else { 1.0 - stats.persisting_contacts as f64 / n },
+            if contacts == 0 { 0.0 } else { (high - low) as f64 },
+            sum / n,
+            max as f64,
+            world.steps_taken() as f64 * world.params().dt as f64,
+            (1e-6 + stats.kinetic_energy as f64).ln(),
+            stats.max_speed as f64,
+        ])
+    }
+}
+
+/// One step on the same states: its features and every setting's solve.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ComparedStep {
+    pub seed: u64,
+    pub step: u32,
+    pub features: StepFeatures,
+    pub solves: Vec<MenuSolve>,
+}
+
+/// The comparison's scene, parameters and seeds.
+#[derive(Debug, Clone)]
+pub struct CompareSpec {
+    pub scene: SceneConfig,
+    /// The stopping rule, tolerance, cap and compliance every setting shares.
+    pub params: WorldParams,
+    pub steps: u32,
+    /// The menu; the first drives the trajectory and is what the others are compared with.
+    pub menu: Vec<SolverSetting>,
+}
+
+impl CompareSpec {
+    fn world(&self, seed: u64, setting: SolverSetting) -> Result<World, SimError> {
+        let params = WorldParams { solve: self.params.solve.with_setting(setting), ..self.params };
+        World::new(&SceneConfig { seed, ..self.scene.clone() }, params)
+    }
+}
+
+/// Every step of `seeds` solved by every setting of the menu from builtin's warm start, the
+/// trajectory driven by the first with builtin's warm start; `progress` after each simulation.
+pub fn same_states(
+    spec: &CompareSpec,
+    seeds: &[u64],
+    mut progress: impl FnMut(u64),
+) -> Result<Vec<ComparedStep>, SimError> {
+    let menu: Vec<_> = spec.menu.iter().map(|&s| spec.params.solve.with_setting(s)).collect();
+    let mut out = Vec::with_capacity(seeds.len() * spec.steps as usize);
+    for &seed in seeds {
+        let mut world = spec.world(seed, spec.menu[0])?;
+        world.solver_menu(menu.clone());
+        let mut warm = ModelKind::Builtin.starter(seed)?;
+        warm.begin_simulation(seed as u32, seed);
+        for step in 0..spec.steps {
+            let features = StepFeatures::of(&world);
+            world.step(&mut warm);
+            out.push(ComparedStep { seed, step, features, solves: world.menu_solves().to_vec() });
+        }
+        progress(seed);
+    }
+    Ok(out)
+}
+
+/// A whole run's totals: sweeps, solve time, capped steps, per seed.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RunTotals {
+    pub sweeps: u64,
+    /// Solve wall time, microseconds (a chooser's inference included).
+    pub solve_us: f64,
+    pub capped: u32,
+    /// Sweeps per seed, in the seeds' order.
+    pub per_seed: Vec<u64>,
+}
+
+/// Runs every seed with the solver `choose` picks before each step (a fixed setting: a closure
+/// returning it), builtin's warm start; the choice's time counts as solve time.
+pub fn whole_run(
+    spec: &CompareSpec,
+    seeds: &[u64],
+    mut choose: impl FnMut(&StepFeatures) -> SolverSetting,
+) -> Result<RunTotals, SimError> {
+    let mut totals = RunTotals::default();
+    for &seed in seeds {
+        let mut world = spec.world(seed, spec.menu[0])?;
+        let mut warm = ModelKind::Builtin.starter(seed)?;
+        warm.begin_simulation(seed as u32, seed);
+        let mut seed_sweeps = 0;
+        for _ in 0..spec.steps {
+            let started = Instant::now();
+            let setting = choose(&StepFeatures::of(&world));
+            world.set_solver(setting);
+            let choice_us = started.elapsed().as_secs_f64() * 1e6;
+            let s = world.step(&mut warm);
+            seed_sweeps += s.sweeps as u64;
+            totals.solve_us += s.solve_us as f64 + choice_us;
+            totals.capped += (!s.converged) as u32;
+        }
+        totals.sweeps += seed_sweeps;
+        totals.per_seed.push(seed_sweeps);
+    }
+    Ok(totals)
+}
+
+/// A per-step choice among a menu of settings: one ridge regression per setting predicting the
+/// log of its sweeps from the (standardised) features; the setting predicted cheapest is chosen.
+/// Khodak et al.'s "learning to relax" in its simplest form.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SolverChooser {
+    pub settings: Vec<SolverSetting>,
+    mean: [f64; FEATURES],
+    scale: [f64; FEATURES],
+    /// Per setting: the bias, then one weight per feature.
+    weights: Vec<[f64; FEATURES + 1]>,
+}
+
+/// The ridge penalty of [`SolverChooser::fit`] on standardised features (per sample).
+pub const RIDGE: f64 = 1e-3;
+
+impl SolverChooser {
+    /// Fits the chooser on `steps` (solved by every setting of `settings`, in that order).
+    pub fn fit(settings: &[SolverSetting], steps: &[ComparedStep]) -> Result<SolverChooser, SimError> {
+        let bad = |why: String| SimError::InvalidParameter { name: "chooser", value: String::new(), why };
+        if steps.len() < 2 * (FEATURES + 1) {
+            return Err(bad(format!("{} training steps; at least {} needed", steps.len(), 2 * (FEATURES + 1))));
+        }
+        let count = steps.len() as f64;
+        let mut mean = [0.0; FEATURES];
+        let mut scale = [0.0; FEATURES];
+        for s in steps {
+            for (m, x) in mean.iter_mut().zip(s.features.0) {
+                *m += x / count;
+            }
+        }
+        for s in steps {
+            for ((v, x), m) in scale.iter_mut().zip(s.features.0).zip(mean) {
+                *v += (x - m).powi(2) / count;
+            }
+        }
+        // A constant feature gets scale 1 (it standardises to 0 and the ridge keeps it at 0).
+        let scale = scale.map(|v| if v > 1e-12 { v.sqrt() } else { 1.0 });
+        let mut chooser = SolverChooser { settings: settings.to_vec(), mean, scale, weights: Vec::new() };
+        const K: usize = FEATURES + 1;
+        let mut gram = [0.0f64; K * K];
+        let rows: Vec<[f64; K]> = steps.iter().map(|s| chooser.design(&s.features)).collect();
+        for x in &rows {
+            for i in 0..K {
+                for j in 0..K {
+                    gram[i * K + j] += x[i] * x[j];
+                }
+            }
+        }
+        for i in 1..K {
+            gram[i * K + i] += RIDGE * count;
+        }
+        for (k, setting) in settings.iter().enumerate() {
+            let mut rhs = [0.0f64; K];
+            for (x, s) in rows.iter().zip(steps) {
+                let y = (1.0 + s.solves[k].sweeps as f64).ln();
+                for i in 0..K {
+                    rhs[i] += x[i] * y;
+                }
+            }
+            let mut a = gram;
+            let w = crate::warm::probes::coarse::solve_semidefinite(&mut a, &rhs, K)
+                .ok_or_else(|| bad(format!("the regression of `{setting}` has no solution")))?;
+            chooser.weights.push(std::array::from_fn(|i| w[i]));
+        }
+        Ok(chooser)
+    }
+
+    /// The bias and the standardised features.
+    fn design(&self, f: &StepFeatures) -> [f64; FEATURES + 1] {
+        std::array::from_fn(|i| if i == 0 { 1.0 } else { (f.0[i - 1] - self.mean[i - 1]) / self.scale[i - 1] })
+    }
+
+    /// The index of the setting predicted cheapest for a step with features `f`.
+    pub fn choose(&self, f: &StepFeatures) -> usize {
+        let x = self.design(f);
+        let predict = |w: &[f64; FEATURES + 1]| w.iter().zip(&x).map(|(a, b)| a * b).sum::<f64>();
+        let mut best = (0, f64::INFINITY);
+        for (k, w) in self.weights.iter().enumerate() {
+            let y = predict(w);
+            if y < best.1 {
+                best = (k, y);
+            }
+        }
+        best.0
+    }
+}
+
+/// One row of the side-by-side table: a setting (or the ceiling, or the chooser) on the same
+/// states.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SameStatesRow {
+    pub name: String,
+    pub sweeps: u64,
+    pub solve_us: f64,
+    pub capped: u32,
+    /// Sweeps per phase (the phases' step ranges).
+    pub per_phase: Vec<u64>,
+    /// The largest ratio of a seed's sweeps to the first setting's on the same seed.
+    pub worst_seed: f64,
+}
+
+/// The first steps of the phases after the first (the report's default phases: falling,
+/// piling up, settled).
+pub const PHASE_STARTS: [u32; 2] = [100, 150];
+
+fn phase(step: u32) -> usize {
+    PHASE_STARTS.iter().filter(|&&s| step >= s).count()
+}
+
+/// Sums the same-states cost of picking `pick(step)` at every step.
+pub fn same_states_row(
+    name: &str,
+    steps: &[ComparedStep],
+    mut pick: impl FnMut(&ComparedStep) -> (MenuSolve, f64),
+) -> SameStatesRow {
+    let mut row = SameStatesRow {
+        name: name.to_string(),
+        sweeps: 0,
+        solve_us: 0.0,
+        capped: 0,
+        per_phase: vec![0; PHASE_STARTS.len() + 1],
+        worst_seed: 0.0,
+    };
+    let mut seeds: std::collections::BTreeMap<u64, (u64, u64)> = Default::default();
+    for s in steps {
+        let (solve, extra_us) = pick(s);
+        row.sweeps += solve.sweeps as u64;
+        row.solve_us += solve.us as f64 + extra_us;
+        row.capped += (!solve.converged) as u32;
+        row.per_phase[phase(s.step)] += solve.sweeps as u64;
+        let e = seeds.entry(s.seed).or_default();
+        e.0 += solve.sweeps as u64;
+        e.1 += s.solves[0].sweeps as u64;
+    }
+    row.worst_seed = seeds.values().map(|&(own, first)| own as f64 / first.max(1) as f64).fold(0.0, f64::max);
+    row
+}
+
+/// The same-states table: every setting, the hindsight ceiling by sweeps, and the chooser (with
+/// its inference time per step) if given.
+pub fn same_states_table(
+    menu: &[SolverSetting],
+    steps: &[ComparedStep],
+    chooser: Option<(&SolverChooser, f64)>,
+) -> Vec<SameStatesRow> {
+    let mut rows: Vec<SameStatesRow> =
+        menu.iter().enumerate().map(|(k, s)| same_states_row(&s.to_string(), steps, |c| (c.solves[k], 0.0))).collect();
+    rows.push(same_states_row("hindsight best (each step's fewest sweeps)", steps, |c| {
+        (*c.solves.iter().min_by_key(|m| m.sweeps).expect("a menu"), 0.0)
+    }));
+    if let Some((chooser, inference_us)) = chooser {
+        rows.push(same_states_row("learned choice", steps, |c| (c.solves[chooser.choose(&c.features)], inference_us)));
+    }
+    rows
+}
+
+/// The table as markdown, ratios against the first row.
+pub fn markdown(rows: &[SameStatesRow]) -> String {
+    let first = &rows[0];
+    let mut out = String::from(
+        "| solver | sweeps | vs first | solve time (s) | vs first | capped steps | steps 0-99 | 100-149 | 150- | worst seed |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for r in rows {
+        let phases: Vec<String> = r
+            .per_phase
+            .iter()
+            .zip(&first.per_phase)
+            .map(|(own, base)| format!("{:.3}x", *own as f64 / (*base).max(1) as f64))
+            .collect();
+        out += &format!(
+            "| {} | {} | {:.3}x | {:.2} | {:.3}x | {} | {} | {:.3}x |\n",
+            r.name,
+            r.sweeps,
+            r.sweeps as f64 / first.sweeps.max(1) as f64,
+            r.solve_us / 1e6,
+            r.solve_us / first.solve_us.max(1e-9),
+            r.capped,
+            phases.join(" | "),
+            r.worst_seed,
+        );
+    }
+    out
+}
+
+/// The per-step CSV: seed, step, the features, then sweeps and microseconds per setting.
+pub fn csv(menu: &[SolverSetting], steps: &[ComparedStep]) -> String {
+    let mut out = String::from("seed,step");
+    for name in FEATURE_NAMES {
+        out += &format!(",{name}");
+    }
+    for s in menu {
+        out += &format!(",{s} sweeps,{s} us,{s} converged");
+    }
+    out.push('\n');
+    for c in steps {
+        out += &format!("{},{}", c.seed, c.step);
+        for x in c.features.0 {
+            out += &format!(",{x}");
+        }
+        for m in &c.solves {
+            out += &format!(",{},{:.2},{}", m.sweeps, m.us, m.converged as u8);
+        }
+        out.push('\n');
+    }
+    out
+}
