@@ -198,8 +198,7 @@ mod tests {
             dt: 0.01,
             compliance: 0.0,
             relaxation: 1.0,
-            solver: "sor:1.4/down".into(),
-            stop: "natural".into(),
+            ..Default::default()
         }
     }
 
@@ -210,6 +209,10 @@ mod tests {
         let back: ControlMsg = crate::decode(&crate::encode(&m).unwrap()).unwrap();
         assert_eq!(back.header.count, 2);
         assert_eq!(back.details().unwrap(), ControlDetails::RunStart(params()));
+        let named = RunParams { solver: "sor:1.4/down".into(), stop: "natural".into(), ..params() };
+        let m = ControlMsg::run_start(s, &named);
+        let back: ControlMsg = crate::decode(&crate::encode(&m).unwrap()).unwrap();
+        assert_eq!(back.details().unwrap(), ControlDetails::RunStart(named));
         let n = NodeNotice {
             node: "sph".into(),
             host: "a".into(),
