@@ -87,7 +87,8 @@ struct EvalArgs {
     scene: String,
     #[arg(long, default_value_t = 250)]
     steps: u32,
-    /// Solver tolerance (largest impulse change of a sweep).
+    /// Solver tolerance: of the simulator's stopping rule (by default the natural residual, in
+    /// impulse units; `-- --solver pgs --stop change` is the thesis's solver and rule).
     #[arg(long, default_value_t = 1e-4)]
     tolerance: f64,
     /// Dynamic bodies.
