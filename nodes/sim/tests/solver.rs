@@ -177,8 +177,11 @@ fn natural(setting: &str, tolerance: f32) -> WorldParams {
     WorldParams { solve: solve.with_setting(setting.parse().unwrap()), ..Default::default() }
 }
 
-/// Every step's statistics (but the timings) and the final body states of a 150-step run.
-fn trajectory(params: WorldParams, seed: u64) -> (Vec<(u32, bool, f32, f32)>, Vec<sim::world::BodyState>) {
+/// A step's sweeps, convergence, stopping residual and natural residual.
+type StepOutcome = (u32, bool, f32, f32);
+
+/// Every step's outcome and the final body states of a 150-step run.
+fn trajectory(params: WorldParams, seed: u64) -> (Vec<StepOutcome>, Vec<sim::world::BodyState>) {
     let mut world = World::new(&SceneConfig { seed, ..Default::default() }, params).unwrap();
     let mut warm = ModelKind::Builtin.starter(0).unwrap();
     warm.begin_simulation(0, seed);

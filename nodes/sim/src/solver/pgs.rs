@@ -337,7 +337,7 @@ impl ContactSolver {
     /// `beta > restart`, else move `beta` along the direction (projected onto the friction cone,
     /// the velocities following) and extend the direction by the sweep's change.
     fn momentum_step(&mut self, bodies: &mut [SolverBody], slot: usize, beta: f64, restart: f64) {
-        if !(beta <= restart) {
+        if beta.is_nan() || beta > restart {
             self.direction.fill(Impulse::default());
             return;
         }

@@ -127,7 +127,7 @@ impl SolverSetting {
 impl fmt::Display for SolverSetting {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match (self.momentum, self.relaxation) {
-            (Momentum::None, w) if w == 1.0 => write!(f, "pgs")?,
+            (Momentum::None, 1.0) => write!(f, "pgs")?,
             (Momentum::None, w) => write!(f, "sor:{w}")?,
             (Momentum::Nncg { restart }, w) => {
                 if restart == 1.0 {
