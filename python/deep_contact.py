@@ -8,7 +8,7 @@ live frames travel on zenoh keys `dc/<namespace>/<topic>`.
 import cbor2
 import numpy as np
 
-WIRE_VERSIONS = (1, 2)
+WIRE_VERSIONS = (1, 2, 3)
 
 # Packed item layouts (numpy structured dtypes, little-endian, as `#[repr(C)]` in msgs).
 BODY = np.dtype([("id", "<u4"), ("shape", "<u4"), ("size", "<f4", 2), ("mass", "<f4"), ("inertia", "<f4"),
@@ -20,7 +20,9 @@ PROBLEM_BODY = np.dtype([("v", "<f4", 2), ("w", "<f4"), ("inv_mass", "<f4"), ("i
 PROBLEM_CONTACT = np.dtype([("body_a", "<u4"), ("body_b", "<u4"), ("feature", "<u4"), ("age", "<u4"),
                             ("ra", "<f4", 2), ("rb", "<f4", 2), ("normal", "<f4", 2), ("friction", "<f4"),
                             ("penetration", "<f4"), ("previous", "<f4", 2), ("before_previous", "<f4", 2),
-                            ("reference", "<f4", 2)])
+                            ("reference", "<f4", 2), ("height", "<f4")])
+# Wire versions 1 and 2: problem contacts without the height (their first 72 bytes).
+PROBLEM_CONTACT_V2 = np.dtype(PROBLEM_CONTACT.descr[:-1])
 
 ITEM_TYPES = {
     "bodies": BODY,
@@ -46,6 +48,8 @@ def decode(topic, payload):
         raise FrameError(f"{topic}: wire version {frame['v']} (this reader knows {WIRE_VERSIONS})")
     header, items = frame["h"], frame["i"]
     dtype = ITEM_TYPES.get(topic)
+    if dtype is PROBLEM_CONTACT and frame["v"] < 3:
+        dtype = PROBLEM_CONTACT_V2
     if dtype is not None:
         if len(items) % dtype.itemsize:
             raise FrameError(f"{topic}: {len(items)} item bytes is not a multiple of {dtype.itemsize}")

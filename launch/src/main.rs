@@ -115,6 +115,12 @@ struct EvalArgs {
     /// from its run's trajectory. One more solve per step; `--same-states false` skips it.
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
     same_states: bool,
+    /// Solvers to run every model with (`pgs,nncg:1.2/down`, as `dc-sim --solver` spells
+    /// them): one evaluation per solver in OUT/<solver>/, then OUT/solvers.md, a solver x model
+    /// table (sweeps and solve time against the first solver's builtin, capped steps, same states
+    /// vs builtin within each solver).
+    #[arg(long, value_delimiter = ',')]
+    solvers: Vec<String>,
     /// More simulator parameters, passed through (after `--`).
     #[arg(last = true)]
     sim_args: Vec<String>,
@@ -477,7 +483,7 @@ fn bench_graph(args: &[String], zenoh: bool) -> Result<Graph> {
 }
 
 /// Builds the evaluation graph: one metrics node and `jobs` simulators sharing the models.
-fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
+fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>) -> Result<Graph> {
     let seeds = msgs::parse_seeds(&args.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
     let training = msgs::parse_seeds(&args.training_seeds).map_err(|e| anyhow::anyhow!("--training-seeds {e}"))?;
     let overlap: Vec<u64> = seeds.iter().copied().filter(|s| training.binary_search(s).is_ok()).collect();
@@ -560,6 +566,9 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path) -> Result<Graph> {
             sim_args.push("--shadow-builtin".into());
         }
         sim_args.extend(args.sim_args.iter().cloned());
+        if let Some(solver) = solver {
+            sim_args.push(format!("--solver={solver}"));
+        }
         nodes.push(NodeSpec::new(format!("sim-{j}"), "dc-sim", false, sim_args));
     }
     Ok(Graph::single_host("eval", &unique_namespace("eval"), nodes)?)
@@ -570,7 +579,10 @@ fn eval(args: EvalArgs) -> Result<()> {
         let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
         PathBuf::from(format!("reports/eval-{secs}"))
     });
-    let graph = eval_graph(&args, &out)?;
+    if !args.solvers.is_empty() {
+        return eval_solvers(&args, &out);
+    }
+    let graph = eval_graph(&args, &out, None)?;
     graph.check_params()?;
     if args.dry_run {
         return print_graph(&graph, None);
@@ -581,6 +593,43 @@ fn eval(args: EvalArgs) -> Result<()> {
     let flag = interrupt_flag();
     supervisor::run(&graph, DEFAULT_HOST, Output::Forward, &flag)?;
     println!("evaluation report: {}", out.join("report.html").display());
+    Ok(())
+}
+
+/// `dc eval --solvers`: every graph checked first, then one evaluation per solver, then the
+/// solver x model table.
+fn eval_solvers(args: &EvalArgs, out: &std::path::Path) -> Result<()> {
+    let mut runs = Vec::new();
+    for solver in &args.solvers {
+        if runs.iter().any(|(s, _, _): &(String, PathBuf, Graph)| s == solver) {
+            bail!("--solvers: `{solver}` is asked for twice");
+        }
+        let dir = out.join(solver.replace(['/', ':'], "-"));
+        let graph = eval_graph(args, &dir, Some(solver))?;
+        graph.check_params().with_context(|| format!("--solvers {solver}"))?;
+        runs.push((solver.clone(), dir, graph));
+    }
+    if args.dry_run {
+        return runs.iter().try_for_each(|(_, _, graph)| print_graph(graph, None));
+    }
+    writable_dir(out).context("--out")?;
+    let flag = interrupt_flag();
+    let mut summaries = Vec::new();
+    for (solver, dir, graph) in &runs {
+        writable_dir(dir).context("--out")?;
+        supervisor::run(graph, DEFAULT_HOST, Output::Forward, &flag)?;
+        let path = dir.join("summary.csv");
+        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        summaries.push((
+            solver.as_str(),
+            launch::solver_table::read_summary(&text).with_context(|| path.display().to_string())?,
+        ));
+    }
+    let table = launch::solver_table::markdown(&summaries);
+    let path = out.join("solvers.md");
+    std::fs::write(&path, format!("# Solvers x models\n\n{table}"))
+        .with_context(|| format!("writing {}", path.display()))?;
+    println!("{table}\nsolver x model table: {}", path.display());
     Ok(())
 }
 
@@ -663,7 +712,7 @@ mod tests {
         let graph = |models: &str| {
             let cli = Cli::try_parse_from(["dc", "eval", "--seeds", "0..2", "--models", models]).unwrap();
             let Command::Eval(eval) = cli.command else { unreachable!("an eval command") };
-            eval_graph(&eval, std::path::Path::new("reports/unused")).map(|_| ())
+            eval_graph(&eval, std::path::Path::new("reports/unused"), None).map(|_| ())
         };
         for twice in ["builtin,builtin", "blend,blend:0.5", "none,extrapolate:1,extrapolate"] {
             let e = format!("{:#}", graph(twice).unwrap_err());

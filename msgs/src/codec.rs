@@ -9,7 +9,15 @@ use serde::{Deserialize, Serialize};
 
 /// Version of the wire format; bumped when a layout changes. Version 2 writes names
 /// (model, channels) as text strings; version 1 frames (names as byte arrays) are still read.
-pub const WIRE_VERSION: u32 = 2;
+/// Version 3 appends the contact height to [`crate::ProblemContact`] (76 bytes); older frames
+/// hold its first 72 bytes and read with height 0.
+pub const WIRE_VERSION: u32 = 3;
+
+/// The bytes an item of type `T` took in a frame of wire version `v`, where an older layout is a
+/// prefix of today's (fields appended at the end); `None`: today's size.
+fn legacy_item_size<T: 'static>(v: u32) -> Option<usize> {
+    (v < 3 && std::any::TypeId::of::<T>() == std::any::TypeId::of::<crate::ProblemContact>()).then_some(72)
+}
 /// The oldest version still read.
 pub const OLDEST_WIRE_VERSION: u32 = 1;
 
@@ -67,9 +75,22 @@ pub fn encode<H: FrameHeader, T: FrameItem>(frame: &Frame<H, T>) -> Result<Vec<u
 pub fn decode<H: FrameHeader, T: FrameItem>(bytes: &[u8]) -> Result<Frame<H, T>, CodecError> {
     let wire: WireIn<H> = ciborium::from_reader(bytes).map_err(|e| CodecError::Cbor(e.to_string()))?;
     check_version(wire.v)?;
-    let size = std::mem::size_of::<T>();
+    let size = legacy_item_size::<T>(wire.v).unwrap_or(std::mem::size_of::<T>());
     if size == 0 || !wire.i.len().is_multiple_of(size) {
         return Err(CodecError::Length { bytes: wire.i.len(), item_size: size, item_type: std::any::type_name::<T>() });
+    }
+    if size != std::mem::size_of::<T>() {
+        // An older, shorter layout: each item's bytes are the start of today's, the rest zero.
+        let items = wire
+            .i
+            .chunks_exact(size)
+            .map(|old| {
+                let mut item = T::zeroed();
+                bytemuck::bytes_of_mut(&mut item)[..size].copy_from_slice(old);
+                item
+            })
+            .collect();
+        return Ok(Frame { header: wire.h, items });
     }
     let items: Vec<T> = bytemuck::pod_collect_to_vec(&wire.i);
     Ok(Frame { header: wire.h, items })
@@ -93,6 +114,31 @@ fn check_version(v: u32) -> Result<(), CodecError> {
 mod tests {
     use super::*;
     use crate::*;
+
+    #[test]
+    fn problem_contacts_of_wire_version_2_read_with_height_zero() {
+        // A version-2 frame: 72-byte contacts (no height).
+        let c =
+            ProblemContact { body_a: 1, body_b: 2, age: 3, previous: [0.5, -0.25], height: 7.0, ..Default::default() };
+        let old: Vec<u8> = [c, c].iter().flat_map(|c| bytemuck::bytes_of(c)[..72].to_vec()).collect();
+        #[derive(Serialize)]
+        struct Old<'a> {
+            v: u32,
+            h: ProblemHeader,
+            #[serde(with = "serde_bytes")]
+            i: &'a [u8],
+        }
+        let mut bytes = Vec::new();
+        ciborium::into_writer(&Old { v: 2, h: ProblemHeader::default(), i: &old }, &mut bytes).unwrap();
+        let frame: ProblemContacts = decode(&bytes).unwrap();
+        assert_eq!(frame.items, vec![ProblemContact { height: 0.0, ..c }; 2]);
+        // Today's frames keep the height; a version-3 frame of 72-byte items is refused.
+        let now: ProblemContacts = decode(&encode(&Frame::new(ProblemHeader::default(), vec![c])).unwrap()).unwrap();
+        assert_eq!(now.items, vec![c]);
+        let mut bytes = Vec::new();
+        ciborium::into_writer(&Old { v: 3, h: ProblemHeader::default(), i: &old }, &mut bytes).unwrap();
+        assert!(decode::<ProblemHeader, ProblemContact>(&bytes).unwrap_err().to_string().contains("76"));
+    }
 
     fn bodies(n: usize) -> Bodies {
         let items = (0..n)

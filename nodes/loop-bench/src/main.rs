@@ -125,7 +125,8 @@ fn try_main() -> Result<()> {
     };
     let spec = RunSpec {
         scene: SceneConfig { n: args.n, ..SceneConfig::default() },
-        params: WorldParams::default(),
+        // What dc-sim solves with by default, so that both solve the same steps.
+        params: WorldParams::recommended(),
         seeds,
         steps: args.steps,
         run_id: 1,

@@ -350,3 +350,40 @@ pub fn csv(menu: &[SolverSetting], steps: &[ComparedStep]) -> String {
     }
     out
 }
+
+/// Plots every setting's mean sweeps per step (over the seeds) against the step, the phases'
+/// starts marked, as a PNG at `path`.
+pub fn plot(path: &std::path::Path, menu: &[SolverSetting], steps: &[ComparedStep]) -> Result<(), charts::PlotError> {
+    let last = steps.iter().map(|s| s.step).max().unwrap_or(0) as usize;
+    let mut sums = vec![vec![0.0f64; last + 1]; menu.len()];
+    let mut counts = vec![0u32; last + 1];
+    for s in steps {
+        counts[s.step as usize] += 1;
+        for (k, m) in s.solves.iter().enumerate() {
+            sums[k][s.step as usize] += m.sweeps as f64;
+        }
+    }
+    let series: Vec<charts::Series> = menu
+        .iter()
+        .zip(&sums)
+        .map(|(setting, sum)| charts::Series {
+            name: setting.to_string(),
+            points: sum
+                .iter()
+                .zip(&counts)
+                .enumerate()
+                .filter(|(_, (_, &n))| n > 0)
+                .map(|(step, (total, &n))| (step as f64, total / n as f64))
+                .collect(),
+            band: None,
+        })
+        .collect();
+    let panel = charts::Panel::new(
+        charts::Axis::counts("step"),
+        charts::Axis::log("mean sweeps per step (same states)"),
+        &series,
+        charts::Mark::Lines,
+    )
+    .guides(&PHASE_STARTS.map(f64::from), &[]);
+    charts::chart(path, "Sweeps per step by solver, to the same stopping rule", &[panel])
+}

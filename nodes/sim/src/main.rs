@@ -85,7 +85,7 @@ struct Args {
     /// labels and shadow solves use the same. The default, NNCG restarting above 1.2 with rows
     /// top-down, needs 0.34x PGS's sweeps and 0.36x its time to the same natural residual on the
     /// evaluation seeds (docs/solvers.md); `--solver pgs --stop change` is the thesis's solver.
-    #[arg(long, default_value = "nncg:1.2/down", value_parser = |s: &str| s.parse::<sim::SolverSetting>())]
+    #[arg(long, default_value_t = sim::SolverSetting::RECOMMENDED, value_parser = |s: &str| s.parse::<sim::SolverSetting>())]
     solver: sim::SolverSetting,
     /// Row order of the solver's sweeps: recorded (contact keys) or down (by contact height, top
     /// first, every step); overrides the order --solver names.
@@ -94,7 +94,7 @@ struct Args {
     /// Stopping rule: change (the largest impulse change of a sweep <= --tolerance, the
     /// thesis's) or natural (the natural residual, what one projected Jacobi step would still
     /// change, <= --tolerance: the same accuracy for every solver).
-    #[arg(long, default_value = "natural", value_parser = |s: &str| s.parse::<sim::StopRule>())]
+    #[arg(long, default_value_t = sim::StopRule::RECOMMENDED, value_parser = |s: &str| s.parse::<sim::StopRule>())]
     stop: sim::StopRule,
     /// Convergence tolerance of the stopping rule, in impulse units.
     #[arg(long, default_value_t = 1e-4, value_parser = positive_f32)]
@@ -178,7 +178,8 @@ struct Args {
     /// driving its own trajectory.
     #[arg(long, requires = "compare_solvers")]
     whole_runs: bool,
-    /// With --compare-solvers: the folder for `solvers.md` and `solver-steps.csv`.
+    /// With --compare-solvers: the folder for `solvers.md`, `solver-steps.csv` and
+    /// `solver-sweeps.png` (mean sweeps per step by solver).
     #[arg(long, requires = "compare_solvers")]
     out: Option<std::path::PathBuf>,
     /// Run the benchmark and print it instead of running the node.
@@ -448,7 +449,8 @@ The learned choice's picks (steps): {}; inference {us:.2} us per step (median).
         };
         write("solvers.md", &report)?;
         write("solver-steps.csv", &compare::csv(menu, &steps))?;
-        eprintln!("wrote {}/solvers.md and solver-steps.csv", dir.display());
+        compare::plot(&dir.join("solver-sweeps.png"), menu, &steps)?;
+        eprintln!("wrote {}/solvers.md, solver-steps.csv and solver-sweeps.png", dir.display());
     }
     Ok(())
 }

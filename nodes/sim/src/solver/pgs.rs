@@ -67,6 +67,13 @@ impl Default for SolveParams {
 }
 
 impl SolveParams {
+    /// The recommended solver and rule ([`SolverSetting::RECOMMENDED`], [`StopRule::RECOMMENDED`])
+    /// with the default tolerance and cap: what `dc-sim` solves with unless told otherwise.
+    /// (`Default` stays the thesis's PGS and change rule, which the solver's own tests check.)
+    pub fn recommended() -> SolveParams {
+        SolveParams { stop: StopRule::RECOMMENDED, ..SolveParams::default() }.with_setting(SolverSetting::RECOMMENDED)
+    }
+
     /// The largest compliance: contacts eleven times softer than their effective mass says; more
     /// is not a contact any more.
     pub const MAX_COMPLIANCE: f32 = 10.0;

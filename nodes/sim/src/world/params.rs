@@ -47,6 +47,14 @@ impl Default for WorldParams {
 }
 
 impl WorldParams {
+    /// The default parameters with the recommended solver and rule ([`SolveParams::recommended`])
+    /// for the run; the oracle keeps the change rule (see `dc-sim --oracle-tolerance`).
+    pub fn recommended() -> WorldParams {
+        let solve = SolveParams::recommended();
+        let oracle = WorldParams::default().oracle.with_setting(solve.setting());
+        WorldParams { solve, oracle, ..WorldParams::default() }
+    }
+
     /// Checks the parameters.
     pub fn validate(&self) -> Result<(), SimError> {
         let bad =

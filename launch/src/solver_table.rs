@@ -1,0 +1,131 @@
+//! `dc eval --solvers`: the solver x model table, from each solver's evaluation report
+//! (`summary.csv`, as the metrics node writes it).
+
+/// What the table reads of one model's row of a `summary.csv`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SummaryRow {
+    pub model: String,
+    pub total_sweeps: u64,
+    pub total_solve_ms: f64,
+    pub cap_hits: u64,
+    /// Same states vs builtin within the solver's evaluation (NaN where not measured).
+    pub same_states: f64,
+}
+
+/// A `summary.csv` that cannot be read.
+#[derive(Debug, thiserror::Error)]
+pub enum SummaryError {
+    #[error("no header line")]
+    Empty,
+    #[error("column `{0}` is missing")]
+    MissingColumn(&'static str),
+    #[error("line {line}: column `{column}`: `{value}` is not a number")]
+    BadNumber { line: usize, column: &'static str, value: String },
+    #[error("line {line}: {found} fields, the header has {expected}")]
+    Ragged { line: usize, found: usize, expected: usize },
+}
+
+const COLUMNS: [&str; 5] = ["model", "total_sweeps", "total_solve_ms", "cap_hits", "same_states_ratio_to_builtin"];
+
+/// Reads the rows of a `summary.csv`.
+pub fn read_summary(text: &str) -> Result<Vec<SummaryRow>, SummaryError> {
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().ok_or(SummaryError::Empty)?.split(',').collect();
+    let mut at = [0usize; COLUMNS.len()];
+    for (slot, name) in at.iter_mut().zip(COLUMNS) {
+        *slot = header.iter().position(|h| *h == name).ok_or(SummaryError::MissingColumn(name))?;
+    }
+    let mut rows = Vec::new();
+    for (i, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+        let fields: Vec<&str> = line.split(',').collect();
+        let line = i + 2;
+        if fields.len() != header.len() {
+            return Err(SummaryError::Ragged { line, found: fields.len(), expected: header.len() });
+        }
+        let number = |k: usize| {
+            fields[at[k]].parse::<f64>().map_err(|_| SummaryError::BadNumber {
+                line,
+                column: COLUMNS[k],
+                value: fields[at[k]].to_string(),
+            })
+        };
+        rows.push(SummaryRow {
+            model: fields[at[0]].to_string(),
+            total_sweeps: number(1)? as u64,
+            total_solve_ms: number(2)?,
+            cap_hits: number(3)? as u64,
+            same_states: number(4)?,
+        });
+    }
+    Ok(rows)
+}
+
+/// The table: one row per (model, solver), sweeps and solve time against the first solver's
+/// builtin (or its first model where builtin was not run).
+pub fn markdown(summaries: &[(&str, Vec<SummaryRow>)]) -> String {
+    let mut out = String::from(
+        "| model | solver | total sweeps | vs first solver's builtin | solve time (ms) | vs first solver's builtin | capped steps | same states vs builtin (this solver) |\n|---|---|---:|---:|---:|---:|---:|---:|\n",
+    );
+    let Some((_, first)) = summaries.first() else { return out };
+    let Some(base) = first.iter().find(|r| r.model == "builtin").or(first.first()) else { return out };
+    let mut models: Vec<&str> = Vec::new();
+    for (_, rows) in summaries {
+        for r in rows {
+            if !models.contains(&r.model.as_str()) {
+                models.push(&r.model);
+            }
+        }
+    }
+    for model in models {
+        for (solver, rows) in summaries {
+            let Some(r) = rows.iter().find(|r| r.model == model) else { continue };
+            let same = if r.same_states.is_finite() { format!("{:.3}x", r.same_states) } else { "-".into() };
+            out += &format!(
+                "| {model} | {solver} | {} | {:.3}x | {:.0} | {:.3}x | {} | {same} |\n",
+                r.total_sweeps,
+                r.total_sweeps as f64 / base.total_sweeps.max(1) as f64,
+                r.total_solve_ms,
+                r.total_solve_ms / base.total_solve_ms.max(1e-9),
+                r.cap_hits,
+            );
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SUMMARY: &str = "model,total_sweeps,cap_hits,same_states_ratio_to_builtin,total_solve_ms\nbuiltin,1000,3,1,50.0\ngnn,990,2,0.99,55.0\n";
+
+    #[test]
+    fn summaries_read_and_tabulate_against_the_first_solvers_builtin() {
+        let pgs = read_summary(SUMMARY).unwrap();
+        assert_eq!(
+            pgs[1],
+            SummaryRow { model: "gnn".into(), total_sweeps: 990, total_solve_ms: 55.0, cap_hits: 2, same_states: 0.99 }
+        );
+        let nncg = read_summary(
+            "model,total_sweeps,cap_hits,same_states_ratio_to_builtin,total_solve_ms\nbuiltin,400,0,1,20\n",
+        )
+        .unwrap();
+        let table = markdown(&[("pgs", pgs), ("nncg:1.2/down", nncg)]);
+        assert!(table.contains("| builtin | nncg:1.2/down | 400 | 0.400x | 20 | 0.400x | 0 | 1.000x |"), "{table}");
+        assert!(table.contains("| gnn | pgs | 990 | 0.990x | 55 | 1.100x | 2 | 0.990x |"), "{table}");
+    }
+
+    #[test]
+    fn a_broken_summary_says_where() {
+        assert!(matches!(read_summary(""), Err(SummaryError::Empty)));
+        let e = read_summary("model,total_sweeps\nbuiltin,1\n").unwrap_err();
+        assert_eq!(e.to_string(), "column `total_solve_ms` is missing");
+        let bad = SUMMARY.replace("990", "lots");
+        assert_eq!(
+            read_summary(&bad).unwrap_err().to_string(),
+            "line 3: column `total_sweeps`: `lots` is not a number"
+        );
+        let ragged = SUMMARY.replace("gnn,990,", "gnn,");
+        assert!(read_summary(&ragged).unwrap_err().to_string().starts_with("line 3: 4 fields"));
+    }
+}
