@@ -81,7 +81,7 @@ pub fn markdown(summaries: &[(&str, Vec<SummaryRow>)]) -> String {
             let Some(r) = rows.iter().find(|r| r.model == model) else { continue };
             let same = if r.same_states.is_finite() { format!("{:.3}x", r.same_states) } else { "-".into() };
             out += &format!(
-                "| {model} | {solver} | {} | {:.3}x | {:.0} | {:.3}x | {} | {same} |\n",
+                "| {model} | {solver} | {} | {:.3}x | {:.1} | {:.3}x | {} | {same} |\n",
                 r.total_sweeps,
                 r.total_sweeps as f64 / base.total_sweeps.max(1) as f64,
                 r.total_solve_ms,
@@ -111,8 +111,8 @@ mod tests {
         )
         .unwrap();
         let table = markdown(&[("pgs", pgs), ("nncg:1.2/down", nncg)]);
-        assert!(table.contains("| builtin | nncg:1.2/down | 400 | 0.400x | 20 | 0.400x | 0 | 1.000x |"), "{table}");
-        assert!(table.contains("| gnn | pgs | 990 | 0.990x | 55 | 1.100x | 2 | 0.990x |"), "{table}");
+        assert!(table.contains("| builtin | nncg:1.2/down | 400 | 0.400x | 20.0 | 0.400x | 0 | 1.000x |"), "{table}");
+        assert!(table.contains("| gnn | pgs | 990 | 0.990x | 55.0 | 1.100x | 2 | 0.990x |"), "{table}");
     }
 
     #[test]

@@ -116,6 +116,16 @@ mod tests {
     use crate::*;
 
     #[test]
+    fn contacts_round_trip_bit_identical() {
+        let c = ProblemContact { body_a: 1, body_b: 2, age: 3, reference: [f32::NAN, -0.0], ..Default::default() };
+        let h = ProblemHeader { bodies: 3, tolerance: 1e-4, max_sweeps: 1000, ..Default::default() };
+        let f = ProblemContacts::new(h, vec![c; 5]);
+        let back: ProblemContacts = crate::decode(&crate::encode(&f).unwrap()).unwrap();
+        assert_eq!(back.header, f.header);
+        assert_eq!(bytemuck::cast_slice::<_, u8>(&back.items), bytemuck::cast_slice::<_, u8>(&f.items));
+    }
+
+    #[test]
     fn problem_contacts_of_wire_version_2_read_with_height_zero() {
         // A version-2 frame: 72-byte contacts (no height).
         let c =
