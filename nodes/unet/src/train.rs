@@ -327,6 +327,22 @@ fn evaluate(
         }
         n += b.len;
     }
+    let simulations = match part {
+        Part::Train => &split.train,
+        Part::Validation => &split.validation,
+        Part::Test => &split.test,
+    };
+    if n == 0 && !simulations.is_empty() {
+        // Simulations were set aside for this part but none of their steps made a sample (frames
+        // that do not decode or pair): a NaN loss would be written as if measured.
+        let sims: Vec<String> = simulations.iter().map(|(run, sim)| format!("run {run} simulation {sim}")).collect();
+        return Err(UnetError::Data(format!(
+            "{}: the {what} simulations ({}) yielded no sample (their frames did not decode or pair; see the warnings above): no usable {what} data",
+            data.path.display(),
+            sims.join(", "),
+            what = format!("{part:?}").to_lowercase()
+        )));
+    }
     if n == 0 {
         return Ok((f64::NAN, None, 0));
     }

@@ -651,3 +651,25 @@ fn a_damaged_recording_in_the_training_folder_is_left_out_and_listed() {
     let e = unet::train::train(&opts, &device()).unwrap_err().to_string();
     assert!(e.contains("b.mcap"), "{e}");
 }
+
+#[test]
+fn validation_simulations_without_a_usable_sample_stop_training() {
+    // Four simulations of eight steps and one of a single step (it pairs no step k with k + 1,
+    // as a simulation whose frames do not decode): with a split seed that sets the single-step
+    // one aside for validation, training must fail instead of writing a NaN validation loss.
+    let dir = scratch("no-validation");
+    let data = dir.join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    record_simulations(&data.join("a.mcap"), 9, &[1000, 1001, 1002, 1003], 8);
+    record_simulations(&data.join("b.mcap"), 10, &[1004], 1);
+    let keys: std::collections::BTreeSet<(u64, u32)> =
+        [(9, 1000), (9, 1001), (9, 1002), (9, 1003), (10, 1004)].into_iter().collect();
+    let mut opts = train_options(&data, &dir.join("m.dcu"));
+    opts.epochs = 1;
+    opts.seed = (0..200)
+        .find(|&s| Split::by_simulation(&keys, opts.validation_fraction, 0.0, s).validation == [(10, 1004)].into())
+        .expect("a split seed that validates on the single-step simulation");
+    let e = unet::train::train(&opts, &device()).unwrap_err().to_string();
+    assert!(e.contains("no usable validation data") && e.contains("run 10 simulation 1004"), "{e}");
+    assert!(!dir.join("m.dcu").exists(), "no model file is written");
+}
