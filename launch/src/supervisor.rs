@@ -69,6 +69,64 @@ pub enum RunError {
     Bus(String),
     #[error("host {missing} did not get its nodes connected within {secs} s (is `dc launch --host` running there, and can this host reach it?)")]
     HostsMissing { missing: String, secs: f64 },
+    /// Another graph runs on this namespace and host: its nodes would read and write ours.
+    #[error("namespace `{namespace}` is in use on host `{host}` by another graph ({holder}); stop it, or give this one another namespace (`--namespace`)")]
+    NamespaceInUse { namespace: String, host: String, holder: String },
+    #[error("namespace lock {path}: {what}")]
+    NamespaceLock { path: String, what: String },
+}
+
+/// A graph's hold on its namespace on one host: an advisory lock (`flock`) on a file named after
+/// both, held while the launcher runs and released by the kernel when it exits, however it exits.
+/// A second graph on the same namespace and host is refused instead of sharing the first's
+/// topics (its recorder would record both graphs' runs).
+pub struct NamespaceLock {
+    _file: std::fs::File,
+}
+
+impl NamespaceLock {
+    /// The folder of the lock files.
+    pub fn folder() -> std::path::PathBuf {
+        std::env::temp_dir().join("dc-graphs")
+    }
+
+    /// Takes the namespace on `host` for this process, or says who holds it.
+    pub fn acquire(namespace: &str, host: &str, graph: &str) -> Result<NamespaceLock, RunError> {
+        use std::io::{Read, Seek, Write};
+        use std::os::fd::AsRawFd;
+        let safe = |s: &str| {
+            s.chars().map(|c| if c.is_ascii_alphanumeric() || "-_.".contains(c) { c } else { '_' }).collect::<String>()
+        };
+        let path = Self::folder().join(format!("{}@{}.lock", safe(namespace), safe(host)));
+        let err = |what: String| RunError::NamespaceLock { path: path.display().to_string(), what };
+        std::fs::create_dir_all(Self::folder()).map_err(|e| err(e.to_string()))?;
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(|e| err(e.to_string()))?;
+        // SAFETY: flock on a descriptor this function owns; no memory is involved.
+        if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+            let e = std::io::Error::last_os_error();
+            if e.raw_os_error() != Some(libc::EWOULDBLOCK) {
+                return Err(err(e.to_string()));
+            }
+            let mut holder = String::new();
+            let _ = file.read_to_string(&mut holder);
+            let holder = if holder.trim().is_empty() {
+                "a process that has not said which".to_string()
+            } else {
+                holder.trim().to_string()
+            };
+            return Err(RunError::NamespaceInUse { namespace: namespace.to_string(), host: host.to_string(), holder });
+        }
+        let said = format!("graph `{graph}`, pid {}", std::process::id());
+        let wrote = file.set_len(0).and_then(|_| file.rewind()).and_then(|_| file.write_all(said.as_bytes()));
+        wrote.map_err(|e| err(e.to_string()))?;
+        Ok(NamespaceLock { _file: file })
+    }
 }
 
 /// Where captured node output goes.
@@ -418,6 +476,8 @@ struct Supervisor<'a> {
     width: usize,
     barrier: BarrierState,
     hosts: HostWatch,
+    /// Last: released after every node is stopped and the bus closed.
+    _namespace: NamespaceLock,
 }
 
 impl<'a> Supervisor<'a> {
@@ -427,6 +487,7 @@ impl<'a> Supervisor<'a> {
             Some(w) => w,
             None => return Err(RunError::NoNodes(host.to_string())),
         };
+        let lock = NamespaceLock::acquire(&graph.namespace, host, &graph.name)?;
         match runtime::cleanup_stale_resources() {
             Ok(0) => {}
             Ok(n) => tracing::info!("cleaned shared-memory resources of {n} dead iceoryx2 nodes"),
@@ -438,6 +499,7 @@ impl<'a> Supervisor<'a> {
         let (tx, rx) = mpsc::channel::<Event>();
         let with_nodes = graph.hosts.keys().filter(|h| graph.nodes_on(h).next().is_some()).cloned().collect();
         Ok(Supervisor {
+            _namespace: lock,
             nodes: Vec::new(),
             report: RunReport::default(),
             rx,
@@ -1058,5 +1120,27 @@ mod tests {
         assert!(failed_on_stop(code(3)));
         assert!(!failed_on_stop(code(0)));
         assert!(!failed_on_stop(signal(libc::SIGTERM)));
+    }
+}
+
+#[cfg(test)]
+mod namespace_tests {
+    use super::*;
+
+    #[test]
+    fn a_second_graph_on_a_namespace_and_host_is_refused_until_the_first_ends() {
+        let ns = format!("lock-test-{}", std::process::id());
+        let first = NamespaceLock::acquire(&ns, "local", "first").unwrap();
+        let e = NamespaceLock::acquire(&ns, "local", "second").err().expect("refused");
+        let text = e.to_string();
+        assert!(text.contains(&ns) && text.contains("graph `first`") && text.contains("--namespace"), "{text}");
+        // Another host of the same graph (two hosts on one machine, as the two-host tests run) is not refused.
+        let other_host = NamespaceLock::acquire(&ns, "b", "first").unwrap();
+        drop(first);
+        let again = NamespaceLock::acquire(&ns, "local", "second").unwrap();
+        drop((again, other_host));
+        for host in ["local", "b"] {
+            let _ = std::fs::remove_file(NamespaceLock::folder().join(format!("{ns}@{host}.lock")));
+        }
     }
 }
