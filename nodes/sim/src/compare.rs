@@ -59,6 +59,8 @@ pub struct ComparedStep {
     pub seed: u64,
     pub step: u32,
     pub features: StepFeatures,
+    /// What extracting the features took, microseconds (a chooser pays it every step).
+    pub features_us: f32,
     pub solves: Vec<MenuSolve>,
 }
 
@@ -95,9 +97,11 @@ pub fn same_states(
         let mut warm = ModelKind::Builtin.starter(seed)?;
         warm.begin_simulation(seed as u32, seed);
         for step in 0..spec.steps {
+            let started = Instant::now();
             let features = StepFeatures::of(&world);
+            let features_us = started.elapsed().as_secs_f32() * 1e6;
             world.step(&mut warm);
-            out.push(ComparedStep { seed, step, features, solves: world.menu_solves().to_vec() });
+            out.push(ComparedStep { seed, step, features, features_us, solves: world.menu_solves().to_vec() });
         }
         progress(seed);
     }
@@ -115,24 +119,40 @@ pub struct RunTotals {
     pub per_seed: Vec<u64>,
 }
 
-/// Runs every seed with the solver `choose` picks before each step (a fixed setting: a closure
-/// returning it), builtin's warm start; the choice's time counts as solve time.
+/// Which solver a whole run uses at each step.
+#[derive(Debug, Clone, Copy)]
+pub enum Choice<'a> {
+    /// The same setting every step.
+    Fixed(SolverSetting),
+    /// The chooser's pick among its settings, from the features of the state each step starts
+    /// from; the features and the pick count as solve time.
+    Learned(&'a SolverChooser),
+}
+
+/// Runs every seed with `choice`, builtin's warm start; `progress` after each simulation.
 pub fn whole_run(
     spec: &CompareSpec,
     seeds: &[u64],
-    mut choose: impl FnMut(&StepFeatures) -> SolverSetting,
+    choice: Choice<'_>,
+    mut progress: impl FnMut(u64),
 ) -> Result<RunTotals, SimError> {
     let mut totals = RunTotals::default();
     for &seed in seeds {
-        let mut world = spec.world(seed, spec.menu[0])?;
+        let first = match choice {
+            Choice::Fixed(setting) => setting,
+            Choice::Learned(_) => spec.menu[0],
+        };
+        let mut world = spec.world(seed, first)?;
         let mut warm = ModelKind::Builtin.starter(seed)?;
         warm.begin_simulation(seed as u32, seed);
         let mut seed_sweeps = 0;
         for _ in 0..spec.steps {
-            let started = Instant::now();
-            let setting = choose(&StepFeatures::of(&world));
-            world.set_solver(setting);
-            let choice_us = started.elapsed().as_secs_f64() * 1e6;
+            let mut choice_us = 0.0;
+            if let Choice::Learned(chooser) = choice {
+                let started = Instant::now();
+                world.set_solver(chooser.settings[chooser.choose(&StepFeatures::of(&world))]);
+                choice_us = started.elapsed().as_secs_f64() * 1e6;
+            }
             let s = world.step(&mut warm);
             seed_sweeps += s.sweeps as u64;
             totals.solve_us += s.solve_us as f64 + choice_us;
@@ -140,8 +160,30 @@ pub fn whole_run(
         }
         totals.sweeps += seed_sweeps;
         totals.per_seed.push(seed_sweeps);
+        progress(seed);
     }
     Ok(totals)
+}
+
+/// The whole-run table as markdown, ratios against the first row.
+pub fn whole_runs_markdown(runs: &[(String, RunTotals)]) -> String {
+    let mut out = String::from(
+        "| solver | sweeps | vs first | solve time (s) | vs first | capped steps | worst seed |\n|---|---:|---:|---:|---:|---:|---:|\n",
+    );
+    let Some((_, first)) = runs.first() else { return out };
+    for (name, t) in runs {
+        let worst =
+            t.per_seed.iter().zip(&first.per_seed).map(|(a, b)| *a as f64 / (*b).max(1) as f64).fold(0.0, f64::max);
+        out += &format!(
+            "| {name} | {} | {:.3}x | {:.2} | {:.3}x | {} | {worst:.3}x |\n",
+            t.sweeps,
+            t.sweeps as f64 / first.sweeps.max(1) as f64,
+            t.solve_us / 1e6,
+            t.solve_us / first.solve_us.max(1e-9),
+            t.capped
+        );
+    }
+    out
 }
 
 /// A per-step choice among a menu of settings: one ridge regression per setting predicting the
@@ -216,6 +258,30 @@ impl SolverChooser {
         std::array::from_fn(|i| if i == 0 { 1.0 } else { (f.0[i - 1] - self.mean[i - 1]) / self.scale[i - 1] })
     }
 
+    /// The median time of one pick over `steps`' features, microseconds (the features'
+    /// extraction is each step's own `features_us`).
+    pub fn median_pick_us(&self, steps: &[ComparedStep]) -> f64 {
+        let mut times: Vec<f64> = steps
+            .iter()
+            .map(|s| {
+                let started = Instant::now();
+                std::hint::black_box(self.choose(std::hint::black_box(&s.features)));
+                started.elapsed().as_secs_f64() * 1e6
+            })
+            .collect();
+        times.sort_by(f64::total_cmp);
+        times.get(times.len() / 2).copied().unwrap_or(0.0)
+    }
+
+    /// How many of `steps` the chooser gives each of its settings.
+    pub fn picks(&self, steps: &[ComparedStep]) -> Vec<u64> {
+        let mut picks = vec![0u64; self.settings.len()];
+        for s in steps {
+            picks[self.choose(&s.features)] += 1;
+        }
+        picks
+    }
+
     /// The index of the setting predicted cheapest for a step with features `f`.
     pub fn choose(&self, f: &StepFeatures) -> usize {
         let x = self.design(f);
@@ -282,8 +348,8 @@ pub fn same_states_row(
     row
 }
 
-/// The same-states table: every setting, the hindsight ceiling by sweeps, and the chooser (with
-/// its inference time per step) if given.
+/// The same-states table: every setting, the hindsight ceiling by sweeps, and the chooser if
+/// given, charged each step's feature extraction and its median pick time (`pick_us`).
 pub fn same_states_table(
     menu: &[SolverSetting],
     steps: &[ComparedStep],
@@ -294,8 +360,10 @@ pub fn same_states_table(
     rows.push(same_states_row("hindsight best (each step's fewest sweeps)", steps, |c| {
         (*c.solves.iter().min_by_key(|m| m.sweeps).expect("a menu"), 0.0)
     }));
-    if let Some((chooser, inference_us)) = chooser {
-        rows.push(same_states_row("learned choice", steps, |c| (c.solves[chooser.choose(&c.features)], inference_us)));
+    if let Some((chooser, pick_us)) = chooser {
+        rows.push(same_states_row("learned choice", steps, |c| {
+            (c.solves[chooser.choose(&c.features)], c.features_us as f64 + pick_us)
+        }));
     }
     rows
 }

@@ -328,7 +328,7 @@ const EVALUATION_SEEDS: std::ops::Range<u64> = 0..30;
 
 /// `dc-sim --compare-solvers`: the same-states table, the chooser, whole runs.
 fn compare_solvers(args: &Args, menu: &[sim::SolverSetting]) -> Result<()> {
-    use sim::compare::{self, CompareSpec, SolverChooser};
+    use sim::compare::{self, Choice, CompareSpec, SolverChooser};
     let seeds = args.seeds()?;
     let spec = CompareSpec {
         scene: args.scene_config(seeds[0]),
@@ -369,76 +369,38 @@ fn compare_solvers(args: &Args, menu: &[sim::SolverSetting]) -> Result<()> {
     let p = bar(seeds.len(), "same states");
     let steps = compare::same_states(&spec, &seeds, |_| p.inc(1))?;
     p.finish_and_clear();
-    // The chooser's inference, timed over every evaluated step (its median per step is charged).
-    let inference_us = chooser.as_ref().map(|c| {
-        let mut times: Vec<f64> = steps
-            .iter()
-            .map(|s| {
-                let t = std::time::Instant::now();
-                std::hint::black_box(c.choose(std::hint::black_box(&s.features)));
-                t.elapsed().as_secs_f64() * 1e6
-            })
-            .collect();
-        times.sort_by(f64::total_cmp);
-        times[times.len() / 2]
-    });
-    let rows = compare::same_states_table(menu, &steps, chooser.as_ref().zip(inference_us));
+    // The chooser pays, every step, its features' extraction and its pick (the median pick).
+    let pick_us = chooser.as_ref().map(|c| c.median_pick_us(&steps));
+    let rows = compare::same_states_table(menu, &steps, chooser.as_ref().zip(pick_us));
     let mut report = format!(
-        "# Solvers on the same states
-
-`dc-sim {}`
-
-Seeds {}, {describe}; builtin's warm start; the trajectory is {}'s.
-
-{}",
+        "# Solvers on the same states\n\n`dc-sim {}`\n\nSeeds {}, {describe}; builtin's warm start; the trajectory is {}'s.\n\n{}",
         std::env::args().skip(1).collect::<Vec<_>>().join(" "),
         args.seeds.clone().unwrap_or_else(|| format!("{}..{}", args.seed, args.seed + args.simulations)),
         menu[0],
         compare::markdown(&rows)
     );
-    if let (Some(c), Some(us)) = (&chooser, inference_us) {
-        let mut picks = vec![0u64; menu.len()];
-        for s in &steps {
-            picks[c.choose(&s.features)] += 1;
-        }
-        let shares: Vec<String> = menu.iter().zip(&picks).map(|(m, k)| format!("{m} {k}")).collect();
+    if let (Some(c), Some(us)) = (&chooser, pick_us) {
+        let shares: Vec<String> = menu.iter().zip(c.picks(&steps)).map(|(m, k)| format!("{m} {k}")).collect();
+        let features_us = charts::median(&steps.iter().map(|s| s.features_us as f64).collect::<Vec<_>>());
         report += &format!(
-            "
-The learned choice's picks (steps): {}; inference {us:.2} us per step (median).
-",
+            "\nThe learned choice's picks (steps): {}; per step {features_us:.2} us for the features and {us:.2} us for the pick (medians).\n",
             shares.join(", ")
         );
     }
     if args.whole_runs {
         let mut whole = Vec::new();
-        for &setting in menu {
-            let p = bar(1, &format!("whole runs, {setting}"));
-            whole.push((setting.to_string(), compare::whole_run(&spec, &seeds, |_| setting)?));
+        let choices = menu.iter().map(|&s| (s.to_string(), Choice::Fixed(s)));
+        for (name, choice) in
+            choices.chain(chooser.as_ref().map(|c| ("learned choice".to_string(), Choice::Learned(c))))
+        {
+            let p = bar(seeds.len(), &format!("whole runs, {name}"));
+            whole.push((name, compare::whole_run(&spec, &seeds, choice, |_| p.inc(1))?));
             p.finish_and_clear();
         }
-        if let Some(c) = &chooser {
-            whole.push(("learned choice".to_string(), compare::whole_run(&spec, &seeds, |f| menu[c.choose(f)])?));
-        }
-        report += "
-## Whole runs (each solver drives its own trajectory)
-
-| solver | sweeps | vs first | solve time (s) | vs first | capped steps | worst seed |
-|---|---:|---:|---:|---:|---:|---:|
-";
-        let first = whole[0].1.clone();
-        for (name, t) in &whole {
-            let worst =
-                t.per_seed.iter().zip(&first.per_seed).map(|(a, b)| *a as f64 / (*b).max(1) as f64).fold(0.0, f64::max);
-            report += &format!(
-                "| {name} | {} | {:.3}x | {:.2} | {:.3}x | {} | {worst:.3}x |
-",
-                t.sweeps,
-                t.sweeps as f64 / first.sweeps.max(1) as f64,
-                t.solve_us / 1e6,
-                t.solve_us / first.solve_us.max(1e-9),
-                t.capped
-            );
-        }
+        report += &format!(
+            "\n## Whole runs (each solver drives its own trajectory)\n\n{}",
+            compare::whole_runs_markdown(&whole)
+        );
     }
     println!("{report}");
     if let Some(dir) = &args.out {

@@ -243,7 +243,7 @@ fn the_menu_on_the_trajectory_solvers_own_states_repeats_its_sweeps() {
     };
     let steps = compare::same_states(&spec, &[40, 41], |_| ()).unwrap();
     assert_eq!(steps.len(), 240);
-    let run = compare::whole_run(&spec, &[40, 41], |_| spec.menu[0]).unwrap();
+    let run = compare::whole_run(&spec, &[40, 41], compare::Choice::Fixed(spec.menu[0]), |_| ()).unwrap();
     assert_eq!(run.sweeps, steps.iter().map(|s| s.solves[0].sweeps as u64).sum::<u64>());
     let rows = compare::same_states_table(&spec.menu, &steps, None);
     let ceiling = &rows[spec.menu.len()];
@@ -264,7 +264,7 @@ fn the_chooser_learns_which_setting_a_feature_favours() {
             features.0[2] = height;
             features.0[0] = (i % 7) as f64; // noise the regression must ignore
             let (a, b) = if height >= 5.0 { (10, 40) } else { (40, 10) };
-            compare::ComparedStep { seed: 1000, step: i, features, solves: vec![solve(a), solve(b)] }
+            compare::ComparedStep { seed: 1000, step: i, features, features_us: 0.0, solves: vec![solve(a), solve(b)] }
         })
         .collect();
     let chooser = SolverChooser::fit(&menu, &steps).unwrap();

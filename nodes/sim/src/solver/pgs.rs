@@ -367,18 +367,7 @@ impl ContactSolver {
 
     /// The natural residual of the current impulses and velocities.
     fn natural_residual(&self, bodies: &[SolverBody], softness: f32) -> NaturalResidual {
-        let (mut max, mut squared) = (0.0f32, 0.0f64);
-        for (c, l) in self.prepared.iter().zip(&self.work) {
-            let dv = relative(bodies, c);
-            let (vn, vt) = (dv.dot(c.n), dv.dot(c.t));
-            let rn = (l.normal - ((l.normal - c.normal_mass * vn) * softness).max(0.0)).abs();
-            let max_t = c.mu * l.normal;
-            let rt = (l.tangent - ((l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t)).abs();
-            max = max.max(rn).max(rt);
-            squared += (rn as f64).powi(2) + (rt as f64).powi(2);
-        }
-        let parts = 2 * self.prepared.len().max(1);
-        NaturalResidual { max, rms: (squared / parts as f64).sqrt() as f32 }
+        natural_residual_of(&self.prepared, &self.work, bodies, softness)
     }
 
     /// The impulses of the last solve, one per row.
@@ -419,10 +408,29 @@ pub fn natural_residual(
     impulses: &[Impulse],
     compliance: f32,
 ) -> NaturalResidual {
-    let mut solver = ContactSolver::new();
-    solver.prepared.extend(rows.iter().map(|r| Prepared::of(r, bodies)));
-    solver.work.extend_from_slice(impulses);
-    solver.natural_residual(bodies, 1.0 / (1.0 + compliance))
+    let prepared: Vec<Prepared> = rows.iter().map(|r| Prepared::of(r, bodies)).collect();
+    natural_residual_of(&prepared, impulses, bodies, 1.0 / (1.0 + compliance))
+}
+
+/// The natural residual of `impulses` on prepared rows (see [`NaturalResidual`]).
+fn natural_residual_of(
+    prepared: &[Prepared],
+    impulses: &[Impulse],
+    bodies: &[SolverBody],
+    softness: f32,
+) -> NaturalResidual {
+    let (mut max, mut squared) = (0.0f32, 0.0f64);
+    for (c, l) in prepared.iter().zip(impulses) {
+        let dv = relative(bodies, c);
+        let (vn, vt) = (dv.dot(c.n), dv.dot(c.t));
+        let rn = (l.normal - ((l.normal - c.normal_mass * vn) * softness).max(0.0)).abs();
+        let max_t = c.mu * l.normal;
+        let rt = (l.tangent - ((l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t)).abs();
+        max = max.max(rn).max(rt);
+        squared += (rn as f64).powi(2) + (rt as f64).powi(2);
+    }
+    let parts = 2 * prepared.len().max(1);
+    NaturalResidual { max, rms: (squared / parts as f64).sqrt() as f32 }
 }
 
 /// How many of the last sweeps [`ContactSolver::convergence_rate`] averages over.

@@ -47,53 +47,66 @@ pub enum StopRule {
     Natural,
 }
 
+/// An enum the command line spells by keyword: every value with its keyword.
+trait Keyword: Copy + PartialEq + 'static {
+    /// What the keywords name, for errors (`stopping rule`).
+    const WHAT: &'static str;
+    const KEYWORDS: &'static [(Self, &'static str)];
+
+    fn keyword(self) -> &'static str {
+        Self::KEYWORDS.iter().find(|(v, _)| *v == self).map(|(_, k)| *k).expect("every value has a keyword")
+    }
+
+    fn from_keyword(s: &str) -> Result<Self, String> {
+        Self::KEYWORDS.iter().find(|(_, k)| *k == s).map(|(v, _)| *v).ok_or_else(|| {
+            let all: Vec<&str> = Self::KEYWORDS.iter().map(|(_, k)| *k).collect();
+            format!("unknown {} `{s}` (expected one of: {})", Self::WHAT, all.join(", "))
+        })
+    }
+}
+
+impl Keyword for StopRule {
+    const WHAT: &'static str = "stopping rule";
+    const KEYWORDS: &'static [(Self, &'static str)] = &[(StopRule::Change, "change"), (StopRule::Natural, "natural")];
+}
+
+impl Keyword for RowOrder {
+    const WHAT: &'static str = "row order";
+    const KEYWORDS: &'static [(Self, &'static str)] = &[(RowOrder::Recorded, "recorded"), (RowOrder::Down, "down")];
+}
+
+impl StopRule {
+    /// The rule `dc-sim` uses unless told otherwise: the same accuracy for every solver.
+    pub const RECOMMENDED: StopRule = StopRule::Natural;
+
+    pub fn name(self) -> &'static str {
+        self.keyword()
+    }
+}
+
+impl RowOrder {
+    pub fn name(self) -> &'static str {
+        self.keyword()
+    }
+}
+
 impl fmt::Display for StopRule {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
     }
 }
 
-impl StopRule {
-    pub const NAMES: &'static str = "change, natural";
-    /// The rule `dc-sim` uses unless told otherwise: the same accuracy for every solver.
-    pub const RECOMMENDED: StopRule = StopRule::Natural;
-
-    pub fn name(self) -> &'static str {
-        match self {
-            StopRule::Change => "change",
-            StopRule::Natural => "natural",
-        }
-    }
-}
-
 impl FromStr for StopRule {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "change" => Ok(StopRule::Change),
-            "natural" => Ok(StopRule::Natural),
-            _ => Err(format!("unknown stopping rule `{s}` (expected one of: {})", Self::NAMES)),
-        }
-    }
-}
-
-impl RowOrder {
-    pub fn name(self) -> &'static str {
-        match self {
-            RowOrder::Recorded => "recorded",
-            RowOrder::Down => "down",
-        }
+        Self::from_keyword(s)
     }
 }
 
 impl FromStr for RowOrder {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "recorded" => Ok(RowOrder::Recorded),
-            "down" => Ok(RowOrder::Down),
-            _ => Err(format!("unknown row order `{s}` (expected recorded or down)")),
-        }
+        Self::from_keyword(s)
     }
 }
 
