@@ -121,6 +121,13 @@ struct EvalArgs {
     /// vs builtin within each solver).
     #[arg(long, value_delimiter = ',')]
     solvers: Vec<String>,
+    /// Sweep budgets to run every model at (`4,8,16`; `dc-sim --budget K`: exactly K sweeps a
+    /// step, fewer only when the natural residual is already below --tolerance): one evaluation
+    /// per budget in OUT/budget-K/ (OUT/<solver>/budget-K/ with --solvers), then OUT/budgets.md,
+    /// each model's accuracy after its budget placed on builtin's curve over these budgets.
+    /// Same states are not measured (every model makes K sweeps).
+    #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u32).range(1..=4096))]
+    budget: Vec<u32>,
     /// More simulator parameters, passed through (after `--`).
     #[arg(last = true)]
     sim_args: Vec<String>,
@@ -483,7 +490,7 @@ fn bench_graph(args: &[String], zenoh: bool) -> Result<Graph> {
 }
 
 /// Builds the evaluation graph: one metrics node and `jobs` simulators sharing the models.
-fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>) -> Result<Graph> {
+fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>, budget: Option<u32>) -> Result<Graph> {
     let seeds = msgs::parse_seeds(&args.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
     let training = msgs::parse_seeds(&args.training_seeds).map_err(|e| anyhow::anyhow!("--training-seeds {e}"))?;
     let overlap: Vec<u64> = seeds.iter().copied().filter(|s| training.binary_search(s).is_ok()).collect();
@@ -562,12 +569,16 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>) -> R
         if let Some(gnn) = &args.gnn_model {
             sim_args.push(format!("--gnn-model={}", gnn.display()));
         }
-        if args.same_states {
+        // At a budget every model makes the same sweeps: builtin on the same states says nothing.
+        if args.same_states && budget.is_none() {
             sim_args.push("--shadow-builtin".into());
         }
         sim_args.extend(args.sim_args.iter().cloned());
         if let Some(solver) = solver {
             sim_args.push(format!("--solver={solver}"));
+        }
+        if let Some(k) = budget {
+            sim_args.push(format!("--budget={k}"));
         }
         nodes.push(NodeSpec::new(format!("sim-{j}"), "dc-sim", false, sim_args));
     }
@@ -579,10 +590,10 @@ fn eval(args: EvalArgs) -> Result<()> {
         let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
         PathBuf::from(format!("reports/eval-{secs}"))
     });
-    if !args.solvers.is_empty() {
-        return eval_solvers(&args, &out);
+    if !args.solvers.is_empty() || !args.budget.is_empty() {
+        return eval_variants(&args, &out);
     }
-    let graph = eval_graph(&args, &out, None)?;
+    let graph = eval_graph(&args, &out, None, None)?;
     graph.check_params()?;
     if args.dry_run {
         return print_graph(&graph, None);
@@ -596,40 +607,89 @@ fn eval(args: EvalArgs) -> Result<()> {
     Ok(())
 }
 
-/// `dc eval --solvers`: every graph checked first, then one evaluation per solver, then the
-/// solver x model table.
-fn eval_solvers(args: &EvalArgs, out: &std::path::Path) -> Result<()> {
-    let mut runs = Vec::new();
-    for solver in &args.solvers {
-        if runs.iter().any(|(s, _, _): &(String, PathBuf, Graph)| s == solver) {
-            bail!("--solvers: `{solver}` is asked for twice");
+/// One evaluation of `dc eval --solvers/--budget`: its solver and budget, folder and graph.
+struct Variant {
+    solver: Option<String>,
+    budget: Option<u32>,
+    dir: PathBuf,
+    graph: Graph,
+}
+
+/// `dc eval --solvers` and/or `--budget`: every graph checked first, then one evaluation per
+/// solver and budget, then the solver x model table (without budgets) or the budget table (per
+/// solver).
+fn eval_variants(args: &EvalArgs, out: &std::path::Path) -> Result<()> {
+    let solvers: Vec<Option<&String>> =
+        if args.solvers.is_empty() { vec![None] } else { args.solvers.iter().map(Some).collect() };
+    let budgets: Vec<Option<u32>> =
+        if args.budget.is_empty() { vec![None] } else { args.budget.iter().copied().map(Some).collect() };
+    for (i, s) in args.solvers.iter().enumerate() {
+        if args.solvers[..i].contains(s) {
+            bail!("--solvers: `{s}` is asked for twice");
         }
-        let dir = out.join(solver.replace(['/', ':'], "-"));
-        let graph = eval_graph(args, &dir, Some(solver))?;
-        graph.check_params().with_context(|| format!("--solvers {solver}"))?;
-        runs.push((solver.clone(), dir, graph));
+    }
+    for (i, k) in args.budget.iter().enumerate() {
+        if args.budget[..i].contains(k) {
+            bail!("--budget: {k} is asked for twice");
+        }
+    }
+    let mut runs = Vec::new();
+    for solver in &solvers {
+        for &budget in &budgets {
+            let mut dir = out.to_path_buf();
+            if let Some(s) = solver {
+                dir.push(s.replace(['/', ':'], "-"));
+            }
+            if let Some(k) = budget {
+                dir.push(format!("budget-{k}"));
+            }
+            let graph = eval_graph(args, &dir, solver.map(String::as_str), budget)?;
+            let what = [solver.map(|s| format!("--solvers {s}")), budget.map(|k| format!("--budget {k}"))];
+            graph.check_params().with_context(|| what.iter().flatten().cloned().collect::<Vec<_>>().join(", "))?;
+            runs.push(Variant { solver: solver.cloned(), budget, dir, graph });
+        }
     }
     if args.dry_run {
-        return runs.iter().try_for_each(|(_, _, graph)| print_graph(graph, None));
+        return runs.iter().try_for_each(|v| print_graph(&v.graph, None));
     }
     writable_dir(out).context("--out")?;
+    for v in &runs {
+        writable_dir(&v.dir).context("--out")?;
+    }
     let flag = interrupt_flag();
     let mut summaries = Vec::new();
-    for (solver, dir, graph) in &runs {
-        writable_dir(dir).context("--out")?;
-        supervisor::run(graph, DEFAULT_HOST, Output::Forward, &flag)?;
-        let path = dir.join("summary.csv");
+    for v in &runs {
+        supervisor::run(&v.graph, DEFAULT_HOST, Output::Forward, &flag)?;
+        let path = v.dir.join("summary.csv");
         let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-        summaries.push((
-            solver.as_str(),
-            launch::solver_table::read_summary(&text).with_context(|| path.display().to_string())?,
-        ));
+        summaries.push(launch::solver_table::read_summary(&text).with_context(|| path.display().to_string())?);
     }
-    let table = launch::solver_table::markdown(&summaries);
-    let path = out.join("solvers.md");
-    std::fs::write(&path, format!("# Solvers x models\n\n{table}"))
-        .with_context(|| format!("writing {}", path.display()))?;
-    println!("{table}\nsolver x model table: {}", path.display());
+    if args.budget.is_empty() {
+        let named: Vec<(&str, Vec<_>)> =
+            runs.iter().zip(summaries).map(|(v, s)| (v.solver.as_deref().unwrap_or_default(), s)).collect();
+        let table = launch::solver_table::markdown(&named);
+        let path = out.join("solvers.md");
+        std::fs::write(&path, format!("# Solvers x models\n\n{table}"))
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("{table}\nsolver x model table: {}", path.display());
+        return Ok(());
+    }
+    let mut text = String::from("# Models at fixed sweep budgets\n\n");
+    let mut rows = runs.iter().zip(summaries).peekable();
+    while let Some((v, s)) = rows.next() {
+        let mut per_budget = vec![(v.budget.unwrap_or(0), s)];
+        while let Some((w, s)) = rows.next_if(|(w, _)| w.solver == v.solver) {
+            per_budget.push((w.budget.unwrap_or(0), s));
+        }
+        if let Some(solver) = &v.solver {
+            text += &format!("## Solver {solver}\n\n");
+        }
+        text += &launch::solver_table::budget_markdown(&per_budget);
+        text.push('\n');
+    }
+    let path = out.join("budgets.md");
+    std::fs::write(&path, &text).with_context(|| format!("writing {}", path.display()))?;
+    println!("{text}budget table: {}", path.display());
     Ok(())
 }
 
@@ -712,7 +772,7 @@ mod tests {
         let graph = |models: &str| {
             let cli = Cli::try_parse_from(["dc", "eval", "--seeds", "0..2", "--models", models]).unwrap();
             let Command::Eval(eval) = cli.command else { unreachable!("an eval command") };
-            eval_graph(&eval, std::path::Path::new("reports/unused"), None).map(|_| ())
+            eval_graph(&eval, std::path::Path::new("reports/unused"), None, None).map(|_| ())
         };
         for twice in ["builtin,builtin", "blend,blend:0.5", "none,extrapolate:1,extrapolate"] {
             let e = format!("{:#}", graph(twice).unwrap_err());

@@ -1,5 +1,5 @@
-//! `dc eval --solvers`: the solver x model table, from each solver's evaluation report
-//! (`summary.csv`, as the metrics node writes it).
+//! `dc eval --solvers` and `dc eval --budget`: the solver x model and budget x model tables, from
+//! each evaluation's report (`summary.csv`, as the metrics node writes it).
 
 /// What the table reads of one model's row of a `summary.csv`.
 #[derive(Debug, Clone, PartialEq)]
@@ -10,6 +10,11 @@ pub struct SummaryRow {
     pub cap_hits: u64,
     /// Same states vs builtin within the solver's evaluation (NaN where not measured).
     pub same_states: f64,
+    /// Accuracy (NaN where the report predates the columns): the mean RMS natural residual, the
+    /// mean largest penetration, the late phase's mean kinetic energy.
+    pub natural_rms: f64,
+    pub penetration_max: f64,
+    pub late_kinetic_energy: f64,
 }
 
 /// A `summary.csv` that cannot be read.
@@ -27,6 +32,9 @@ pub enum SummaryError {
 
 const COLUMNS: [&str; 5] = ["model", "total_sweeps", "total_solve_ms", "cap_hits", "same_states_ratio_to_builtin"];
 
+/// Columns read when present (reports written before them lack them).
+const ACCURACY_COLUMNS: [&str; 3] = ["mean_natural_rms", "mean_penetration_max", "late_kinetic_energy"];
+
 /// Reads the rows of a `summary.csv`.
 pub fn read_summary(text: &str) -> Result<Vec<SummaryRow>, SummaryError> {
     let mut lines = text.lines();
@@ -35,6 +43,8 @@ pub fn read_summary(text: &str) -> Result<Vec<SummaryRow>, SummaryError> {
     for (slot, name) in at.iter_mut().zip(COLUMNS) {
         *slot = header.iter().position(|h| *h == name).ok_or(SummaryError::MissingColumn(name))?;
     }
+    let optional: Vec<Option<usize>> =
+        ACCURACY_COLUMNS.iter().map(|name| header.iter().position(|h| h == name)).collect();
     let mut rows = Vec::new();
     for (i, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
         let fields: Vec<&str> = line.split(',').collect();
@@ -49,12 +59,25 @@ pub fn read_summary(text: &str) -> Result<Vec<SummaryRow>, SummaryError> {
                 value: fields[at[k]].to_string(),
             })
         };
+        // An empty cell is a figure the report could not compute (no step with contacts).
+        let accuracy = |k: usize| match optional[k] {
+            None => Ok(f64::NAN),
+            Some(at) if fields[at].is_empty() => Ok(f64::NAN),
+            Some(at) => fields[at].parse::<f64>().map_err(|_| SummaryError::BadNumber {
+                line,
+                column: ACCURACY_COLUMNS[k],
+                value: fields[at].to_string(),
+            }),
+        };
         rows.push(SummaryRow {
             model: fields[at[0]].to_string(),
             total_sweeps: number(1)? as u64,
             total_solve_ms: number(2)?,
             cap_hits: number(3)? as u64,
             same_states: number(4)?,
+            natural_rms: accuracy(0)?,
+            penetration_max: accuracy(1)?,
+            late_kinetic_energy: accuracy(2)?,
         });
     }
     Ok(rows)
@@ -87,6 +110,51 @@ pub fn markdown(summaries: &[(&str, Vec<SummaryRow>)]) -> String {
                 r.total_solve_ms,
                 r.total_solve_ms / base.total_solve_ms.max(1e-9),
                 r.cap_hits,
+            );
+        }
+    }
+    out
+}
+
+/// The budget table: one row per (model, budget), its accuracy after the budget and where that
+/// sits on builtin's curve over the evaluated budgets (`worth`: the budget at which builtin is as
+/// accurate, interpolated log-log; `<`/`>` outside the budgets evaluated).
+pub fn budget_markdown(summaries: &[(u32, Vec<SummaryRow>)]) -> String {
+    let mut out = String::from(
+        "| model | budget | RMS natural residual | worth (builtin sweeps) | penetration max (m) | kinetic energy, late (J) | solve time (ms) | total sweeps |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    let curve: Vec<(f64, f64)> = summaries
+        .iter()
+        .filter_map(|(k, rows)| rows.iter().find(|r| r.model == "builtin").map(|r| (*k as f64, r.natural_rms)))
+        .collect();
+    let mut models: Vec<&str> = Vec::new();
+    for (_, rows) in summaries {
+        for r in rows {
+            if !models.contains(&r.model.as_str()) {
+                models.push(&r.model);
+            }
+        }
+    }
+    let num = |x: f64| {
+        if !x.is_finite() {
+            "-".to_string()
+        } else if x != 0.0 && x.abs() < 1e-3 {
+            format!("{x:.3e}")
+        } else {
+            format!("{x:.4}")
+        }
+    };
+    for model in models {
+        for (k, rows) in summaries {
+            let Some(r) = rows.iter().find(|r| r.model == model) else { continue };
+            out += &format!(
+                "| {model} | {k} | {} | {} | {} | {} | {:.1} | {} |\n",
+                num(r.natural_rms),
+                msgs::curve::worth(&curve, r.natural_rms),
+                num(r.penetration_max),
+                num(r.late_kinetic_energy),
+                r.total_solve_ms,
+                r.total_sweeps,
             );
         }
     }

@@ -13,6 +13,7 @@
 
 mod codec;
 pub mod control;
+pub mod curve;
 pub mod models;
 mod names;
 pub mod problem;
@@ -301,6 +302,16 @@ pub struct SolveStatsHeader {
     pub natural_max: f32,
     #[serde(default)]
     pub natural_rms: f32,
+    /// The position pass's leftover overlap (max, mean) and the pile's centre-of-mass height and
+    /// spread; 0 in recordings made before they existed.
+    #[serde(default)]
+    pub penetration_max: f32,
+    #[serde(default)]
+    pub penetration_mean: f32,
+    #[serde(default)]
+    pub pile_height: f32,
+    #[serde(default)]
+    pub pile_spread: f32,
 }
 
 /// Most residuals a [`SolveStatsHeader`] frame carries (one per sweep; longer solves keep the first ones).

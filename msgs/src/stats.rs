@@ -61,6 +61,19 @@ pub struct StepStats {
     pub natural_max: f32,
     #[serde(default)]
     pub natural_rms: f32,
+    /// Overlap left after the position pass: the largest over contacts and the mean over
+    /// contacts (m; 0 without contacts or where not recorded).
+    #[serde(default)]
+    pub penetration_max: f32,
+    #[serde(default)]
+    pub penetration_mean: f32,
+    /// The dynamic bodies' centre of mass height (m) and their spread about it (mass-weighted RMS
+    /// distance from it, m), after the step: the pile's shape, compared across runs by phase
+    /// (trajectories diverge, so no per-body comparison).
+    #[serde(default)]
+    pub pile_height: f32,
+    #[serde(default)]
+    pub pile_spread: f32,
 }
 
 impl StepStats {
@@ -92,6 +105,10 @@ impl StepStats {
             builtin_measured: h.builtin_measured != 0,
             natural_max: h.natural_max,
             natural_rms: h.natural_rms,
+            penetration_max: h.penetration_max,
+            penetration_mean: h.penetration_mean,
+            pile_height: h.pile_height,
+            pile_spread: h.pile_spread,
         }
     }
 
@@ -121,6 +138,10 @@ impl StepStats {
             builtin_measured: self.builtin_measured as u32,
             natural_max: self.natural_max,
             natural_rms: self.natural_rms,
+            penetration_max: self.penetration_max,
+            penetration_mean: self.penetration_mean,
+            pile_height: self.pile_height,
+            pile_spread: self.pile_spread,
         }
     }
 

@@ -124,7 +124,15 @@ impl Completeness {
             ("warm_start_us", h.warm_start_us),
             ("kinetic_energy", h.kinetic_energy),
             ("max_speed", h.max_speed),
+            ("natural_max", h.natural_max),
+            ("natural_rms", h.natural_rms),
+            ("penetration_max", h.penetration_max),
+            ("penetration_mean", h.penetration_mean),
+            ("pile_spread", h.pile_spread),
         ];
+        if !h.pile_height.is_finite() {
+            return Some(format!("pile_height = {}", h.pile_height));
+        }
         if let Some((name, v)) = measured.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
             return Some(format!("{name} = {v}"));
         }

@@ -21,11 +21,14 @@
 //! - [`run`]: the step loop of a run, its control messages, a sink for each step's outputs;
 //! - [`source`]: grids from another node as warm starts, with the producer's fault handling;
 //! - [`bench`]: ms/step against rapier's full pipeline;
+//! - [`budget`]: the real-time regime, a fixed sweep budget per step, each model's accuracy
+//!   after it placed on builtin's curve of accuracy against budget;
 //! - [`compare`]: solvers side by side on the same states, the hindsight ceiling, a learned
 //!   per-step choice of solver;
 //! - [`rng`]: MT19937 / numpy legacy `RandomState`, xoshiro256++.
 
 pub mod bench;
+pub mod budget;
 pub mod compare;
 pub mod contact;
 pub mod error;

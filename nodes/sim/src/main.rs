@@ -102,6 +102,12 @@ struct Args {
     /// Sweep cap.
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..))]
     max_sweeps: u32,
+    /// The real-time regime: exactly K sweeps a step, stopping earlier only when the natural
+    /// residual is already at most --tolerance (the same as `--max-sweeps K --stop natural`);
+    /// the statistics' natural residual says how accurate each step was.
+    #[arg(long, value_name = "K", conflicts_with_all = ["max_sweeps", "stop"],
+          value_parser = clap::value_parser!(u32).range(1..=sim::budget::MAX_BUDGET as i64))]
+    budget: Option<u32>,
     /// Relative compliance of every contact row (0: rigid, the thesis's problem); the oracle,
     /// the labels and the shadow solves use the same. See `sim::SolveParams::compliance`.
     #[arg(long, default_value_t = 0.0, value_parser = compliance)]
@@ -179,9 +185,21 @@ struct Args {
     #[arg(long, requires = "compare_solvers")]
     whole_runs: bool,
     /// With --compare-solvers: the folder for `solvers.md`, `solver-steps.csv` and
-    /// `solver-sweeps.png` (mean sweeps per step by solver).
-    #[arg(long, requires = "compare_solvers")]
+    /// `solver-sweeps.png` (mean sweeps per step by solver); with --budget-study: for
+    /// `budget.md`, `budget-steps.csv` and `budget-accuracy.png`.
+    #[arg(long)]
     out: Option<std::path::PathBuf>,
+    /// Study the real-time regime instead of running the node (no bus): at each budget of this
+    /// list (`8` or `4,8`), every model of --models (default none, builtin, blend:0.25,
+    /// blend:0.5, blend:0.75, and gnn with --gnn-model) runs every seed with that many sweeps a
+    /// step, placed on builtin's curve of accuracy against budget (1, 2, 4, ... 16K), the pile
+    /// compared per phase with a reference run solved to --reference-tolerance; prints and
+    /// writes the tables (docs/budget.md explains them).
+    #[arg(long, value_name = "K,...", conflicts_with_all = ["budget", "compare_solvers", "bench"])]
+    budget_study: Option<String>,
+    /// With --budget-study: the reference run's tolerance (natural residual).
+    #[arg(long, default_value_t = 1e-6, value_parser = positive_f32, requires = "budget_study")]
+    reference_tolerance: f32,
     /// Run the benchmark and print it instead of running the node.
     #[arg(long)]
     bench: bool,
@@ -252,9 +270,9 @@ impl Args {
         }
         let solve = SolveParams {
             tolerance: self.tolerance,
-            max_sweeps: self.max_sweeps,
+            max_sweeps: self.budget.unwrap_or(self.max_sweeps),
             compliance: self.compliance,
-            stop: self.stop,
+            stop: if self.budget.is_some() { sim::StopRule::Natural } else { self.stop },
             ..SolveParams::default()
         }
         .with_setting(setting);
@@ -417,6 +435,87 @@ fn compare_solvers(args: &Args, menu: &[sim::SolverSetting]) -> Result<()> {
     Ok(())
 }
 
+/// The budgets of `--budget-study`.
+fn study_budgets(list: &str) -> Result<Vec<u32>> {
+    let mut budgets = Vec::new();
+    for part in list.split(',') {
+        let k: u32 =
+            part.trim().parse().with_context(|| format!("--budget-study {list}: `{part}` is not a sweep count"))?;
+        if k == 0 || k > sim::budget::MAX_BUDGET {
+            bail!("--budget-study {list}: a budget is from 1 to {} sweeps, got {k}", sim::budget::MAX_BUDGET);
+        }
+        if budgets.contains(&k) {
+            bail!("--budget-study {list}: {k} is asked for twice");
+        }
+        budgets.push(k);
+    }
+    Ok(budgets)
+}
+
+/// The study's spec: the models of --models, or the default set.
+fn budget_spec(args: &Args, list: &str, first_seed: u64) -> Result<sim::budget::BudgetSpec> {
+    let models = if args.models.is_empty() {
+        let mut names = vec!["none", "builtin", "blend:0.25", "blend:0.5", "blend:0.75"];
+        if args.gnn_model.is_some() {
+            names.push("gnn");
+        }
+        names.iter().map(|n| n.parse::<ModelSpec>().map_err(|e| anyhow::anyhow!("{e}"))).collect::<Result<_>>()?
+    } else {
+        args.models.clone()
+    };
+    Ok(sim::budget::BudgetSpec {
+        scene: args.scene_config(first_seed),
+        params: args.world_params(),
+        steps: args.steps,
+        budgets: study_budgets(list)?,
+        models,
+        files: sim::ModelFiles { gnn: args.gnn_model.clone() },
+        reference_tolerance: args.reference_tolerance,
+    })
+}
+
+/// `dc-sim --budget-study`: the real-time regime's tables.
+fn budget_study(args: &Args, list: &str) -> Result<()> {
+    use sim::budget;
+    let seeds = args.seeds()?;
+    let spec = budget_spec(args, list, seeds[0])?;
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let bar = indicatif::ProgressBar::new(seeds.len() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("budget study [{bar:30}] {pos}/{len} seeds, {elapsed}, ~{eta} left")
+            .expect("a valid template"),
+    );
+    let runs = budget::study(&spec, &seeds, |_| bar.inc(1))?;
+    bar.finish_and_clear();
+    let summaries = budget::summaries(&runs);
+    let report = format!(
+        "# The real-time regime: accuracy after a fixed sweep budget\n\n`dc-sim {}`\n\nSeeds {}, {} steps, {} bodies, solver {}, early stop when the natural residual <= {}; reference: natural residual <= {} (cap {}). Every run drives its own trajectory. Accuracy figures are means over the steps with contacts.\n\n{}",
+        std::env::args().skip(1).collect::<Vec<_>>().join(" "),
+        args.seeds.clone().unwrap_or_else(|| format!("{}..{}", args.seed, args.seed + args.simulations)),
+        args.steps,
+        args.n,
+        spec.params.solve.setting(),
+        spec.params.solve.tolerance,
+        spec.reference_tolerance,
+        budget::REFERENCE_MAX_SWEEPS,
+        budget::markdown(&summaries, &spec.budgets)
+    );
+    println!("{report}");
+    if let Some(dir) = &args.out {
+        let write = |name: &str, text: &str| {
+            let path = dir.join(name);
+            std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))
+        };
+        write("budget.md", &report)?;
+        write("budget-steps.csv", &budget::csv(&runs))?;
+        budget::plot(&dir.join("budget-accuracy.png"), &summaries)?;
+        eprintln!("wrote {}/budget.md, budget-steps.csv and budget-accuracy.png", dir.display());
+    }
+    Ok(())
+}
+
 /// Everything that would fail once the run started, checked before it starts (and when the
 /// launcher checks a launch file): seeds, world parameters, the models (a learned model's file),
 /// the scene.
@@ -434,6 +533,12 @@ fn check(args: &Args) -> Result<()> {
     let seeds = args.seeds()?;
     // Counts, sizes and the memory they imply, before anything is allocated.
     args.run_spec(&seeds, 0, 0).validate()?;
+    if args.out.is_some() && args.compare_solvers.is_none() && args.budget_study.is_none() {
+        bail!("--out is the folder of --compare-solvers or --budget-study; the node publishes on the bus");
+    }
+    if let Some(list) = &args.budget_study {
+        return Ok(budget_spec(args, list, seeds[0])?.validate()?);
+    }
     if args.fallback.is_grid_based() {
         bail!("--fallback must be a local model, not `{}`", args.fallback.name());
     }
@@ -459,6 +564,9 @@ fn try_main() -> Result<()> {
     }
     if let Some(SolverMenu(menu)) = &args.compare_solvers {
         return compare_solvers(&args, menu);
+    }
+    if let Some(list) = &args.budget_study {
+        return budget_study(&args, list);
     }
     let seeds = args.seeds()?;
 

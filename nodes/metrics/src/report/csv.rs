@@ -74,6 +74,11 @@ struct SummaryRow<'a> {
     median_solve_us: Num,
     median_step_us: Num,
     total_solve_ms: Num,
+    mean_natural_rms: Num,
+    mean_natural_max: Num,
+    mean_penetration_max: Num,
+    mean_penetration_mean: Num,
+    late_kinetic_energy: Num,
 }
 
 impl<'a> From<&'a ModelSummary> for SummaryRow<'a> {
@@ -103,6 +108,11 @@ impl<'a> From<&'a ModelSummary> for SummaryRow<'a> {
             median_solve_us: Num(m.all.median_solve_us),
             median_step_us: Num(m.all.median_step_us),
             total_solve_ms: Num(m.all.total_solve_ms),
+            mean_natural_rms: Num(m.accuracy.natural_rms),
+            mean_natural_max: Num(m.accuracy.natural_max),
+            mean_penetration_max: Num(m.accuracy.penetration_max),
+            mean_penetration_mean: Num(m.accuracy.penetration_mean),
+            late_kinetic_energy: Num(m.accuracy.late_kinetic_energy),
         }
     }
 }
@@ -289,6 +299,6 @@ mod tests {
                 && text.ends_with(",blend_placed_on_same_states\n")
         );
         assert_eq!(text.lines().count(), 1);
-        assert_eq!(header::<SummaryRow>().unwrap().len(), 24);
+        assert_eq!(header::<SummaryRow>().unwrap().len(), 29);
     }
 }

@@ -80,7 +80,7 @@ fn fmt_percent(share: f64) -> String {
     fmt(share * 100.0, 1) + "%"
 }
 
-const SUMMARY: [Column<ModelSummary>; 16] = [
+const SUMMARY: [Column<ModelSummary>; 18] = [
     ("model", |m| m.model.clone()),
     ("sims", |m| m.simulations.to_string()),
     ("steps", |m| m.all.steps.to_string()),
@@ -101,6 +101,8 @@ const SUMMARY: [Column<ModelSummary>; 16] = [
     ("warm err n (median MSE)", |m| fmt(m.median_warm_error_normal_mse, 4)),
     ("median solve us", |m| fmt(m.all.median_solve_us, 1)),
     ("median step us", |m| fmt(m.all.median_step_us, 1)),
+    ("RMS natural residual (mean)", |m| fmt_small(m.accuracy.natural_rms)),
+    ("penetration max (mean, m)", |m| fmt_small(m.accuracy.penetration_max)),
 ];
 
 /// Columns of the summary table (markdown and HTML).
@@ -209,7 +211,11 @@ pub const SUMMARY_NOTE: &str = "*vs builtin* compares whole runs: once a warm st
 the solver stops elsewhere within its tolerance and the run's trajectory (a chaotic pile) parts from builtin's run, \
 so that ratio mixes what the warm start saves with how hard the states it meets are. *same states vs builtin*: \
 the model's sweeps over the sweeps builtin's warm start needs on the very same step problems (`dc-sim \
---shadow-builtin`, which `dc eval` turns on), over every step, and the simulation where that ratio is worst.";
+--shadow-builtin`, which `dc eval` turns on), over every step, and the simulation where that ratio is worst. *RMS natural residual*: how far each step's \
+impulses are from solving its contact problem (what one projected Jacobi step would still change, RMS over the \
+rows, impulse units; mean over the steps with contacts), whatever stopped the solve: at a fixed sweep budget \
+(`dc eval --budget`) it is what a warm start buys. *penetration max*: the largest overlap the position pass \
+left, mean over steps.";
 
 /// What the per-phase table's columns mean.
 pub const PHASES_NOTE: &str = "Phases are step ranges of every simulation (`--phases`). *share of model*: the \
@@ -290,6 +296,7 @@ mod tests {
             persisting_share: 0.25,
             median_warm_error_normal_mse: 0.012345,
             median_warm_error_tangent_mse: 0.1,
+            accuracy: Default::default(),
         }
     }
 

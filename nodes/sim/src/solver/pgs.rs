@@ -503,6 +503,24 @@ mod tests {
     }
 
     #[test]
+    fn the_natural_residual_is_what_one_projected_jacobi_step_would_change() {
+        // Ball 1 slides at 2 and still approaches at 0.7 after a normal impulse of 0.3 (mass 1,
+        // normal mass 1, tangent mass 1 / (1 + 2 * 0.5^2) = 2/3, friction 0.5); ball 2 rests
+        // with no impulse (solved). By hand: normal |0.3 - max(0, 0.3 + 1 * 0.7)| = 0.7; tangent
+        // |0 - clip(0 - 2/3 * 2, +-0.5 * 0.3)| = 0.15; ball 2 nothing.
+        let rows = [floor_row(1), floor_row(2)];
+        let bodies = [SolverBody::default(), ball(Vec2::new(2.0, -0.7)), ball(Vec2::ZERO)];
+        let impulses = [Impulse { normal: 0.3, tangent: 0.0 }, Impulse::default()];
+        let r = natural_residual(&rows, &bodies, &impulses, 0.0);
+        assert!((r.max - 0.7).abs() < 1e-6, "{r:?}");
+        let rms = ((0.7f64.powi(2) + 0.15f64.powi(2)) / 4.0).sqrt() as f32;
+        assert!((r.rms - rms).abs() < 1e-6, "{r:?} vs {rms}");
+        // Compliance 1 halves the step's target: normal |0.3 - (0.3 + 0.7) / 2| = 0.2.
+        let r = natural_residual(&rows[..1], &bodies, &impulses[..1], 1.0);
+        assert!((r.max - 0.2).abs() < 1e-6, "{r:?}");
+    }
+
+    #[test]
     fn a_warm_start_outside_the_friction_cone_is_projected_not_a_panic() {
         // A learned model may predict a negative normal impulse (or NaN); the solve must still
         // converge to the same answer as from zero.

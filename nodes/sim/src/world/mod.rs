@@ -476,9 +476,46 @@ impl World {
             builtin_measured: builtin_sweeps.is_some(),
             natural_max: report.natural.max,
             natural_rms: report.natural.rms,
+            penetration_max: 0.0,
+            penetration_mean: 0.0,
+            pile_height: 0.0,
+            pile_spread: 0.0,
         };
         // Measured after the step's timer stopped: bookkeeping, not simulation.
         (self.stats.kinetic_energy, self.stats.max_speed) = self.motion();
+        (self.stats.penetration_max, self.stats.penetration_mean) = self.penetration();
+        (self.stats.pile_height, self.stats.pile_spread) = self.pile();
+    }
+
+    /// Overlap the position pass left, over the last step's contacts: the largest and the mean
+    /// (m; 0 without contacts), measured on the corrected poses.
+    pub fn penetration(&self) -> (f32, f32) {
+        let (mut max, mut sum) = (0.0f32, 0.0f64);
+        for row in &self.position_rows {
+            let depth = (-crate::solver::position::measure(row, &self.poses).2).max(0.0);
+            max = max.max(depth);
+            sum += depth as f64;
+        }
+        (max, (sum / self.position_rows.len().max(1) as f64) as f32)
+    }
+
+    /// The dynamic bodies' centre-of-mass height and their spread about the centre of mass (the
+    /// mass-weighted RMS distance from it), m.
+    pub fn pile(&self) -> (f32, f32) {
+        let dynamic = || self.bodies.iter().filter(|b| b.kind == BodyKind::Dynamic);
+        let mass: f64 = dynamic().map(|b| b.mass as f64).sum();
+        if mass <= 0.0 {
+            return (0.0, 0.0);
+        }
+        let (mut cx, mut cy) = (0.0f64, 0.0f64);
+        for b in dynamic() {
+            cx += b.mass as f64 * b.x.x as f64;
+            cy += b.mass as f64 * b.x.y as f64;
+        }
+        (cx, cy) = (cx / mass, cy / mass);
+        let spread: f64 =
+            dynamic().map(|b| b.mass as f64 * ((b.x.x as f64 - cx).powi(2) + (b.x.y as f64 - cy).powi(2))).sum();
+        (cy as f32, (spread / mass).sqrt() as f32)
     }
 
     /// The bodies as messages.

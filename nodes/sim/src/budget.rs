@@ -1,0 +1,533 @@
+//! The real-time regime (`dc-sim --budget-study`): every step solved with a fixed sweep budget,
+//! as real-time engines run (Box2D 2.x 8 velocity iterations, rapier 4), stopping earlier only when
+//! the natural residual is already below the tolerance. There a warm start decides how *accurate*
+//! a step is, so each model is judged by its accuracy after the budget K, placed on builtin's
+//! curve of accuracy against budget ("at 8 sweeps as accurate as builtin at N"), in sweeps and in
+//! the time on the simulator's critical path (warm start + solve).
+//!
+//! Accuracy per step: the natural residual after the budget (max and RMS over the rows, impulse
+//! units: solver-independent), the overlap the position pass leaves (max and mean over contacts),
+//! the pile's kinetic energy, and the pile's centre-of-mass height and spread against a reference
+//! run of the same seed solved to a tight tolerance — per phase, as statistics: trajectories
+//! diverge, so bodies are never compared one by one. Every run drives its own trajectory (whole
+//! runs): at a budget a step's inaccuracy is carried into the next step's warm start, which is
+//! part of what a warm start is judged on here.
+
+use crate::error::SimError;
+use crate::scene::SceneConfig;
+use crate::solver::{SolveParams, StopRule};
+use crate::warm::{ModelFiles, ModelKind, ModelSpec, Served, WarmStarter};
+use crate::world::{World, WorldParams};
+pub use msgs::curve::{along, worth, Worth};
+
+/// The first steps of the phases after the first (the report's phases: steps 0-99 falling,
+/// 100-149 piling up, 150-end settled).
+pub const PHASE_STARTS: [u32; 2] = crate::compare::PHASE_STARTS;
+
+/// How far builtin's curve reaches past the largest judged budget: K, 2K, 4K, 8K, 16K.
+pub const CURVE_REACH: u32 = 16;
+
+/// The sweep cap of the reference run (it stops at its tolerance long before).
+pub const REFERENCE_MAX_SWEEPS: u32 = 10_000;
+
+/// The study: scene, parameters, budgets and models.
+#[derive(Debug, Clone)]
+pub struct BudgetSpec {
+    pub scene: SceneConfig,
+    /// The solver and the early-stopping tolerance (natural residual); the cap is each run's budget.
+    pub params: WorldParams,
+    pub steps: u32,
+    /// The budgets each model is judged at (K).
+    pub budgets: Vec<u32>,
+    /// The models judged at every budget (builtin is always run: it is the curve).
+    pub models: Vec<ModelSpec>,
+    pub files: ModelFiles,
+    /// The reference run's tolerance (natural residual), e.g. 1e-6.
+    pub reference_tolerance: f32,
+}
+
+impl BudgetSpec {
+    /// The budgets of builtin's curve: powers of two from 1 to [`CURVE_REACH`] times the largest
+    /// judged budget, and every judged budget times 1, 2, 4, 8, 16.
+    pub fn curve_budgets(&self) -> Vec<u32> {
+        let top = self.budgets.iter().copied().max().unwrap_or(1).saturating_mul(CURVE_REACH);
+        let mut out: Vec<u32> =
+            std::iter::successors(Some(1u32), |b| b.checked_mul(2)).take_while(|&b| b <= top).collect();
+        for &k in &self.budgets {
+            out.extend((0..5).map(|i| k.saturating_mul(1 << i)));
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// The solve of a run at budget `k`.
+    pub fn at_budget(&self, k: u32) -> SolveParams {
+        SolveParams { max_sweeps: k, stop: StopRule::Natural, ..self.params.solve }
+    }
+
+    /// The reference run's solve.
+    pub fn reference(&self) -> SolveParams {
+        SolveParams {
+            tolerance: self.reference_tolerance,
+            max_sweeps: REFERENCE_MAX_SWEEPS,
+            stop: StopRule::Natural,
+            ..self.params.solve
+        }
+    }
+
+    /// Checks the budgets and the models (a learned model's file) before anything runs.
+    pub fn validate(&self) -> Result<(), SimError> {
+        let bad = |value: String, why: &str| SimError::InvalidParameter { name: "budget", value, why: why.to_string() };
+        if self.budgets.is_empty() {
+            return Err(bad(String::new(), "at least one budget"));
+        }
+        if let Some(&k) = self.budgets.iter().find(|&&k| k == 0 || k > MAX_BUDGET) {
+            return Err(bad(k.to_string(), &format!("a budget is from 1 to {MAX_BUDGET} sweeps")));
+        }
+        if !(self.reference_tolerance.is_finite() && self.reference_tolerance > 0.0) {
+            return Err(SimError::InvalidParameter {
+                name: "reference-tolerance",
+                value: self.reference_tolerance.to_string(),
+                why: "must be > 0".into(),
+            });
+        }
+        for m in &self.models {
+            if m.served_on().is_some() {
+                return Err(SimError::InvalidParameter {
+                    name: "models",
+                    value: m.name(),
+                    why: "is served by another node; the study runs in one process (use `dc eval --budget`)".into(),
+                });
+            }
+            m.build_with(0, Served::default(), &self.files)?;
+        }
+        WorldParams { solve: self.at_budget(1), ..self.params }.validate()
+    }
+}
+
+/// The largest budget (the largest judged budget's curve reaches 16 times as far).
+pub const MAX_BUDGET: u32 = 4096;
+
+/// What one step of a run leaves behind.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StepAccuracy {
+    pub seed: u64,
+    pub step: u32,
+    pub contacts: u32,
+    pub sweeps: u32,
+    pub natural_max: f32,
+    pub natural_rms: f32,
+    pub penetration_max: f32,
+    pub penetration_mean: f32,
+    pub kinetic_energy: f32,
+    pub pile_height: f32,
+    pub pile_spread: f32,
+    /// The simulator's critical path: warm start and solve, microseconds.
+    pub warm_us: f32,
+    pub solve_us: f32,
+    pub fallback: bool,
+}
+
+/// One run of the study (a model at a budget, builtin on the curve, or the reference) over every seed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BudgetRun {
+    /// `builtin@8`, `gnn@8`, `reference`.
+    pub label: String,
+    pub model: String,
+    /// The budget; 0 for the reference run.
+    pub budget: u32,
+    pub steps: Vec<StepAccuracy>,
+}
+
+/// Runs `model` with `solve` on `seed`, every step's accuracy.
+pub fn run_seed(
+    spec: &BudgetSpec,
+    seed: u64,
+    model: &ModelSpec,
+    solve: SolveParams,
+) -> Result<Vec<StepAccuracy>, SimError> {
+    let params = WorldParams { solve, ..spec.params };
+    let mut world = World::new(&SceneConfig { seed, ..spec.scene.clone() }, params)?;
+    let network = model.build_with(seed, Served::default(), &spec.files)?;
+    let mut warm = WarmStarter::new(network, ModelKind::Builtin.build(seed)?);
+    // Simulation ids are u32 (checked by the caller's seed list).
+    warm.begin_simulation(seed as u32, seed);
+    let mut out = Vec::with_capacity(spec.steps as usize);
+    for step in 0..spec.steps {
+        let s = world.step(&mut warm);
+        out.push(StepAccuracy {
+            seed,
+            step,
+            contacts: s.contacts,
+            sweeps: s.sweeps,
+            natural_max: s.natural_max,
+            natural_rms: s.natural_rms,
+            penetration_max: s.penetration_max,
+            penetration_mean: s.penetration_mean,
+            kinetic_energy: s.kinetic_energy,
+            pile_height: s.pile_height,
+            pile_spread: s.pile_spread,
+            warm_us: s.warm_start_us,
+            solve_us: s.solve_us,
+            fallback: s.fallback,
+        });
+    }
+    Ok(out)
+}
+
+/// The whole study: per seed the reference, builtin at every budget of its curve, and every
+/// model at every judged budget; `progress` after each seed.
+pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) -> Result<Vec<BudgetRun>, SimError> {
+    spec.validate()?;
+    let builtin = ModelSpec::of(ModelKind::Builtin);
+    let mut runs = vec![BudgetRun { label: "reference".into(), model: builtin.name(), budget: 0, steps: Vec::new() }];
+    let mut plan: Vec<(ModelSpec, u32)> = spec.curve_budgets().into_iter().map(|k| (builtin, k)).collect();
+    for &k in &spec.budgets {
+        plan.extend(spec.models.iter().filter(|m| m.kind != ModelKind::Builtin).map(|&m| (m, k)));
+    }
+    for (m, k) in &plan {
+        runs.push(BudgetRun { label: format!("{}@{k}", m.name()), model: m.name(), budget: *k, steps: Vec::new() });
+    }
+    for &seed in seeds {
+        runs[0].steps.extend(run_seed(spec, seed, &builtin, spec.reference())?);
+        for (run, (m, k)) in runs[1..].iter_mut().zip(&plan) {
+            run.steps.extend(run_seed(spec, seed, m, spec.at_budget(*k))?);
+        }
+        progress(seed);
+    }
+    Ok(runs)
+}
+
+/// Mean of `f` over the steps with contacts (NaN for none).
+fn mean_over(steps: &[StepAccuracy], f: impl Fn(&StepAccuracy) -> f64) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for s in steps.iter().filter(|s| s.contacts > 0) {
+        sum += f(s);
+        n += 1;
+    }
+    if n == 0 {
+        f64::NAN
+    } else {
+        sum / n as f64
+    }
+}
+
+fn phase(step: u32) -> usize {
+    PHASE_STARTS.iter().filter(|&&s| step >= s).count()
+}
+
+/// The phases' labels: `0-99`, `100-149`, `150-end`.
+pub fn phase_labels() -> Vec<String> {
+    let starts: Vec<u32> = std::iter::once(0).chain(PHASE_STARTS).collect();
+    starts
+        .iter()
+        .enumerate()
+        .map(|(i, &s)| match starts.get(i + 1) {
+            Some(&e) => format!("{s}-{}", e - 1),
+            None => format!("{s}-end"),
+        })
+        .collect()
+}
+
+/// One phase of a run against the reference: the pile's kinetic energy, and its centre-of-mass
+/// height and spread minus the reference's at the same step and seed (means over the phase's
+/// steps and seeds).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PhaseAccuracy {
+    pub kinetic_energy: f64,
+    pub height_offset: f64,
+    pub spread_offset: f64,
+}
+
+/// A run's accuracy and cost, over all its steps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunSummary {
+    pub label: String,
+    pub model: String,
+    pub budget: u32,
+    pub mean_sweeps: f64,
+    /// Means over the steps with contacts.
+    pub natural_rms: f64,
+    pub natural_max: f64,
+    pub penetration_max: f64,
+    pub penetration_mean: f64,
+    /// Mean critical path per step (warm start + solve), microseconds.
+    pub critical_us: f64,
+    pub fallbacks: usize,
+    /// Per phase ([`phase_labels`]).
+    pub phases: Vec<PhaseAccuracy>,
+}
+
+impl RunSummary {
+    /// `run` summarised, its pile compared with `reference`'s at the same (seed, step).
+    pub fn of(run: &BudgetRun, reference: &BudgetRun) -> RunSummary {
+        let at: std::collections::HashMap<(u64, u32), &StepAccuracy> =
+            reference.steps.iter().map(|s| ((s.seed, s.step), s)).collect();
+        let mut sums = vec![(PhaseAccuracy::default(), 0usize); PHASE_STARTS.len() + 1];
+        for s in &run.steps {
+            let Some(r) = at.get(&(s.seed, s.step)) else { continue };
+            let (p, n) = &mut sums[phase(s.step)];
+            p.kinetic_energy += s.kinetic_energy as f64;
+            p.height_offset += (s.pile_height - r.pile_height) as f64;
+            p.spread_offset += (s.pile_spread - r.pile_spread) as f64;
+            *n += 1;
+        }
+        let phases = sums
+            .into_iter()
+            .map(|(p, n)| {
+                let n = n.max(1) as f64;
+                PhaseAccuracy {
+                    kinetic_energy: p.kinetic_energy / n,
+                    height_offset: p.height_offset / n,
+                    spread_offset: p.spread_offset / n,
+                }
+            })
+            .collect();
+        let steps = &run.steps;
+        let all = steps.len().max(1) as f64;
+        RunSummary {
+            label: run.label.clone(),
+            model: run.model.clone(),
+            budget: run.budget,
+            mean_sweeps: steps.iter().map(|s| s.sweeps as f64).sum::<f64>() / all,
+            natural_rms: mean_over(steps, |s| s.natural_rms as f64),
+            natural_max: mean_over(steps, |s| s.natural_max as f64),
+            penetration_max: mean_over(steps, |s| s.penetration_max as f64),
+            penetration_mean: mean_over(steps, |s| s.penetration_mean as f64),
+            critical_us: steps.iter().map(|s| (s.warm_us + s.solve_us) as f64).sum::<f64>() / all,
+            fallbacks: steps.iter().filter(|s| s.fallback).count(),
+            phases,
+        }
+    }
+
+    /// The last phase's mean kinetic energy (the settled pile's jitter).
+    pub fn late_kinetic_energy(&self) -> f64 {
+        self.phases.last().map_or(f64::NAN, |p| p.kinetic_energy)
+    }
+}
+
+/// The study's summaries: the reference first, builtin's curve, then the judged runs.
+pub fn summaries(runs: &[BudgetRun]) -> Vec<RunSummary> {
+    let Some(reference) = runs.first() else { return Vec::new() };
+    runs.iter().map(|r| RunSummary::of(r, reference)).collect()
+}
+
+/// Builtin's curve of `f` against budget, from the summaries.
+pub fn curve(summaries: &[RunSummary], f: impl Fn(&RunSummary) -> f64) -> Vec<(f64, f64)> {
+    summaries.iter().filter(|s| s.model == "builtin" && s.budget > 0).map(|s| (s.budget as f64, f(s))).collect()
+}
+
+fn num(x: f64) -> String {
+    if !x.is_finite() {
+        "-".into()
+    } else if x != 0.0 && (x.abs() < 1e-3 || x.abs() >= 1e5) {
+        format!("{x:.3e}")
+    } else {
+        format!("{x:.4}")
+    }
+}
+
+/// The study's tables as markdown: builtin's curve, each judged budget's models placed on it,
+/// and the pile per phase against the reference.
+pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
+    let rms = curve(summaries, |s| s.natural_rms);
+    let time = curve(summaries, |s| s.critical_us);
+    let mut out = String::from(
+        "## Builtin's curve: accuracy after the budget\n\n| budget | mean sweeps | RMS natural residual | max natural residual | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | critical path (us/step) |\n|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for s in summaries.iter().filter(|s| s.model == "builtin" && s.budget > 0) {
+        out += &format!(
+            "| {} | {:.2} | {} | {} | {} | {} | {} | {:.1} |\n",
+            s.budget,
+            s.mean_sweeps,
+            num(s.natural_rms),
+            num(s.natural_max),
+            num(s.penetration_max),
+            num(s.penetration_mean),
+            num(s.late_kinetic_energy()),
+            s.critical_us
+        );
+    }
+    if let Some(r) = summaries.first() {
+        out += &format!(
+            "| reference ({:.1} sweeps) | | {} | {} | {} | {} | {} | {:.1} |\n",
+            r.mean_sweeps,
+            num(r.natural_rms),
+            num(r.natural_max),
+            num(r.penetration_max),
+            num(r.penetration_mean),
+            num(r.late_kinetic_energy()),
+            r.critical_us
+        );
+    }
+    for &k in budgets {
+        out += &format!(
+            "\n## At {k} sweeps, placed on builtin's curve\n\n\"worth\": the budget at which builtin's RMS natural residual equals the model's at {k} (log-log interpolation); \"builtin's time there\": builtin's critical path at that budget.\n\n| model | RMS natural residual | worth (sweeps) | critical path (us/step) | builtin's time there (us/step) | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | fallbacks |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+        );
+        for s in summaries.iter().filter(|s| s.budget == k) {
+            let w = worth(&rms, s.natural_rms);
+            let there = match w {
+                Worth::Sweeps(n) => format!("{:.1}", along(&time, n)),
+                _ => "-".into(),
+            };
+            out += &format!(
+                "| {} | {} | {w} | {:.1} | {there} | {} | {} | {} | {} |\n",
+                s.model,
+                num(s.natural_rms),
+                s.critical_us,
+                num(s.penetration_max),
+                num(s.penetration_mean),
+                num(s.late_kinetic_energy()),
+                s.fallbacks
+            );
+        }
+    }
+    let labels = phase_labels();
+    out += "\n## The pile against the reference, per phase\n\nMeans over each phase's steps and the seeds: kinetic energy (J), and the centre-of-mass height and the spread about it minus the reference run's at the same step (m).\n\n| run |";
+    for l in &labels {
+        out += &format!(" KE {l} | height {l} | spread {l} |");
+    }
+    out += "\n|---|";
+    out += &"---:|".repeat(3 * labels.len());
+    out.push('\n');
+    for s in summaries {
+        out += &format!("| {} |", s.label);
+        for p in &s.phases {
+            out += &format!(" {} | {} | {} |", num(p.kinetic_energy), num(p.height_offset), num(p.spread_offset));
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// Every step of every run, one CSV line each.
+pub fn csv(runs: &[BudgetRun]) -> String {
+    let mut out = String::from(
+        "run,model,budget,seed,step,contacts,sweeps,natural_max,natural_rms,penetration_max,penetration_mean,kinetic_energy,pile_height,pile_spread,warm_start_us,solve_us,fallback\n",
+    );
+    for r in runs {
+        for s in &r.steps {
+            out += &format!(
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.2},{:.2},{}\n",
+                r.label,
+                r.model,
+                r.budget,
+                s.seed,
+                s.step,
+                s.contacts,
+                s.sweeps,
+                s.natural_max,
+                s.natural_rms,
+                s.penetration_max,
+                s.penetration_mean,
+                s.kinetic_energy,
+                s.pile_height,
+                s.pile_spread,
+                s.warm_us,
+                s.solve_us,
+                s.fallback as u8
+            );
+        }
+    }
+    out
+}
+
+/// Accuracy against time: builtin's curve as a line (RMS natural residual against its budget),
+/// and every run as a labelled point at its critical-path time, as a PNG at `path`.
+pub fn plot(path: &std::path::Path, summaries: &[RunSummary]) -> Result<(), charts::PlotError> {
+    let line = [charts::Series { name: "builtin".into(), points: curve(summaries, |s| s.natural_rms), band: None }];
+    let points: Vec<charts::Series> = summaries
+        .iter()
+        .filter(|s| s.budget > 0)
+        .map(|s| charts::Series { name: s.label.clone(), points: vec![(s.critical_us, s.natural_rms)], band: None })
+        .collect();
+    let by_budget = charts::Panel::new(
+        charts::Axis::log("budget (sweeps per step)"),
+        charts::Axis::log("mean RMS natural residual after the budget"),
+        &line,
+        charts::Mark::Lines,
+    )
+    .titled("builtin's accuracy against its budget");
+    let by_time = charts::Panel::new(
+        charts::Axis::log("critical path per step (warm start + solve, us)"),
+        charts::Axis::log("mean RMS natural residual"),
+        &points,
+        charts::Mark::LabelledPoints,
+    )
+    .titled("every run: accuracy against time");
+    charts::chart(path, "The real-time regime: accuracy after a fixed sweep budget", &[by_budget, by_time])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(solver: &str, budgets: Vec<u32>, steps: u32) -> BudgetSpec {
+        let setting: crate::SolverSetting = solver.parse().unwrap();
+        let mut params = WorldParams::recommended();
+        params.solve = params.solve.with_setting(setting);
+        BudgetSpec {
+            scene: SceneConfig { n: 40, ..SceneConfig::default() },
+            params,
+            steps,
+            budgets,
+            models: vec![ModelSpec::of(ModelKind::None)],
+            files: ModelFiles::default(),
+            reference_tolerance: 1e-6,
+        }
+    }
+
+    #[test]
+    fn a_budget_of_k_runs_exactly_k_sweeps_unless_converged() {
+        for solver in ["pgs", "nncg:1.2/down"] {
+            let spec = spec(solver, vec![5], 150);
+            let tolerance = spec.params.solve.tolerance;
+            let steps = run_seed(&spec, 101, &ModelSpec::of(ModelKind::Builtin), spec.at_budget(5)).unwrap();
+            let full = steps.iter().filter(|s| s.sweeps == 5).count();
+            let early = steps.iter().filter(|s| s.sweeps < 5).count();
+            assert_eq!(full + early, steps.len(), "{solver}: a step above its budget");
+            // Early stops are exactly the steps already accurate to the tolerance.
+            for s in &steps {
+                assert!(s.sweeps == 5 || s.natural_max <= tolerance, "{solver}: {s:?}");
+                assert!(s.natural_rms <= s.natural_max, "{solver}: {s:?}");
+            }
+            assert!(full > 20 && early > 0, "{solver}: {full} full budgets, {early} early stops");
+            // The pile's accuracy figures are filled in.
+            let late = &steps[120];
+            assert!(late.contacts > 0 && late.pile_height > 0.0 && late.pile_spread > 0.0, "{late:?}");
+        }
+    }
+
+    #[test]
+    fn builtin_is_worth_its_own_budget_and_more_sweeps_are_more_accurate() {
+        let spec = spec("pgs", vec![4], 60);
+        let runs = study(&spec, &[101], |_| {}).unwrap();
+        let summaries = summaries(&runs);
+        assert_eq!(summaries[0].label, "reference");
+        let rms = curve(&summaries, |s| s.natural_rms);
+        assert_eq!(rms.iter().map(|p| p.0).collect::<Vec<_>>(), [1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0]);
+        assert!(rms.windows(2).all(|w| w[1].1 < w[0].1), "{rms:?}");
+        assert!(summaries[0].natural_rms < rms.last().unwrap().1, "the reference is the most accurate");
+        let at4 = summaries.iter().find(|s| s.label == "builtin@4").unwrap();
+        assert_eq!(worth(&rms, at4.natural_rms), Worth::Sweeps(4.0));
+        assert!(summaries.iter().any(|s| s.label == "none@4"));
+        let table = markdown(&summaries, &spec.budgets);
+        assert!(table.contains("## At 4 sweeps") && table.contains("| none |"), "{table}");
+    }
+
+    #[test]
+    fn the_curve_reaches_sixteen_times_each_budget() {
+        let spec = BudgetSpec {
+            scene: SceneConfig::default(),
+            params: WorldParams::recommended(),
+            steps: 1,
+            budgets: vec![8, 6],
+            models: vec![],
+            files: ModelFiles::default(),
+            reference_tolerance: 1e-6,
+        };
+        assert_eq!(spec.curve_budgets(), vec![1, 2, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128]);
+        assert_eq!(phase_labels(), ["0-99", "100-149", "150-end"]);
+    }
+}
