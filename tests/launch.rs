@@ -376,3 +376,40 @@ fn eval_refuses_an_unwritable_out_folder_before_any_node_starts() {
     assert!(!err.contains("[sim-0]") && !err.contains("[metrics]"), "{err}");
     assert!(started.elapsed() < Duration::from_secs(30), "took {:?}", started.elapsed());
 }
+
+#[test]
+fn eval_at_budgets_runs_every_model_at_each_and_tabulates_their_accuracy() {
+    let dir = scratch_dir("eval-budget");
+    let out_dir = dir.join("report");
+    let args = "eval --models builtin,none --seeds 0..2 --steps 60 --n 30 --budget 2,8 --out";
+    let out = Command::new(bin("dc"))
+        .args(args.split(' ').chain([out_dir.to_str().unwrap(), "--", "--solver", "pgs"]))
+        .output()
+        .expect("run dc");
+    assert!(out.status.success(), "{}", text(&out));
+    for k in [2u32, 8] {
+        let steps = std::fs::read_to_string(out_dir.join(format!("budget-{k}/steps.csv"))).unwrap();
+        let header: Vec<&str> = steps.lines().next().unwrap().split(',').collect();
+        let column =
+            |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name} in {header:?}"));
+        let (sweeps, natural, contacts) = (column("sweeps"), column("natural_max"), column("contacts"));
+        let rows: Vec<Vec<String>> =
+            steps.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect();
+        assert_eq!(rows.len(), 2 * 2 * 60, "two models, two seeds, 60 steps");
+        // Exactly k sweeps, fewer only where the natural residual already met the tolerance.
+        for r in &rows {
+            let s: u32 = r[sweeps].parse().unwrap();
+            let n: f32 = r[natural].parse().unwrap();
+            assert!(s == k || (s < k && n <= 1e-4), "budget {k}: {r:?}");
+        }
+        assert!(rows.iter().any(|r| r[sweeps] == k.to_string() && r[contacts] != "0"), "budget {k} used");
+    }
+    let table = std::fs::read_to_string(out_dir.join("budgets.md")).unwrap();
+    assert!(table.contains("| builtin | 2 |") && table.contains("| builtin | 8 | "), "{table}");
+    assert!(table.contains("| none | 2 |") && table.contains("| none | 8 |"), "{table}");
+    // builtin sits on its own curve at its own budget.
+    assert!(
+        table.lines().any(|l| l.starts_with("| builtin | 8 |") && l.split('|').nth(4).unwrap().trim() == "8.0"),
+        "{table}"
+    );
+}

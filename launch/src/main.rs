@@ -558,31 +558,37 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>, budg
     }
     for j in 0..jobs {
         let models: Vec<&str> = args.models.iter().skip(j).step_by(jobs).map(String::as_str).collect();
-        let mut sim_args = vec![
-            format!("--models={}", models.join(",")),
-            format!("--seeds={}", args.seeds),
-            format!("--scene={}", args.scene),
-            format!("--steps={}", args.steps),
-            format!("--tolerance={}", args.tolerance),
-            format!("--n={}", args.n),
-        ];
-        if let Some(gnn) = &args.gnn_model {
-            sim_args.push(format!("--gnn-model={}", gnn.display()));
-        }
-        // At a budget every model makes the same sweeps: builtin on the same states says nothing.
-        if args.same_states && budget.is_none() {
-            sim_args.push("--shadow-builtin".into());
-        }
-        sim_args.extend(args.sim_args.iter().cloned());
-        if let Some(solver) = solver {
-            sim_args.push(format!("--solver={solver}"));
-        }
-        if let Some(k) = budget {
-            sim_args.push(format!("--budget={k}"));
-        }
+        let sim_args = simulator_args(args, &models, solver, budget);
         nodes.push(NodeSpec::new(format!("sim-{j}"), "dc-sim", false, sim_args));
     }
     Ok(Graph::single_host("eval", &unique_namespace("eval"), nodes)?)
+}
+
+/// The arguments of an evaluation's simulator running `models` (with a solver and a budget).
+fn simulator_args(args: &EvalArgs, models: &[&str], solver: Option<&str>, budget: Option<u32>) -> Vec<String> {
+    let mut sim_args = vec![
+        format!("--models={}", models.join(",")),
+        format!("--seeds={}", args.seeds),
+        format!("--scene={}", args.scene),
+        format!("--steps={}", args.steps),
+        format!("--tolerance={}", args.tolerance),
+        format!("--n={}", args.n),
+    ];
+    if let Some(gnn) = &args.gnn_model {
+        sim_args.push(format!("--gnn-model={}", gnn.display()));
+    }
+    // At a budget every model makes the same sweeps: builtin on the same states says nothing.
+    if args.same_states && budget.is_none() {
+        sim_args.push("--shadow-builtin".into());
+    }
+    sim_args.extend(args.sim_args.iter().cloned());
+    if let Some(solver) = solver {
+        sim_args.push(format!("--solver={solver}"));
+    }
+    if let Some(k) = budget {
+        sim_args.push(format!("--budget={k}"));
+    }
+    sim_args
 }
 
 fn eval(args: EvalArgs) -> Result<()> {
@@ -765,6 +771,22 @@ mod tests {
             assert!(e.contains(&bad.display().to_string()), "{e}");
         }
         std::fs::remove_dir_all(&base).unwrap();
+    }
+
+    #[test]
+    fn eval_at_a_budget_passes_it_to_every_simulator_without_the_shadow_solve() {
+        let cli = Cli::try_parse_from(["dc", "eval", "--seeds", "0..2", "--budget", "4,8"]).unwrap();
+        let Command::Eval(eval) = cli.command else { unreachable!("an eval command") };
+        let sims = |budget| vec![simulator_args(&eval, &["builtin", "none"], Some("pgs"), budget)];
+        let at8 = sims(Some(8));
+        for args in &at8 {
+            assert!(args.contains(&"--budget=8".to_string()) && args.contains(&"--solver=pgs".to_string()), "{args:?}");
+            assert!(!args.contains(&"--shadow-builtin".to_string()), "{args:?}");
+        }
+        assert!(sims(None)
+            .iter()
+            .all(|a| a.contains(&"--shadow-builtin".to_string()) && !a.iter().any(|x| x.starts_with("--budget"))));
+        assert!(Cli::try_parse_from(["dc", "eval", "--budget", "0"]).is_err());
     }
 
     #[test]

@@ -170,10 +170,12 @@ mod tests {
     #[test]
     fn summaries_read_and_tabulate_against_the_first_solvers_builtin() {
         let pgs = read_summary(SUMMARY).unwrap();
+        let g = &pgs[1];
         assert_eq!(
-            pgs[1],
-            SummaryRow { model: "gnn".into(), total_sweeps: 990, total_solve_ms: 55.0, cap_hits: 2, same_states: 0.99 }
+            (g.model.as_str(), g.total_sweeps, g.total_solve_ms, g.cap_hits, g.same_states),
+            ("gnn", 990, 55.0, 2, 0.99)
         );
+        assert!(g.natural_rms.is_nan(), "a report without the accuracy columns reads as not measured");
         let nncg = read_summary(
             "model,total_sweeps,cap_hits,same_states_ratio_to_builtin,total_solve_ms\nbuiltin,400,0,1,20\n",
         )
@@ -181,6 +183,27 @@ mod tests {
         let table = markdown(&[("pgs", pgs), ("nncg:1.2/down", nncg)]);
         assert!(table.contains("| builtin | nncg:1.2/down | 400 | 0.400x | 20.0 | 0.400x | 0 | 1.000x |"), "{table}");
         assert!(table.contains("| gnn | pgs | 990 | 0.990x | 55.0 | 1.100x | 2 | 0.990x |"), "{table}");
+    }
+
+    #[test]
+    fn the_budget_table_places_each_model_on_builtins_curve() {
+        let at = |k: u32, builtin: f64, gnn: &str| {
+            let text = format!(
+                "model,total_sweeps,cap_hits,same_states_ratio_to_builtin,total_solve_ms,mean_natural_rms,mean_penetration_max,late_kinetic_energy\nbuiltin,{},0,,5.0,{builtin},0.01,8.5\ngnn,{},0,,9.0,{gnn},0.02,\n",
+                k * 100,
+                k * 100
+            );
+            (k, read_summary(&text).unwrap())
+        };
+        // builtin's error halves per doubling: gnn at 4 with 0.5 / sqrt(2) is worth sqrt(32) = 5.7 sweeps.
+        let table = budget_markdown(&[at(4, 0.5, "0.35355339"), at(8, 0.25, "0.1"), at(16, 0.125, "0.3")]);
+        assert!(table.contains("| builtin | 8 | 0.2500 | 8.0 | 0.0100 | 8.5000 | 5.0 | 800 |"), "{table}");
+        assert!(table.contains("| gnn | 4 | 0.3536 | 5.7 | 0.0200 | - | 9.0 | 400 |"), "{table}");
+        assert!(table.contains("| gnn | 8 | 0.1000 | > 16 |"), "{table}");
+        assert!(table.contains("| gnn | 16 | 0.3000 | 6.7 |"), "{table}");
+        // A report from before the accuracy columns reads as not measured.
+        let old = read_summary(SUMMARY).unwrap();
+        assert!(old[0].natural_rms.is_nan() && old[0].late_kinetic_energy.is_nan());
     }
 
     #[test]

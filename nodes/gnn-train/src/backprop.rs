@@ -148,7 +148,7 @@ pub fn unrolled_loss(
     step: &StepData,
     problem: &sim::problem::Problem,
     sweeps: usize,
-    power: f64,
+    weights: LossWeights,
     device: &Device,
 ) -> (Tensor<1>, f64) {
     let graph = GraphInput::new(&step.contact_features, &step.body_features, &step.pairs, device);
@@ -164,7 +164,8 @@ pub fn unrolled_loss(
         .map(|((c, y), k)| [c.previous[0] as f64 + y[0] as f64 * k[0], c.previous[1] as f64 + y[1] as f64 * k[1]])
         .collect();
     let mut unrolled = crate::unroll::Unrolled::new(&problem.bodies, &problem.contacts);
-    unrolled.power = power;
+    unrolled.power = weights.power;
+    unrolled.approach_weight = weights.approach;
     let (residual, grad) = unrolled.loss_and_gradient(&warm, sweeps);
     let w = step.weight as f64;
     let g: Vec<f32> =
@@ -173,28 +174,54 @@ pub fn unrolled_loss(
     ((out * g).sum(), w * residual)
 }
 
+/// The sweeps unrolled on a step: `sweeps`, or with 0 as many as builtin took on it less one (at
+/// most 400): the residual there is what decides whether the model stops earlier.
+fn unrolled_sweeps(sweeps: usize, builtin: u32) -> usize {
+    if sweeps == 0 {
+        (builtin.saturating_sub(1) as usize).min(400)
+    } else {
+        sweeps
+    }
+}
+
+/// How the unrolled loss weighs the last sweep's changes ([`crate::unroll::Unrolled`]'s
+/// `power` and `approach_weight`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LossWeights {
+    pub power: f64,
+    pub approach: f64,
+}
+
 /// What a training step minimises.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Objective {
     /// The complementarity residual at the warm start.
     Residual,
     /// The residual left after this many PGS sweeps from the warm start.
-    Unrolled { sweeps: usize, power: f64 },
+    Unrolled { sweeps: usize, weights: LossWeights },
     /// The squared distance to the recorded reference solution (velocity units): the supervised
     /// loss, well posed only where the solution is unique (compliant contacts).
     Mse,
 }
 
-/// The mean loss of `net` as it is over `steps` (None for the solver-in-the-loop objective,
-/// whose value needs the problems): where the epochs' mean losses start from.
-pub fn mean_loss(net: &Net, steps: &[StepData], objective: Objective) -> Option<f64> {
+/// The mean loss of `net` as it is over `steps`, whose problems are `problems` (indexed by each
+/// step's `problem`): where the epochs' mean losses start from, and the validation loss.
+pub fn mean_loss(
+    net: &Net,
+    steps: &[StepData],
+    problems: &[(sim::problem::Problem, u32)],
+    objective: Objective,
+) -> Option<f64> {
     let device = Device::flex();
     let model = GnnNet::from_net(net, &device);
     let one = |s: &StepData| -> Option<f64> {
         let l = match objective {
             Objective::Residual => loss(&model, s, &device),
             Objective::Mse => mse_loss(&model, s, &device),
-            Objective::Unrolled { .. } => return None,
+            Objective::Unrolled { sweeps, weights } => {
+                let (problem, builtin) = problems.get(s.problem)?;
+                return Some(unrolled_loss(&model, s, problem, unrolled_sweeps(sweeps, *builtin), weights, &device).1);
+            }
         };
         Some(l.into_scalar::<f32>() as f64)
     };
@@ -242,12 +269,9 @@ pub fn train(
                     let value = l.clone().into_scalar::<f32>() as f64;
                     (l, value)
                 }
-                Objective::Unrolled { sweeps, power } => {
+                Objective::Unrolled { sweeps, weights } => {
                     let (problem, builtin) = &problems[train[i].problem];
-                    // 0: as many sweeps as builtin took on the step, less one (at most 400): the
-                    // residual there is what decides whether the model stops earlier.
-                    let k = if sweeps == 0 { (builtin.saturating_sub(1) as usize).min(400) } else { sweeps };
-                    unrolled_loss(&model, &train[i], problem, k, power, &device)
+                    unrolled_loss(&model, &train[i], problem, unrolled_sweeps(sweeps, *builtin), weights, &device)
                 }
             };
             if !value.is_finite() {

@@ -74,6 +74,14 @@ struct Args {
     /// larger: the largest changes, which decide when PGS stops, weigh more).
     #[arg(long, default_value_t = 2.0)]
     power: f64,
+    /// With `--loss unrolled`: the weight of a normal row's last-sweep change that adds impulse
+    /// (a contact still approaching after the sweeps: too little push, which accumulates as
+    /// penetration at a fixed budget) against 1 for every other change.
+    #[arg(long, default_value_t = 1.0, value_parser = |s: &str| match s.parse::<f64>() {
+        Ok(w) if w.is_finite() && w > 0.0 => Ok(w),
+        _ => Err(format!("`{s}` must be a number > 0")),
+    })]
+    approach_weight: f64,
     /// `readout` (research; no shipped model uses it): the closed-form ridge fit of the readout
     /// alone; `backprop`: the whole network end to end (burn, Adam), how the shipped model is
     /// trained.
@@ -265,7 +273,10 @@ fn train_end_to_end(
         .collect();
     let objective = match args.loss.as_str() {
         "residual" => backprop::Objective::Residual,
-        "unrolled" => backprop::Objective::Unrolled { sweeps: args.sweeps, power: args.power },
+        "unrolled" => backprop::Objective::Unrolled {
+            sweeps: args.sweeps,
+            weights: backprop::LossWeights { power: args.power, approach: args.approach_weight },
+        },
         "mse" => {
             if train.iter().any(|(p, _)| p.header.compliance == 0.0) {
                 tracing::warn!(
@@ -290,20 +301,25 @@ fn train_end_to_end(
         .enumerate()
         .filter_map(|(i, (p, s))| backprop::StepData::new(p, i, (*s as f64 / mean_sweeps) as f32))
         .collect();
-    let validation_loss = |n: &Net| {
-        backprop::mean_loss(n, &validation_data, objective).map_or(String::new(), |l| format!(" (validation {l:.4e})"))
-    };
-    if let Some(loss) = backprop::mean_loss(net, &data, objective) {
-        println!("  untrained: mean loss {loss:.4e}{}", validation_loss(net));
+    let validation_loss = |n: &Net| backprop::mean_loss(n, &validation_data, validation, objective);
+    let shown = |l: Option<f64>| l.map_or(String::new(), |l| format!(" (validation {l:.4e})"));
+    if let Some(loss) = backprop::mean_loss(net, &data, train, objective) {
+        println!("  untrained: mean loss {loss:.4e}{}", shown(validation_loss(net)));
     }
-    let mut best = (untrained, 0usize, net.clone());
+    // Which epoch is kept: the fewest validation sweeps to tolerance, or, for a warm start
+    // trained for a fixed budget (`--loss unrolled --sweeps K`), the smallest validation loss —
+    // the residual after K sweeps, what the budget is judged on (problems recorded at a budget
+    // are re-solved to it, so their sweeps are all K and choose nothing).
+    let by_loss = matches!(objective, backprop::Objective::Unrolled { sweeps, .. } if sweeps > 0);
+    let key = |sweeps: u64, n: &Net| if by_loss { validation_loss(n).unwrap_or(f64::INFINITY) } else { sweeps as f64 };
+    let mut best = (key(untrained, net), untrained, 0usize, net.clone());
     let started = std::time::Instant::now();
     backprop::train(net, &data, train, objective, args.epochs, args.lr, args.seed, |epoch, candidate, loss| {
         let sweeps = validation_sweeps(candidate, validation);
         println!(
             "  epoch {}: mean loss {loss:.4e}{}, validation {sweeps} sweeps ({:.3}x builtin), {:.0} s",
             epoch + 1,
-            validation_loss(candidate),
+            shown(validation_loss(candidate)),
             sweeps as f64 / builtin as f64,
             started.elapsed().as_secs_f64()
         );
@@ -311,21 +327,23 @@ fn train_end_to_end(
             let how = format!("epoch {} of end to end training on the {} loss (lr {})", epoch + 1, args.loss, args.lr);
             save_candidate(args, &format!("epoch{}", epoch + 1), candidate, &how, sweeps);
         }
-        if sweeps < best.0 {
-            best = (sweeps, epoch + 1, candidate.clone());
+        let k = key(sweeps, candidate);
+        if k < best.0 {
+            best = (k, sweeps, epoch + 1, candidate.clone());
         }
     });
-    let (sweeps, epoch, model) = best;
+    let (_, sweeps, epoch, model) = best;
     let how = format!(
-        "end to end on the {} loss{} (Adam, lr {}, {} epochs, best epoch {epoch}; 0 = untrained, builtin) on {} steps",
+        "end to end on the {} loss{} (Adam, lr {}, {} epochs, best epoch {epoch} by validation {}; 0 = untrained, builtin) on {} steps",
         args.loss,
         match (args.loss.as_str(), args.sweeps) {
             ("unrolled", 0) => format!(" after builtin's sweeps less one (power {})", args.power),
-            ("unrolled", k) => format!(" after {k} sweeps (power {})", args.power),
+            ("unrolled", k) => format!(" after {k} sweeps (power {}, approach weight {})", args.power, args.approach_weight),
             _ => String::new(),
         },
         args.lr,
         args.epochs,
+        if by_loss { "loss" } else { "sweeps" },
         data.len()
     );
     save(args, model, &how, sweeps, builtin, validation.len())

@@ -38,6 +38,9 @@ pub struct Unrolled {
     /// The loss sums `(d lambda^2 / m)^(power / 2)`: 2 is the energy of the last sweep's
     /// changes; larger powers weigh the largest changes (what the stopping rule reads) more.
     pub power: f64,
+    /// Weight of a normal row's last-sweep change that *adds* impulse (the contact still
+    /// approaching: too little push, which accumulates as penetration) against 1 for the rest.
+    pub approach_weight: f64,
     rows: Vec<Row>,
     v0: Vec<[f64; 3]>,
     inv: Vec<[f64; 3]>,
@@ -77,12 +80,21 @@ impl Unrolled {
             })
             .collect();
         let v0 = bodies.iter().map(|b| [b.v[0] as f64, b.v[1] as f64, b.w as f64]).collect();
-        Unrolled { power: 2.0, rows, v0, inv }
+        Unrolled { power: 2.0, approach_weight: 1.0, rows, v0, inv }
     }
 
     fn dot(&self, r: &Row, j: &[f64; 6], v: &[[f64; 3]]) -> f64 {
         let (va, vb) = (v[r.a], v[r.b]);
         j[0] * va[0] + j[1] * va[1] + j[2] * va[2] + j[3] * vb[0] + j[4] * vb[1] + j[5] * vb[2]
+    }
+
+    /// The loss weight of a last-sweep change `delta` of a normal (or tangent) row.
+    fn weight(&self, normal: bool, delta: f64) -> f64 {
+        if normal && delta > 0.0 {
+            self.approach_weight
+        } else {
+            1.0
+        }
     }
 
     /// `v += M^-1 J^T delta` for one row.
@@ -154,7 +166,7 @@ impl Unrolled {
                     self.apply(r, j, delta, &mut v);
                     lambda[c][if normal { 0 } else { 1 }] = new;
                     if sweep == sweeps && m > 0.0 {
-                        loss += (delta * delta / m).powf(self.power / 2.0);
+                        loss += self.weight(normal, delta) * (delta * delta / m).powf(self.power / 2.0);
                     }
                     tape.push(Update { c, normal, lambda_in: l_in, x, lo, hi });
                 }
@@ -176,7 +188,7 @@ impl Unrolled {
                 // d/d delta of (delta^2 / m)^(p/2) = p (delta^2 / m)^(p/2 - 1) delta / m.
                 let e = delta * delta / m;
                 if e > 0.0 {
-                    delta_bar += self.power * e.powf(self.power / 2.0 - 1.0) * delta / m;
+                    delta_bar += self.weight(u.normal, delta) * self.power * e.powf(self.power / 2.0 - 1.0) * delta / m;
                 }
             }
             // lambda_out = new; delta = new - lambda_in.
@@ -242,8 +254,9 @@ mod tests {
         let (bodies, contacts) = pile();
         let mut u = Unrolled::new(&bodies, &contacts);
         let warm: Vec<[f64; 2]> = vec![[0.05, 0.001], [0.03, -0.004], [0.02, 0.002], [0.04, 0.0], [0.01, 0.001]];
-        for power in [2.0, 4.0] {
+        for (power, approach_weight) in [(2.0, 1.0), (4.0, 1.0), (2.0, 4.0)] {
             u.power = power;
+            u.approach_weight = approach_weight;
             let (loss, grad) = u.loss_and_gradient(&warm, 3);
             assert!(loss > 0.0);
             let h = 1e-7;
@@ -257,7 +270,7 @@ mod tests {
                     let tolerance = 1e-5 * (1.0 + fd.abs().max(grad[c][k].abs()));
                     assert!(
                         (fd - grad[c][k]).abs() < tolerance,
-                        "power {power}, contact {c}, component {k}: analytic {} vs {fd}",
+                        "power {power}, approach weight {approach_weight}, contact {c}, component {k}: analytic {} vs {fd}",
                         grad[c][k]
                     );
                 }

@@ -66,7 +66,8 @@ impl BudgetSpec {
         SolveParams { max_sweeps: k, stop: StopRule::Natural, ..self.params.solve }
     }
 
-    /// The reference run's solve.
+    /// The reference run's solve: the recommended solver (whatever the study's: at this tolerance
+    /// any solver gives the same trajectory statistics, and PGS would take ~3x the sweeps).
     pub fn reference(&self) -> SolveParams {
         SolveParams {
             tolerance: self.reference_tolerance,
@@ -74,6 +75,7 @@ impl BudgetSpec {
             stop: StopRule::Natural,
             ..self.params.solve
         }
+        .with_setting(crate::SolverSetting::RECOMMENDED)
     }
 
     /// Checks the budgets and the models (a learned model's file) before anything runs.
@@ -363,8 +365,16 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
     }
     for &k in budgets {
         out += &format!(
-            "\n## At {k} sweeps, placed on builtin's curve\n\n\"worth\": the budget at which builtin's RMS natural residual equals the model's at {k} (log-log interpolation); \"builtin's time there\": builtin's critical path at that budget.\n\n| model | RMS natural residual | worth (sweeps) | critical path (us/step) | builtin's time there (us/step) | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | fallbacks |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+            "\n## At {k} sweeps, placed on builtin's curve\n\n\"worth\": the budget at which builtin's RMS natural residual equals the model's at {k} (log-log interpolation); \"builtin's time there\": builtin's critical path at that budget; \"blend F\": the fraction of builtin's error an oracle blend must remove to leave the same RMS natural residual at {k} (interpolated between the blends run).\n\n| model | RMS natural residual | worth (sweeps) | critical path (us/step) | builtin's time there (us/step) | blend F | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | fallbacks |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
         );
+        let blends: Vec<(f64, f64)> = summaries
+            .iter()
+            .filter(|s| s.budget == k)
+            .filter_map(|s| match s.model.as_str() {
+                "builtin" => Some((0.0, s.natural_rms)),
+                m => m.strip_prefix("blend:").and_then(|f| f.parse().ok()).map(|f| (f, s.natural_rms)),
+            })
+            .collect();
         for s in summaries.iter().filter(|s| s.budget == k) {
             let w = worth(&rms, s.natural_rms);
             let there = match w {
@@ -372,10 +382,11 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
                 _ => "-".into(),
             };
             out += &format!(
-                "| {} | {} | {w} | {:.1} | {there} | {} | {} | {} | {} |\n",
+                "| {} | {} | {w} | {:.1} | {there} | {} | {} | {} | {} | {} |\n",
                 s.model,
                 num(s.natural_rms),
                 s.critical_us,
+                blend_fraction(&blends, s.natural_rms),
                 num(s.penetration_max),
                 num(s.penetration_mean),
                 num(s.late_kinetic_energy()),
@@ -399,6 +410,28 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
         out.push('\n');
     }
     out
+}
+
+/// The blend F (`builtin + F (oracle - builtin)`) that leaves `value` on `blends`' (F, error)
+/// points, linear between the two that bracket it: `0.31`, `< 0` (worse than builtin), `> 0.75`
+/// (better than every blend run), `-` without a blend.
+pub fn blend_fraction(blends: &[(f64, f64)], value: f64) -> String {
+    let mut points = blends.to_vec();
+    points.sort_by(|a, b| a.0.total_cmp(&b.0));
+    if points.len() < 2 || !value.is_finite() {
+        return "-".into();
+    }
+    if value > points[0].1 {
+        return "< 0".into();
+    }
+    for w in points.windows(2) {
+        let ((f0, e0), (f1, e1)) = (w[0], w[1]);
+        if e0.min(e1) <= value && value <= e0.max(e1) {
+            let t = if e0 == e1 { 0.0 } else { (value - e0) / (e1 - e0) };
+            return format!("{:.2}", f0 + t * (f1 - f0));
+        }
+    }
+    format!("> {:.2}", points[points.len() - 1].0)
 }
 
 /// Every step of every run, one CSV line each.
@@ -514,6 +547,16 @@ mod tests {
         assert!(summaries.iter().any(|s| s.label == "none@4"));
         let table = markdown(&summaries, &spec.budgets);
         assert!(table.contains("## At 4 sweeps") && table.contains("| none |"), "{table}");
+    }
+
+    #[test]
+    fn blend_fractions_interpolate_between_the_blends_run() {
+        let blends = [(0.5, 0.05), (0.0, 0.1), (0.25, 0.08)];
+        assert_eq!(blend_fraction(&blends, 0.09), "0.13");
+        assert_eq!(blend_fraction(&blends, 0.065), "0.38");
+        assert_eq!(blend_fraction(&blends, 0.2), "< 0");
+        assert_eq!(blend_fraction(&blends, 0.01), "> 0.50");
+        assert_eq!(blend_fraction(&blends[1..2], 0.1), "-");
     }
 
     #[test]

@@ -491,13 +491,14 @@ fn budget_study(args: &Args, list: &str) -> Result<()> {
     bar.finish_and_clear();
     let summaries = budget::summaries(&runs);
     let report = format!(
-        "# The real-time regime: accuracy after a fixed sweep budget\n\n`dc-sim {}`\n\nSeeds {}, {} steps, {} bodies, solver {}, early stop when the natural residual <= {}; reference: natural residual <= {} (cap {}). Every run drives its own trajectory. Accuracy figures are means over the steps with contacts.\n\n{}",
+        "# The real-time regime: accuracy after a fixed sweep budget\n\n`dc-sim {}`\n\nSeeds {}, {} steps, {} bodies, solver {}, early stop when the natural residual <= {}; reference: {} to the natural residual <= {} (cap {}). Every run drives its own trajectory. Accuracy figures are means over the steps with contacts.\n\n{}",
         std::env::args().skip(1).collect::<Vec<_>>().join(" "),
         args.seeds.clone().unwrap_or_else(|| format!("{}..{}", args.seed, args.seed + args.simulations)),
         args.steps,
         args.n,
         spec.params.solve.setting(),
         spec.params.solve.tolerance,
+        sim::SolverSetting::RECOMMENDED,
         spec.reference_tolerance,
         budget::REFERENCE_MAX_SWEEPS,
         budget::markdown(&summaries, &spec.budgets)
