@@ -74,7 +74,8 @@ pub fn read_summary(text: &str) -> Result<Vec<SummaryRow>, SummaryError> {
             total_sweeps: number(1)? as u64,
             total_solve_ms: number(2)?,
             cap_hits: number(3)? as u64,
-            same_states: number(4)?,
+            // Empty where not measured (`--same-states false`, or at a budget).
+            same_states: if fields[at[4]].is_empty() { f64::NAN } else { number(4)? },
             natural_rms: accuracy(0)?,
             penetration_max: accuracy(1)?,
             late_kinetic_energy: accuracy(2)?,

@@ -32,7 +32,11 @@ pub fn worth(curve: &[(f64, f64)], value: f64) -> Worth {
     let points: Vec<(f64, f64)> =
         curve.iter().copied().filter(|&(k, e)| k > 0.0 && e > 0.0 && e.is_finite() && k.is_finite()).collect();
     let (Some(&first), Some(&last)) = (points.first(), points.last()) else { return Worth::Below(f64::NAN) };
-    if !(value > 0.0) {
+    // An unmeasured error has no place (shown `-`); no error at all is better than any point.
+    if value.is_nan() {
+        return Worth::Below(f64::NAN);
+    }
+    if value <= 0.0 {
         return Worth::Above(last.0);
     }
     if value > first.1 {
@@ -89,6 +93,7 @@ mod tests {
         assert_eq!(worth(&curve, 2.0), Worth::Below(1.0));
         assert_eq!(worth(&curve, 1.0 / 64.0), Worth::Above(32.0));
         assert_eq!(worth(&curve, 0.0), Worth::Above(32.0));
+        assert_eq!(worth(&curve, f64::NAN).to_string(), "-");
         // A flat stretch (converged early) returns its first budget; a point with error 0 is skipped.
         let flat = [(1.0, 0.5), (2.0, 0.25), (4.0, 0.25), (8.0, 0.0)];
         assert_eq!(worth(&flat, 0.25), Worth::Sweeps(2.0));

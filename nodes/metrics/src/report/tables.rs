@@ -305,15 +305,18 @@ mod tests {
         let table = SummaryTable::new(&[summary("none", Some(3.0)), summary("a<b", None)]);
         let md = table.to_markdown();
         let lines: Vec<&str> = md.lines().collect();
-        assert_eq!(lines[0], "| model | sims | steps | total sweeps | vs builtin | same states vs builtin | worst sim, same states | median sweeps | falling: median | settled: median | cap hits | fallbacks | persisting | warm err n (median MSE) | median solve us | median step us |");
-        assert_eq!(lines[1], "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+        assert_eq!(lines[0], "| model | sims | steps | total sweeps | vs builtin | same states vs builtin | worst sim, same states | median sweeps | falling: median | settled: median | cap hits | fallbacks | persisting | warm err n (median MSE) | median solve us | median step us | RMS natural residual (mean) | penetration max (mean, m) |");
+        assert_eq!(
+            lines[1],
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        );
         assert_eq!(
             lines[2],
-            "| none | 3 | 60 | 900 | 3.000x | 2.500x | 2.750x (sim 1) | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 |"
+            "| none | 3 | 60 | 900 | 3.000x | 2.500x | 2.750x (sim 1) | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 | 0.0000 | 0.0000 |"
         );
         assert_eq!(
             lines[3],
-            "| a<b | 3 | 60 | 900 | - | - | - | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 |"
+            "| a<b | 3 | 60 | 900 | - | - | - | 15.0 | - | 15.0 | 0 | 0 | 25.0% | 0.0123 | 45.0 | 50.0 | 0.0000 | 0.0000 |"
         );
         assert_eq!(lines.len(), 4);
         let html = table.to_html();
