@@ -330,7 +330,9 @@ mod tests {
         );
         assert!(
             html.contains("<td>a&lt;b</td>")
-                && html.contains("<td>25.0%</td><td>0.0123</td><td>45.0</td><td>50.0</td></tr>"),
+                && html.contains(
+                    "<td>25.0%</td><td>0.0123</td><td>45.0</td><td>50.0</td><td>0.0000</td><td>0.0000</td></tr>"
+                ),
             "{html}"
         );
         assert_eq!(html.matches("<tr>").count(), 3);
