@@ -126,7 +126,7 @@ struct EvalArgs {
     /// per budget in OUT/budget-K/ (OUT/<solver>/budget-K/ with --solvers), then OUT/budgets.md,
     /// each model's accuracy after its budget placed on builtin's curve over these budgets.
     /// Same states are not measured (every model makes K sweeps).
-    #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u32).range(1..=4096))]
+    #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u32).range(1..=msgs::curve::MAX_BUDGET as i64))]
     budget: Vec<u32>,
     /// More simulator parameters, passed through (after `--`).
     #[arg(last = true)]
@@ -613,6 +613,11 @@ fn eval(args: EvalArgs) -> Result<()> {
     Ok(())
 }
 
+/// The first item of `list` that an earlier one repeats.
+fn repeated<T: PartialEq>(list: &[T]) -> Option<&T> {
+    list.iter().enumerate().find(|(i, x)| list[..*i].contains(x)).map(|(_, x)| x)
+}
+
 /// One evaluation of `dc eval --solvers/--budget`: its solver and budget, folder and graph.
 struct Variant {
     solver: Option<String>,
@@ -629,15 +634,11 @@ fn eval_variants(args: &EvalArgs, out: &std::path::Path) -> Result<()> {
         if args.solvers.is_empty() { vec![None] } else { args.solvers.iter().map(Some).collect() };
     let budgets: Vec<Option<u32>> =
         if args.budget.is_empty() { vec![None] } else { args.budget.iter().copied().map(Some).collect() };
-    for (i, s) in args.solvers.iter().enumerate() {
-        if args.solvers[..i].contains(s) {
-            bail!("--solvers: `{s}` is asked for twice");
-        }
+    if let Some(s) = repeated(&args.solvers) {
+        bail!("--solvers: `{s}` is asked for twice");
     }
-    for (i, k) in args.budget.iter().enumerate() {
-        if args.budget[..i].contains(k) {
-            bail!("--budget: {k} is asked for twice");
-        }
+    if let Some(k) = repeated(&args.budget) {
+        bail!("--budget: {k} is asked for twice");
     }
     let mut runs = Vec::new();
     for solver in &solvers {

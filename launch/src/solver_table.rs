@@ -136,15 +136,7 @@ pub fn budget_markdown(summaries: &[(u32, Vec<SummaryRow>)]) -> String {
             }
         }
     }
-    let num = |x: f64| {
-        if !x.is_finite() {
-            "-".to_string()
-        } else if x != 0.0 && x.abs() < 1e-3 {
-            format!("{x:.3e}")
-        } else {
-            format!("{x:.4}")
-        }
-    };
+    let num = msgs::curve::figure;
     for model in models {
         for (k, rows) in summaries {
             let Some(r) = rows.iter().find(|r| r.model == model) else { continue };

@@ -1,5 +1,22 @@
-//! Where an accuracy sits on a reference curve: the real-time regime's one piece of arithmetic,
-//! shared by the simulator's budget study and the launcher's budget table.
+//! Where a figure sits on a reference curve, shared by the reports that place models: on
+//! builtin's curve of accuracy against budget ([`worth`], the simulator's budget study and the
+//! launcher's budget table), and on the oracle blend curve ([`blend_place`], the metrics report
+//! and the budget study); and how those tables write a figure ([`figure`]).
+
+/// The largest sweep budget a step may be given (`dc-sim --budget`, `dc eval --budget`).
+pub const MAX_BUDGET: u32 = 4096;
+
+/// A figure of a budget table: four decimals, three significant digits in scientific notation
+/// when small (< 1e-3) or large (>= 1e5), `-` when not finite.
+pub fn figure(x: f64) -> String {
+    if !x.is_finite() {
+        "-".into()
+    } else if x != 0.0 && (x.abs() < 1e-3 || x.abs() >= 1e5) {
+        format!("{x:.3e}")
+    } else {
+        format!("{x:.4}")
+    }
+}
 
 /// Where an accuracy sits on builtin's curve.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -73,6 +90,63 @@ pub fn along(points: &[(f64, f64)], x: f64) -> f64 {
         }
     }
     points.last().map_or(f64::NAN, |p| p.1)
+}
+
+/// Where a value sits on the blend curve `blend:F` (builtin + F (oracle - builtin)).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub enum BlendPlace {
+    /// At this F, between two blends the run measured (builtin: F = 0).
+    At(f64),
+    /// Worse than builtin (F would be negative).
+    BelowBuiltin,
+    /// Better than the largest blend measured (its F given).
+    Beyond(f64),
+}
+
+impl BlendPlace {
+    /// `0.12`, `< 0`, `> 0.75`.
+    pub fn label(&self) -> String {
+        match self {
+            BlendPlace::At(f) => format!("{f:.2}"),
+            BlendPlace::BelowBuiltin => "< 0".into(),
+            BlendPlace::Beyond(f) => format!("> {f:.2}"),
+        }
+    }
+
+    /// F for comparing two places, with a place outside the measured curve at its nearer end.
+    pub fn position(&self) -> f64 {
+        match *self {
+            BlendPlace::At(f) | BlendPlace::Beyond(f) => f,
+            BlendPlace::BelowBuiltin => 0.0,
+        }
+    }
+
+    /// F when inside the measured curve.
+    pub fn fraction(&self) -> Option<f64> {
+        match *self {
+            BlendPlace::At(f) => Some(f),
+            _ => None,
+        }
+    }
+}
+
+/// Where the piecewise-linear curve through `points` (sorted by x, starting at builtin's (0, 1))
+/// takes the value y: the first bracketing segment from the start; outside them, below builtin
+/// when y is nearer the start (worse than builtin), else beyond the last point.
+pub fn blend_place(points: impl Iterator<Item = (f64, f64)>, y: f64) -> Option<BlendPlace> {
+    let points: Vec<(f64, f64)> = points.collect();
+    if !y.is_finite() || points.len() < 2 {
+        return None;
+    }
+    for w in points.windows(2) {
+        let ((x0, y0), (x1, y1)) = (w[0], w[1]);
+        if (y0.min(y1)..=y0.max(y1)).contains(&y) {
+            let x = if y1 == y0 { x0 } else { x0 + (y - y0) * (x1 - x0) / (y1 - y0) };
+            return Some(BlendPlace::At(x));
+        }
+    }
+    let (first, last) = (points[0], points[points.len() - 1]);
+    Some(if (y - first.1).abs() <= (y - last.1).abs() { BlendPlace::BelowBuiltin } else { BlendPlace::Beyond(last.0) })
 }
 
 #[cfg(test)]

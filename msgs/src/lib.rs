@@ -24,7 +24,7 @@ pub use codec::{decode, decode_header, encode, encode_into, CodecError, OLDEST_W
 pub use control::{ControlDetails, DetailsError, NodeNotice, RunParams, RunSummary, SceneInfo};
 pub use names::id_text;
 pub use problem::{ProblemBodies, ProblemBody, ProblemContact, ProblemContacts, ProblemHeader};
-pub use stats::StepStats;
+pub use stats::{Accuracy, StepStats};
 pub use topics::{FrameKind, HasStep};
 
 use bytemuck::{Pod, Zeroable};

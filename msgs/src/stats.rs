@@ -150,6 +150,49 @@ impl StepStats {
     }
 }
 
+/// How accurate a model's steps were, whatever stopped their solves (means over the steps with
+/// contacts): the natural residual after the solve (RMS and max over rows, impulse units), the
+/// overlap the position pass left (max and mean over contacts, m), and the dynamic bodies' mean
+/// kinetic energy in the last step-range phase (the settled pile's jitter, J). NaN where no step
+/// had contacts; 0 for statistics recorded before these existed.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Accuracy {
+    pub natural_rms: f64,
+    pub natural_max: f64,
+    pub penetration_max: f64,
+    pub penetration_mean: f64,
+    pub late_kinetic_energy: f64,
+}
+
+impl Accuracy {
+    /// Over `steps`; the late phase starts at step `late_from`.
+    pub fn of<'a>(steps: impl Iterator<Item = &'a StepStats>, late_from: u32) -> Accuracy {
+        let mut sums = [0.0f64; 4];
+        let (mut n, mut late, mut late_n) = (0usize, 0.0f64, 0usize);
+        for r in steps {
+            if r.step >= late_from {
+                late += r.kinetic_energy as f64;
+                late_n += 1;
+            }
+            if r.contacts == 0 {
+                continue;
+            }
+            for (sum, v) in sums.iter_mut().zip([r.natural_rms, r.natural_max, r.penetration_max, r.penetration_mean]) {
+                *sum += v as f64;
+            }
+            n += 1;
+        }
+        let mean = |sum: f64, n: usize| if n == 0 { f64::NAN } else { sum / n as f64 };
+        Accuracy {
+            natural_rms: mean(sums[0], n),
+            natural_max: mean(sums[1], n),
+            penetration_max: mean(sums[2], n),
+            penetration_mean: mean(sums[3], n),
+            late_kinetic_energy: mean(late, late_n),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -7,7 +7,7 @@ use crate::phases::{
     DEFAULT_PHASE_BOUNDARIES,
 };
 use charts::{median, quantile};
-use msgs::{SolveStatsHeader, StepStats};
+use msgs::{Accuracy, SolveStatsHeader, StepStats};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -107,50 +107,7 @@ pub struct ModelSummary {
     pub median_warm_error_normal_mse: f64,
     pub median_warm_error_tangent_mse: f64,
     /// How accurate the steps were (what a fixed sweep budget trades).
-    pub accuracy: StepAccuracy,
-}
-
-/// How accurate a model's steps were, whatever stopped their solves (means over the steps with
-/// contacts): the natural residual after the solve (RMS and max over rows, impulse units), the
-/// overlap the position pass left (max and mean over contacts, m), and the dynamic bodies' mean
-/// kinetic energy in the last step-range phase (the settled pile's jitter, J). NaN where no step
-/// had contacts; 0 for statistics recorded before these existed.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
-pub struct StepAccuracy {
-    pub natural_rms: f64,
-    pub natural_max: f64,
-    pub penetration_max: f64,
-    pub penetration_mean: f64,
-    pub late_kinetic_energy: f64,
-}
-
-impl StepAccuracy {
-    /// Over `steps`; the late phase starts at step `late_from`.
-    pub fn of<'a>(steps: impl Iterator<Item = &'a StepRecord>, late_from: u32) -> StepAccuracy {
-        let mut sums = [0.0f64; 4];
-        let (mut n, mut late, mut late_n) = (0usize, 0.0f64, 0usize);
-        for r in steps {
-            if r.step >= late_from {
-                late += r.kinetic_energy as f64;
-                late_n += 1;
-            }
-            if r.contacts == 0 {
-                continue;
-            }
-            for (sum, v) in sums.iter_mut().zip([r.natural_rms, r.natural_max, r.penetration_max, r.penetration_mean]) {
-                *sum += v as f64;
-            }
-            n += 1;
-        }
-        let mean = |sum: f64, n: usize| if n == 0 { f64::NAN } else { sum / n as f64 };
-        StepAccuracy {
-            natural_rms: mean(sums[0], n),
-            natural_max: mean(sums[1], n),
-            penetration_max: mean(sums[2], n),
-            penetration_mean: mean(sums[3], n),
-            late_kinetic_energy: mean(late, late_n),
-        }
-    }
+    pub accuracy: Accuracy,
 }
 
 /// A model's sweeps against builtin's warm start on the same step problems: what the warm start
@@ -302,8 +259,8 @@ impl Aggregate {
                     median_warm_error_tangent_mse: median(
                         &with_contacts().map(|r| r.warm_error_tangent_mse as f64).collect::<Vec<_>>(),
                     ),
-                    accuracy: StepAccuracy::of(
-                        self.records(model),
+                    accuracy: Accuracy::of(
+                        self.records(model).map(|r| &r.stats),
                         self.phase_boundaries.iter().copied().max().unwrap_or(0),
                     ),
                 }

@@ -9,6 +9,8 @@
 //! instead. The tables are computed from the records by `Aggregate` (`phase_rows`, `accuracy`,
 //! `sweeps_histograms`); this module holds their rows and the blend curve, and knows no records.
 
+use msgs::curve::blend_place;
+pub use msgs::curve::BlendPlace;
 use serde::Serialize;
 
 /// The default phase boundaries: steps 0-99, 100-149 and 150-end.
@@ -240,44 +242,6 @@ pub fn placement_notes(rows: &[AccuracyRow]) -> Vec<String> {
     reference.into_iter().chain(models).collect()
 }
 
-/// Where a value sits on the blend curve `blend:F` (builtin + F (oracle - builtin)).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub enum BlendPlace {
-    /// At this F, between two blends the run measured (builtin: F = 0).
-    At(f64),
-    /// Worse than builtin (F would be negative).
-    BelowBuiltin,
-    /// Better than the largest blend measured (its F given).
-    Beyond(f64),
-}
-
-impl BlendPlace {
-    /// `0.12`, `< 0`, `> 0.75`.
-    pub fn label(&self) -> String {
-        match self {
-            BlendPlace::At(f) => format!("{f:.2}"),
-            BlendPlace::BelowBuiltin => "< 0".into(),
-            BlendPlace::Beyond(f) => format!("> {f:.2}"),
-        }
-    }
-
-    /// F for comparing two places, with a place outside the measured curve at its nearer end.
-    pub fn position(&self) -> f64 {
-        match *self {
-            BlendPlace::At(f) | BlendPlace::Beyond(f) => f,
-            BlendPlace::BelowBuiltin => 0.0,
-        }
-    }
-
-    /// F when inside the measured curve.
-    pub fn fraction(&self) -> Option<f64> {
-        match *self {
-            BlendPlace::At(f) => Some(f),
-            _ => None,
-        }
-    }
-}
-
 /// The oracle ablation curve of one run — builtin at F = 0, each `blend:F` (0 < F <= 1), and
 /// `copy` (the oracle itself) at F = 1 — as (F, late-phase error vs builtin, sweeps vs builtin)
 /// points, and its inverse: which F matches a given error or sweeps ratio.
@@ -328,32 +292,13 @@ impl BlendPlacement {
     /// root, where it is a line.
     pub fn by_error(&self, error_vs_builtin: f64) -> Option<BlendPlace> {
         let root = |e: f64| e.max(0.0).sqrt();
-        inverse(self.points.iter().map(|p| (p.0, root(p.1))), root(error_vs_builtin))
+        blend_place(self.points.iter().map(|p| (p.0, root(p.1))), root(error_vs_builtin))
     }
 
     /// The F whose blend needs this many sweeps (relative to builtin's).
     pub fn by_sweeps(&self, sweeps_vs_builtin: f64) -> Option<BlendPlace> {
-        inverse(self.points.iter().map(|p| (p.0, p.2)), sweeps_vs_builtin)
+        blend_place(self.points.iter().map(|p| (p.0, p.2)), sweeps_vs_builtin)
     }
-}
-
-/// Where the piecewise-linear curve through `points` (sorted by x, starting at builtin's (0, 1))
-/// takes the value y: the first bracketing segment from the start; outside them, below builtin
-/// when y is nearer the start (worse than builtin), else beyond the last point.
-fn inverse(points: impl Iterator<Item = (f64, f64)>, y: f64) -> Option<BlendPlace> {
-    let points: Vec<(f64, f64)> = points.collect();
-    if !y.is_finite() || points.len() < 2 {
-        return None;
-    }
-    for w in points.windows(2) {
-        let ((x0, y0), (x1, y1)) = (w[0], w[1]);
-        if (y0.min(y1)..=y0.max(y1)).contains(&y) {
-            let x = if y1 == y0 { x0 } else { x0 + (y - y0) * (x1 - x0) / (y1 - y0) };
-            return Some(BlendPlace::At(x));
-        }
-    }
-    let (first, last) = (points[0], points[points.len() - 1]);
-    Some(if (y - first.1).abs() <= (y - last.1).abs() { BlendPlace::BelowBuiltin } else { BlendPlace::Beyond(last.0) })
 }
 
 #[cfg(test)]

@@ -13,12 +13,15 @@
 //! runs): at a budget a step's inaccuracy is carried into the next step's warm start, which is
 //! part of what a warm start is judged on here.
 
+use crate::compare::phase;
 use crate::error::SimError;
 use crate::scene::SceneConfig;
 use crate::solver::{SolveParams, StopRule};
 use crate::warm::{ModelFiles, ModelKind, ModelSpec, Served, WarmStarter};
 use crate::world::{World, WorldParams};
+use msgs::curve::figure as num;
 pub use msgs::curve::{along, worth, Worth};
+use msgs::{Accuracy, StepStats};
 
 /// The first steps of the phases after the first (the report's phases: steps 0-99 falling,
 /// 100-149 piling up, 150-end settled).
@@ -87,6 +90,9 @@ impl BudgetSpec {
         if let Some(&k) = self.budgets.iter().find(|&&k| k == 0 || k > MAX_BUDGET) {
             return Err(bad(k.to_string(), &format!("a budget is from 1 to {MAX_BUDGET} sweeps")));
         }
+        if let Some((i, k)) = self.budgets.iter().enumerate().find(|(i, k)| self.budgets[..*i].contains(k)) {
+            return Err(bad(k.to_string(), &format!("asked for twice (budget {} of the list)", i + 1)));
+        }
         if !(self.reference_tolerance.is_finite() && self.reference_tolerance > 0.0) {
             return Err(SimError::InvalidParameter {
                 name: "reference-tolerance",
@@ -109,27 +115,7 @@ impl BudgetSpec {
 }
 
 /// The largest budget (the largest judged budget's curve reaches 16 times as far).
-pub const MAX_BUDGET: u32 = 4096;
-
-/// What one step of a run leaves behind.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct StepAccuracy {
-    pub seed: u64,
-    pub step: u32,
-    pub contacts: u32,
-    pub sweeps: u32,
-    pub natural_max: f32,
-    pub natural_rms: f32,
-    pub penetration_max: f32,
-    pub penetration_mean: f32,
-    pub kinetic_energy: f32,
-    pub pile_height: f32,
-    pub pile_spread: f32,
-    /// The simulator's critical path: warm start and solve, microseconds.
-    pub warm_us: f32,
-    pub solve_us: f32,
-    pub fallback: bool,
-}
+pub const MAX_BUDGET: u32 = msgs::curve::MAX_BUDGET;
 
 /// One run of the study (a model at a budget, builtin on the curve, or the reference) over every seed.
 #[derive(Debug, Clone, PartialEq)]
@@ -139,43 +125,25 @@ pub struct BudgetRun {
     pub model: String,
     /// The budget; 0 for the reference run.
     pub budget: u32,
-    pub steps: Vec<StepAccuracy>,
+    /// Every step's statistics, seed by seed (`simulation` is the seed).
+    pub steps: Vec<StepStats>,
 }
 
-/// Runs `model` with `solve` on `seed`, every step's accuracy.
+/// Runs `model` with `solve` on `seed`: every step's statistics.
 pub fn run_seed(
     spec: &BudgetSpec,
     seed: u64,
     model: &ModelSpec,
     solve: SolveParams,
-) -> Result<Vec<StepAccuracy>, SimError> {
+) -> Result<Vec<StepStats>, SimError> {
     let params = WorldParams { solve, ..spec.params };
     let mut world = World::new(&SceneConfig { seed, ..spec.scene.clone() }, params)?;
+    // Simulation ids are u32 (checked by the caller's seed list).
+    world.set_ids(0, seed as u32);
     let network = model.build_with(seed, Served::default(), &spec.files)?;
     let mut warm = WarmStarter::new(network, ModelKind::Builtin.build(seed)?);
-    // Simulation ids are u32 (checked by the caller's seed list).
     warm.begin_simulation(seed as u32, seed);
-    let mut out = Vec::with_capacity(spec.steps as usize);
-    for step in 0..spec.steps {
-        let s = world.step(&mut warm);
-        out.push(StepAccuracy {
-            seed,
-            step,
-            contacts: s.contacts,
-            sweeps: s.sweeps,
-            natural_max: s.natural_max,
-            natural_rms: s.natural_rms,
-            penetration_max: s.penetration_max,
-            penetration_mean: s.penetration_mean,
-            kinetic_energy: s.kinetic_energy,
-            pile_height: s.pile_height,
-            pile_spread: s.pile_spread,
-            warm_us: s.warm_start_us,
-            solve_us: s.solve_us,
-            fallback: s.fallback,
-        });
-    }
-    Ok(out)
+    Ok((0..spec.steps).map(|_| world.step(&mut warm).clone()).collect())
 }
 
 /// The whole study: per seed the reference, builtin at every budget of its curve, and every
@@ -199,24 +167,6 @@ pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) ->
         progress(seed);
     }
     Ok(runs)
-}
-
-/// Mean of `f` over the steps with contacts (NaN for none).
-fn mean_over(steps: &[StepAccuracy], f: impl Fn(&StepAccuracy) -> f64) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
-    for s in steps.iter().filter(|s| s.contacts > 0) {
-        sum += f(s);
-        n += 1;
-    }
-    if n == 0 {
-        f64::NAN
-    } else {
-        sum / n as f64
-    }
-}
-
-fn phase(step: u32) -> usize {
-    PHASE_STARTS.iter().filter(|&&s| step >= s).count()
 }
 
 /// The phases' labels: `0-99`, `100-149`, `150-end`.
@@ -249,11 +199,9 @@ pub struct RunSummary {
     pub model: String,
     pub budget: u32,
     pub mean_sweeps: f64,
-    /// Means over the steps with contacts.
-    pub natural_rms: f64,
-    pub natural_max: f64,
-    pub penetration_max: f64,
-    pub penetration_mean: f64,
+    /// The natural residual and penetration (means over the steps with contacts), the late
+    /// phase's kinetic energy.
+    pub accuracy: Accuracy,
     /// Mean critical path per step (warm start + solve), microseconds.
     pub critical_us: f64,
     pub fallbacks: usize,
@@ -264,11 +212,11 @@ pub struct RunSummary {
 impl RunSummary {
     /// `run` summarised, its pile compared with `reference`'s at the same (seed, step).
     pub fn of(run: &BudgetRun, reference: &BudgetRun) -> RunSummary {
-        let at: std::collections::HashMap<(u64, u32), &StepAccuracy> =
-            reference.steps.iter().map(|s| ((s.seed, s.step), s)).collect();
+        let at: std::collections::HashMap<(u32, u32), &StepStats> =
+            reference.steps.iter().map(|s| ((s.simulation, s.step), s)).collect();
         let mut sums = vec![(PhaseAccuracy::default(), 0usize); PHASE_STARTS.len() + 1];
         for s in &run.steps {
-            let Some(r) = at.get(&(s.seed, s.step)) else { continue };
+            let Some(r) = at.get(&(s.simulation, s.step)) else { continue };
             let (p, n) = &mut sums[phase(s.step)];
             p.kinetic_energy += s.kinetic_energy as f64;
             p.height_offset += (s.pile_height - r.pile_height) as f64;
@@ -293,19 +241,11 @@ impl RunSummary {
             model: run.model.clone(),
             budget: run.budget,
             mean_sweeps: steps.iter().map(|s| s.sweeps as f64).sum::<f64>() / all,
-            natural_rms: mean_over(steps, |s| s.natural_rms as f64),
-            natural_max: mean_over(steps, |s| s.natural_max as f64),
-            penetration_max: mean_over(steps, |s| s.penetration_max as f64),
-            penetration_mean: mean_over(steps, |s| s.penetration_mean as f64),
-            critical_us: steps.iter().map(|s| (s.warm_us + s.solve_us) as f64).sum::<f64>() / all,
+            accuracy: Accuracy::of(steps.iter(), PHASE_STARTS[PHASE_STARTS.len() - 1]),
+            critical_us: steps.iter().map(|s| (s.warm_start_us + s.solve_us) as f64).sum::<f64>() / all,
             fallbacks: steps.iter().filter(|s| s.fallback).count(),
             phases,
         }
-    }
-
-    /// The last phase's mean kinetic energy (the settled pile's jitter).
-    pub fn late_kinetic_energy(&self) -> f64 {
-        self.phases.last().map_or(f64::NAN, |p| p.kinetic_energy)
     }
 }
 
@@ -320,20 +260,10 @@ pub fn curve(summaries: &[RunSummary], f: impl Fn(&RunSummary) -> f64) -> Vec<(f
     summaries.iter().filter(|s| s.model == "builtin" && s.budget > 0).map(|s| (s.budget as f64, f(s))).collect()
 }
 
-fn num(x: f64) -> String {
-    if !x.is_finite() {
-        "-".into()
-    } else if x != 0.0 && (x.abs() < 1e-3 || x.abs() >= 1e5) {
-        format!("{x:.3e}")
-    } else {
-        format!("{x:.4}")
-    }
-}
-
 /// The study's tables as markdown: builtin's curve, each judged budget's models placed on it,
 /// and the pile per phase against the reference.
 pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
-    let rms = curve(summaries, |s| s.natural_rms);
+    let rms = curve(summaries, |s| s.accuracy.natural_rms);
     let time = curve(summaries, |s| s.critical_us);
     let mut out = String::from(
         "## Builtin's curve: accuracy after the budget\n\n| budget | mean sweeps | RMS natural residual | max natural residual | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | critical path (us/step) |\n|---:|---:|---:|---:|---:|---:|---:|---:|\n",
@@ -343,11 +273,11 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
             "| {} | {:.2} | {} | {} | {} | {} | {} | {:.1} |\n",
             s.budget,
             s.mean_sweeps,
-            num(s.natural_rms),
-            num(s.natural_max),
-            num(s.penetration_max),
-            num(s.penetration_mean),
-            num(s.late_kinetic_energy()),
+            num(s.accuracy.natural_rms),
+            num(s.accuracy.natural_max),
+            num(s.accuracy.penetration_max),
+            num(s.accuracy.penetration_mean),
+            num(s.accuracy.late_kinetic_energy),
             s.critical_us
         );
     }
@@ -355,11 +285,11 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
         out += &format!(
             "| reference ({:.1} sweeps) | | {} | {} | {} | {} | {} | {:.1} |\n",
             r.mean_sweeps,
-            num(r.natural_rms),
-            num(r.natural_max),
-            num(r.penetration_max),
-            num(r.penetration_mean),
-            num(r.late_kinetic_energy()),
+            num(r.accuracy.natural_rms),
+            num(r.accuracy.natural_max),
+            num(r.accuracy.penetration_max),
+            num(r.accuracy.penetration_mean),
+            num(r.accuracy.late_kinetic_energy),
             r.critical_us
         );
     }
@@ -371,12 +301,12 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
             .iter()
             .filter(|s| s.budget == k)
             .filter_map(|s| match s.model.as_str() {
-                "builtin" => Some((0.0, s.natural_rms)),
-                m => m.strip_prefix("blend:").and_then(|f| f.parse().ok()).map(|f| (f, s.natural_rms)),
+                "builtin" => Some((0.0, s.accuracy.natural_rms)),
+                m => m.strip_prefix("blend:").and_then(|f| f.parse().ok()).map(|f| (f, s.accuracy.natural_rms)),
             })
             .collect();
         for s in summaries.iter().filter(|s| s.budget == k) {
-            let w = worth(&rms, s.natural_rms);
+            let w = worth(&rms, s.accuracy.natural_rms);
             let there = match w {
                 Worth::Sweeps(n) => format!("{:.1}", along(&time, n)),
                 _ => "-".into(),
@@ -384,12 +314,12 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
             out += &format!(
                 "| {} | {} | {w} | {:.1} | {there} | {} | {} | {} | {} | {} |\n",
                 s.model,
-                num(s.natural_rms),
+                num(s.accuracy.natural_rms),
                 s.critical_us,
-                blend_fraction(&blends, s.natural_rms),
-                num(s.penetration_max),
-                num(s.penetration_mean),
-                num(s.late_kinetic_energy()),
+                blend_fraction(&blends, s.accuracy.natural_rms),
+                num(s.accuracy.penetration_max),
+                num(s.accuracy.penetration_mean),
+                num(s.accuracy.late_kinetic_energy),
                 s.fallbacks
             );
         }
@@ -418,20 +348,7 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
 pub fn blend_fraction(blends: &[(f64, f64)], value: f64) -> String {
     let mut points = blends.to_vec();
     points.sort_by(|a, b| a.0.total_cmp(&b.0));
-    if points.len() < 2 || !value.is_finite() {
-        return "-".into();
-    }
-    if value > points[0].1 {
-        return "< 0".into();
-    }
-    for w in points.windows(2) {
-        let ((f0, e0), (f1, e1)) = (w[0], w[1]);
-        if e0.min(e1) <= value && value <= e0.max(e1) {
-            let t = if e0 == e1 { 0.0 } else { (value - e0) / (e1 - e0) };
-            return format!("{:.2}", f0 + t * (f1 - f0));
-        }
-    }
-    format!("> {:.2}", points[points.len() - 1].0)
+    msgs::curve::blend_place(points.into_iter(), value).map_or_else(|| "-".into(), |p| p.label())
 }
 
 /// Every step of every run, one CSV line each.
@@ -446,7 +363,7 @@ pub fn csv(runs: &[BudgetRun]) -> String {
                 r.label,
                 r.model,
                 r.budget,
-                s.seed,
+                s.simulation,
                 s.step,
                 s.contacts,
                 s.sweeps,
@@ -457,7 +374,7 @@ pub fn csv(runs: &[BudgetRun]) -> String {
                 s.kinetic_energy,
                 s.pile_height,
                 s.pile_spread,
-                s.warm_us,
+                s.warm_start_us,
                 s.solve_us,
                 s.fallback as u8
             );
@@ -469,11 +386,16 @@ pub fn csv(runs: &[BudgetRun]) -> String {
 /// Accuracy against time: builtin's curve as a line (RMS natural residual against its budget),
 /// and every run as a labelled point at its critical-path time, as a PNG at `path`.
 pub fn plot(path: &std::path::Path, summaries: &[RunSummary]) -> Result<(), charts::PlotError> {
-    let line = [charts::Series { name: "builtin".into(), points: curve(summaries, |s| s.natural_rms), band: None }];
+    let line =
+        [charts::Series { name: "builtin".into(), points: curve(summaries, |s| s.accuracy.natural_rms), band: None }];
     let points: Vec<charts::Series> = summaries
         .iter()
         .filter(|s| s.budget > 0)
-        .map(|s| charts::Series { name: s.label.clone(), points: vec![(s.critical_us, s.natural_rms)], band: None })
+        .map(|s| charts::Series {
+            name: s.label.clone(),
+            points: vec![(s.critical_us, s.accuracy.natural_rms)],
+            band: None,
+        })
         .collect();
     let by_budget = charts::Panel::new(
         charts::Axis::log("budget (sweeps per step)"),
@@ -538,12 +460,12 @@ mod tests {
         let runs = study(&spec, &[101], |_| {}).unwrap();
         let summaries = summaries(&runs);
         assert_eq!(summaries[0].label, "reference");
-        let rms = curve(&summaries, |s| s.natural_rms);
+        let rms = curve(&summaries, |s| s.accuracy.natural_rms);
         assert_eq!(rms.iter().map(|p| p.0).collect::<Vec<_>>(), [1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0]);
         assert!(rms.windows(2).all(|w| w[1].1 < w[0].1), "{rms:?}");
-        assert!(summaries[0].natural_rms < rms.last().unwrap().1, "the reference is the most accurate");
+        assert!(summaries[0].accuracy.natural_rms < rms.last().unwrap().1, "the reference is the most accurate");
         let at4 = summaries.iter().find(|s| s.label == "builtin@4").unwrap();
-        assert_eq!(worth(&rms, at4.natural_rms), Worth::Sweeps(4.0));
+        assert_eq!(worth(&rms, at4.accuracy.natural_rms), Worth::Sweeps(4.0));
         assert!(summaries.iter().any(|s| s.label == "none@4"));
         let table = markdown(&summaries, &spec.budgets);
         assert!(table.contains("## At 4 sweeps") && table.contains("| none |"), "{table}");

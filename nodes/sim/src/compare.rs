@@ -315,7 +315,8 @@ pub struct SameStatesRow {
 /// piling up, settled).
 pub const PHASE_STARTS: [u32; 2] = [100, 150];
 
-fn phase(step: u32) -> usize {
+/// The phase (index into [`PHASE_STARTS`] plus one) of step `step`.
+pub(crate) fn phase(step: u32) -> usize {
     PHASE_STARTS.iter().filter(|&&s| step >= s).count()
 }
 

@@ -195,10 +195,11 @@ struct Args {
     /// step, placed on builtin's curve of accuracy against budget (1, 2, 4, ... 16K), the pile
     /// compared per phase with a reference run solved to --reference-tolerance; prints and
     /// writes the tables (docs/budget.md explains them).
-    #[arg(long, value_name = "K,...", conflicts_with_all = ["budget", "compare_solvers", "bench"])]
-    budget_study: Option<String>,
+    #[arg(long, value_name = "K,...", value_delimiter = ',', conflicts_with_all = ["budget", "compare_solvers", "bench"],
+          value_parser = clap::value_parser!(u32).range(1..=sim::budget::MAX_BUDGET as i64))]
+    budget_study: Vec<u32>,
     /// With --budget-study: the reference run's tolerance (natural residual).
-    #[arg(long, default_value_t = 1e-6, value_parser = positive_f32, requires = "budget_study")]
+    #[arg(long, default_value_t = 1e-6, value_parser = positive_f32)]
     reference_tolerance: f32,
     /// Run the benchmark and print it instead of running the node.
     #[arg(long)]
@@ -344,6 +345,23 @@ fn run_bench(args: &Args) -> Result<()> {
 /// Seeds 0..29 are the evaluation's: nothing is trained on them.
 const EVALUATION_SEEDS: std::ops::Range<u64> = 0..30;
 
+/// A progress bar over `len` seeds, titled `what`.
+fn seed_bar(len: usize, what: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} seeds, {elapsed}, ~{eta} left")
+            .expect("a valid template"),
+    );
+    bar.set_message(what.to_string());
+    bar
+}
+
+/// Writes `text` to `dir/name`, the error naming the file.
+fn write_in(dir: &std::path::Path, name: &str, text: &str) -> Result<()> {
+    let path = dir.join(name);
+    std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))
+}
+
 /// `dc-sim --compare-solvers`: the same-states table, the chooser, whole runs.
 fn compare_solvers(args: &Args, menu: &[sim::SolverSetting]) -> Result<()> {
     use sim::compare::{self, Choice, CompareSpec, SolverChooser};
@@ -353,15 +371,6 @@ fn compare_solvers(args: &Args, menu: &[sim::SolverSetting]) -> Result<()> {
         params: args.world_params(),
         steps: args.steps,
         menu: menu.to_vec(),
-    };
-    let bar = |len: usize, what: &str| {
-        let bar = indicatif::ProgressBar::new(len as u64);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} seeds, {elapsed}")
-                .expect("a valid template"),
-        );
-        bar.set_message(what.to_string());
-        bar
     };
     let describe = format!(
         "{} steps, stop {} <= {}, cap {}, {} bodies",
@@ -377,14 +386,14 @@ fn compare_solvers(args: &Args, menu: &[sim::SolverSetting]) -> Result<()> {
             if let Some(s) = train.iter().find(|&&s| EVALUATION_SEEDS.contains(&s)) {
                 bail!("--train-seeds {list}: seed {s} is an evaluation seed (0..29 are never trained on)");
             }
-            let p = bar(train.len(), "same states, training seeds");
+            let p = seed_bar(train.len(), "same states, training seeds");
             let steps = compare::same_states(&spec, &train, |_| p.inc(1))?;
             p.finish_and_clear();
             Some(SolverChooser::fit(menu, &steps)?)
         }
         None => None,
     };
-    let p = bar(seeds.len(), "same states");
+    let p = seed_bar(seeds.len(), "same states");
     let steps = compare::same_states(&spec, &seeds, |_| p.inc(1))?;
     p.finish_and_clear();
     // The chooser pays, every step, its features' extraction and its pick (the median pick).
@@ -411,7 +420,7 @@ fn compare_solvers(args: &Args, menu: &[sim::SolverSetting]) -> Result<()> {
         for (name, choice) in
             choices.chain(chooser.as_ref().map(|c| ("learned choice".to_string(), Choice::Learned(c))))
         {
-            let p = bar(seeds.len(), &format!("whole runs, {name}"));
+            let p = seed_bar(seeds.len(), &format!("whole runs, {name}"));
             whole.push((name, compare::whole_run(&spec, &seeds, choice, |_| p.inc(1))?));
             p.finish_and_clear();
         }
@@ -423,37 +432,16 @@ fn compare_solvers(args: &Args, menu: &[sim::SolverSetting]) -> Result<()> {
     println!("{report}");
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let write = |name: &str, text: &str| {
-            let path = dir.join(name);
-            std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))
-        };
-        write("solvers.md", &report)?;
-        write("solver-steps.csv", &compare::csv(menu, &steps))?;
+        write_in(dir, "solvers.md", &report)?;
+        write_in(dir, "solver-steps.csv", &compare::csv(menu, &steps))?;
         compare::plot(&dir.join("solver-sweeps.png"), menu, &steps)?;
         eprintln!("wrote {}/solvers.md, solver-steps.csv and solver-sweeps.png", dir.display());
     }
     Ok(())
 }
 
-/// The budgets of `--budget-study`.
-fn study_budgets(list: &str) -> Result<Vec<u32>> {
-    let mut budgets = Vec::new();
-    for part in list.split(',') {
-        let k: u32 =
-            part.trim().parse().with_context(|| format!("--budget-study {list}: `{part}` is not a sweep count"))?;
-        if k == 0 || k > sim::budget::MAX_BUDGET {
-            bail!("--budget-study {list}: a budget is from 1 to {} sweeps, got {k}", sim::budget::MAX_BUDGET);
-        }
-        if budgets.contains(&k) {
-            bail!("--budget-study {list}: {k} is asked for twice");
-        }
-        budgets.push(k);
-    }
-    Ok(budgets)
-}
-
 /// The study's spec: the models of --models, or the default set.
-fn budget_spec(args: &Args, list: &str, first_seed: u64) -> Result<sim::budget::BudgetSpec> {
+fn budget_spec(args: &Args, first_seed: u64) -> Result<sim::budget::BudgetSpec> {
     let models = if args.models.is_empty() {
         let mut names = vec!["none", "builtin", "blend:0.25", "blend:0.5", "blend:0.75"];
         if args.gnn_model.is_some() {
@@ -467,7 +455,7 @@ fn budget_spec(args: &Args, list: &str, first_seed: u64) -> Result<sim::budget::
         scene: args.scene_config(first_seed),
         params: args.world_params(),
         steps: args.steps,
-        budgets: study_budgets(list)?,
+        budgets: args.budget_study.clone(),
         models,
         files: sim::ModelFiles { gnn: args.gnn_model.clone() },
         reference_tolerance: args.reference_tolerance,
@@ -475,18 +463,14 @@ fn budget_spec(args: &Args, list: &str, first_seed: u64) -> Result<sim::budget::
 }
 
 /// `dc-sim --budget-study`: the real-time regime's tables.
-fn budget_study(args: &Args, list: &str) -> Result<()> {
+fn budget_study(args: &Args) -> Result<()> {
     use sim::budget;
     let seeds = args.seeds()?;
-    let spec = budget_spec(args, list, seeds[0])?;
+    let spec = budget_spec(args, seeds[0])?;
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let bar = indicatif::ProgressBar::new(seeds.len() as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("budget study [{bar:30}] {pos}/{len} seeds, {elapsed}, ~{eta} left")
-            .expect("a valid template"),
-    );
+    let bar = seed_bar(seeds.len(), "budget study");
     let runs = budget::study(&spec, &seeds, |_| bar.inc(1))?;
     bar.finish_and_clear();
     let summaries = budget::summaries(&runs);
@@ -505,12 +489,8 @@ fn budget_study(args: &Args, list: &str) -> Result<()> {
     );
     println!("{report}");
     if let Some(dir) = &args.out {
-        let write = |name: &str, text: &str| {
-            let path = dir.join(name);
-            std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))
-        };
-        write("budget.md", &report)?;
-        write("budget-steps.csv", &budget::csv(&runs))?;
+        write_in(dir, "budget.md", &report)?;
+        write_in(dir, "budget-steps.csv", &budget::csv(&runs))?;
         budget::plot(&dir.join("budget-accuracy.png"), &summaries)?;
         eprintln!("wrote {}/budget.md, budget-steps.csv and budget-accuracy.png", dir.display());
     }
@@ -534,11 +514,11 @@ fn check(args: &Args) -> Result<()> {
     let seeds = args.seeds()?;
     // Counts, sizes and the memory they imply, before anything is allocated.
     args.run_spec(&seeds, 0, 0).validate()?;
-    if args.out.is_some() && args.compare_solvers.is_none() && args.budget_study.is_none() {
+    if args.out.is_some() && args.compare_solvers.is_none() && args.budget_study.is_empty() {
         bail!("--out is the folder of --compare-solvers or --budget-study; the node publishes on the bus");
     }
-    if let Some(list) = &args.budget_study {
-        return Ok(budget_spec(args, list, seeds[0])?.validate()?);
+    if !args.budget_study.is_empty() {
+        return Ok(budget_spec(args, seeds[0])?.validate()?);
     }
     if args.fallback.is_grid_based() {
         bail!("--fallback must be a local model, not `{}`", args.fallback.name());
@@ -566,8 +546,8 @@ fn try_main() -> Result<()> {
     if let Some(SolverMenu(menu)) = &args.compare_solvers {
         return compare_solvers(&args, menu);
     }
-    if let Some(list) = &args.budget_study {
-        return budget_study(&args, list);
+    if !args.budget_study.is_empty() {
+        return budget_study(&args);
     }
     let seeds = args.seeds()?;
 

@@ -443,6 +443,8 @@ impl World {
         let count = self.contacts.len().max(1) as f64;
         let trail = SolveTrail { changes: self.solver.trail(), rate: self.solver.convergence_rate() };
         self.history.push(self.contacts.iter().map(|c| c.key), final_impulses, trail);
+        // The pile after the position pass (bookkeeping, after the step's timer stopped).
+        let ((penetration_max, penetration_mean), (pile_height, pile_spread)) = (self.penetration(), self.pile());
         // The names' strings are reused from step to step (no allocation on the step path).
         let (mut model, mut used_model) =
             (std::mem::take(&mut self.stats.model), std::mem::take(&mut self.stats.used_model));
@@ -476,15 +478,13 @@ impl World {
             builtin_measured: builtin_sweeps.is_some(),
             natural_max: report.natural.max,
             natural_rms: report.natural.rms,
-            penetration_max: 0.0,
-            penetration_mean: 0.0,
-            pile_height: 0.0,
-            pile_spread: 0.0,
+            penetration_max,
+            penetration_mean,
+            pile_height,
+            pile_spread,
         };
         // Measured after the step's timer stopped: bookkeeping, not simulation.
         (self.stats.kinetic_energy, self.stats.max_speed) = self.motion();
-        (self.stats.penetration_max, self.stats.penetration_mean) = self.penetration();
-        (self.stats.pile_height, self.stats.pile_spread) = self.pile();
     }
 
     /// Overlap the position pass left, over the last step's contacts: the largest and the mean
