@@ -80,6 +80,9 @@ pub enum Error {
     /// `recover` was asked to write over the file it reads.
     #[error("{output} is the same file as the input {input} (a hard link, a symlink or another spelling of it): recover would overwrite what it reads; choose another output")]
     SameFile { input: PathBuf, output: PathBuf },
+    /// A new recording was asked for at a path that already holds a file.
+    #[error("{path} already exists: a recording is never written over an existing file (it may be a finished recording, or a killed one waiting for `dc-record recover`); choose another path, remove it, or pass `--overwrite`")]
+    Exists { path: PathBuf },
     /// More than one recording in one file (`cat a.mcap b.mcap > c.mcap`).
     #[error("{path}: {recordings} recordings concatenated in one file (the second starts at byte {second}): readers that go by the summary see only one; `dc-record recover IN OUT` writes them as one")]
     Concatenated { path: PathBuf, recordings: usize, second: u64 },

@@ -53,13 +53,28 @@ pub struct RecordingWriter {
 }
 
 impl RecordingWriter {
-    /// Creates `path` (and its folder).
+    /// Creates `path` (and its folder), truncating a file already there.
     pub fn create(path: &Path) -> Result<RecordingWriter> {
+        let file = Self::open(path, std::fs::OpenOptions::new().write(true).create(true).truncate(true))?;
+        Self::to_file(path, file, None)
+    }
+
+    /// Creates `path` (and its folder) only if nothing is there ([`Error::Exists`] otherwise):
+    /// the check and the creation are one step, so two recorders cannot both take one path.
+    pub fn create_new(path: &Path) -> Result<RecordingWriter> {
+        let file = Self::open(path, std::fs::OpenOptions::new().write(true).create_new(true))?;
+        Self::to_file(path, file, None)
+    }
+
+    fn open(path: &Path, options: &std::fs::OpenOptions) -> Result<File> {
         let io = |source| Error::Io { path: path.to_path_buf(), source };
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
-        Self::to_file(path, File::create(path).map_err(io)?, None)
+        options.open(path).map_err(|source| match source.kind() {
+            std::io::ErrorKind::AlreadyExists => Error::Exists { path: path.to_path_buf() },
+            _ => io(source),
+        })
     }
 
     /// Writes a new file for `path` under a temporary name in the same folder, renamed over `path`

@@ -248,7 +248,7 @@ fn a_recorder_on_a_full_disk_stops_with_one_error_naming_it() {
     let bus = format!(r#"{{"namespace":"{}"}}"#, namespace("full"));
     let (mut rec, log) = start_recorder(
         &bus,
-        &["--out", "/dev/full", "--topics", "control,bodies,contacts,stats/solve", "--flush-ms", "200"],
+        &["--out", "/dev/full", "--overwrite", "--topics", "control,bodies,contacts,stats/solve", "--flush-ms", "200"],
     );
     let drain = std::thread::spawn(move || log.iter().map(|l| l + "\n").collect::<String>());
     let mut sim = Command::new(bin("dc-sim"))
@@ -278,6 +278,54 @@ fn a_recorder_on_a_full_disk_stops_with_one_error_naming_it() {
     assert_eq!(stderr.matches("No space left on device").count(), 1, "{stderr}");
     assert!(stderr.contains("writing /dev/full"), "{stderr}");
     assert!(!stderr.contains("attempted another write") && !stderr.contains("panicked"), "{stderr}");
+}
+
+/// `--out` at a path that holds a file (a finished recording, or a killed one waiting for
+/// `recover`) is refused before anything is written: by the recorder itself, and by `dc launch`'s
+/// check before any node of the graph starts. `--overwrite` is the explicit way to replace it.
+#[test]
+fn a_recorder_never_writes_over_an_existing_file_unless_told_to() {
+    let dir = scratch("existing-out");
+    let existing = dir.join("kept.mcap");
+    fixture(&existing, 1, 1, 5);
+    let before = std::fs::read(&existing).unwrap();
+
+    let out = Command::new(DC_RECORD).arg("--out").arg(&existing).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out));
+    assert!(err.contains("kept.mcap already exists") && err.contains("--overwrite"), "{err}");
+    assert_eq!(std::fs::read(&existing).unwrap(), before, "the refused recorder touched the file");
+
+    let graph = |overwrite: bool| {
+        format!(
+            r#"
+[graph]
+name = "existing"
+
+[[nodes]]
+name = "recorder"
+binary = "dc-record"
+daemon = true
+params = {{ out = "{}", overwrite = {overwrite} }}
+
+[[nodes]]
+name = "sim"
+binary = "dc-sim"
+params = {{ seeds = "0..1", steps = 10, model = "builtin", n = 20 }}
+"#,
+            existing.display()
+        )
+    };
+    let out = launch(&dir, "existing", &graph(false));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{}", text(&out));
+    assert!(err.contains("recorder") && err.contains("kept.mcap already exists"), "{}", text(&out));
+    assert_eq!(std::fs::read(&existing).unwrap(), before, "the refused graph touched the file");
+
+    let out = launch(&dir, "existing-overwrite", &graph(true));
+    assert!(out.status.success(), "{}", text(&out));
+    let counts: BTreeMap<String, usize> = payloads(&existing).into_iter().map(|(k, v)| (k, v.len())).collect();
+    assert_eq!(counts.get("stats/solve"), Some(&10), "the overwritten file holds the new run only: {counts:?}");
 }
 
 #[test]

@@ -45,6 +45,14 @@ enum Command {
     LrFind(LrFindArgs),
     /// What a model file holds.
     Info { model: PathBuf },
+    /// Rewrite a model file of an older format (no checksum) as the current one, after checking
+    /// that its weights fit its configuration and are finite.
+    Upgrade {
+        model: PathBuf,
+        /// Where to write it (default: over the input).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// The `dc-sph` arguments that make this model's input grids, one per line (`dc eval` uses them).
     SphArgs { model: PathBuf },
     /// Inference and training-step timings per backend.
@@ -246,6 +254,14 @@ fn try_main() -> Result<()> {
         Some(Command::Info { model }) => {
             let meta = ModelFile::read_meta(&model)?;
             print_summary(&model, &meta);
+            Ok(())
+        }
+        Some(Command::Upgrade { model, out }) => {
+            let out = out.unwrap_or_else(|| model.clone());
+            let device = unet::device("flex")?;
+            let file = ModelFile::upgrade(&model, &out, &device)?;
+            println!("{}: written as the current format", out.display());
+            print_summary(&out, &file.meta);
             Ok(())
         }
         Some(Command::SphArgs { model }) => {

@@ -4,7 +4,9 @@
 //! Layout: `DCUNET` magic + format version (8 bytes), little-endian u64 length + JSON metadata,
 //! little-endian u64 length + burnpack weights (burn's own tensor format), and (format 2) the
 //! FNV-1a 64 checksum of the metadata and weight bytes. A file whose checksum does not match, or
-//! whose weights are not all finite, is refused. Format 1 files (no checksum) are still read.
+//! whose weights are not all finite, is refused. Format 1 files (no checksum) are refused by
+//! [`ModelFile::load`]; [`ModelFile::upgrade`] (`dc-unet upgrade`) rewrites one as format 2 after
+//! checking that its weights fit its configuration and are finite.
 
 use crate::data::{GridSpec, Normalization, Split};
 use crate::model::{UNet, UNetConfig};
@@ -90,39 +92,49 @@ pub struct ModelFile {
 impl ModelFile {
     /// Writes the model to `path` (atomically: a temporary file renamed over it).
     pub fn save(meta: &ModelMeta, model: &UNet, path: &Path) -> Result<()> {
-        let io = |e: std::io::Error| UnetError::Io(path.display().to_string(), e);
         let json = serde_json::to_vec(meta).map_err(|e| UnetError::Model(path.display().to_string(), e.to_string()))?;
         let weights = model
             .clone()
             .into_record()
             .into_bytes()
             .map_err(|e| UnetError::Model(path.display().to_string(), format!("serialising weights: {e:?}")))?;
-        let mut out = Vec::with_capacity(24 + json.len() + weights.len());
-        out.extend_from_slice(MAGIC);
-        out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-        out.extend_from_slice(&(json.len() as u64).to_le_bytes());
-        out.extend_from_slice(&json);
-        out.extend_from_slice(&(weights.len() as u64).to_le_bytes());
-        out.extend_from_slice(&weights);
-        out.extend_from_slice(&checksum(&[&json, &weights]).to_le_bytes());
-        runtime::files::replace_file(path, &out).map_err(io)
+        write(path, &json, &weights)
     }
 
     /// Reads a model file onto `device`. A file that is not a model, is cut short, or whose weights
     /// do not fit its configuration is an error naming the file.
+    /// A format-1 file (no checksum) is refused: nothing would catch a damaged one.
     pub fn load(path: &Path, device: &Device) -> Result<ModelFile> {
+        Self::read(path, device, false)
+    }
+
+    /// Rewrites the model at `path` as a current-format file at `out` (which may be `path`): a
+    /// format-1 file is accepted here once its weights load into its configuration and are finite,
+    /// which is all a file without a checksum can be checked for.
+    /// The metadata and weight bytes are kept as they were.
+    pub fn upgrade(path: &Path, out: &Path, device: &Device) -> Result<ModelFile> {
         let bytes = std::fs::read(path).map_err(|e| UnetError::Io(path.display().to_string(), e))?;
-        Self::from_bytes(&bytes, device).map_err(|what| UnetError::Model(path.display().to_string(), what))
+        let model = |what| UnetError::Model(path.display().to_string(), what);
+        let file = Self::from_bytes(&bytes, device, true).map_err(model)?;
+        let (json, weights) = sections(&bytes).map_err(model)?;
+        write(out, json, weights)?;
+        Ok(file)
+    }
+
+    fn read(path: &Path, device: &Device, accept_unchecked: bool) -> Result<ModelFile> {
+        let bytes = std::fs::read(path).map_err(|e| UnetError::Io(path.display().to_string(), e))?;
+        Self::from_bytes(&bytes, device, accept_unchecked)
+            .map_err(|what| UnetError::Model(path.display().to_string(), what))
     }
 
     /// Only the metadata (no weights are built).
     pub fn read_meta(path: &Path) -> Result<ModelMeta> {
         let bytes = std::fs::read(path).map_err(|e| UnetError::Io(path.display().to_string(), e))?;
-        parse(&bytes).map(|(m, _)| m).map_err(|what| UnetError::Model(path.display().to_string(), what))
+        parse(&bytes, false).map(|(m, _)| m).map_err(|what| UnetError::Model(path.display().to_string(), what))
     }
 
-    fn from_bytes(bytes: &[u8], device: &Device) -> std::result::Result<ModelFile, String> {
-        let (meta, weights) = parse(bytes)?;
+    fn from_bytes(bytes: &[u8], device: &Device, accept_unchecked: bool) -> std::result::Result<ModelFile, String> {
+        let (meta, weights) = parse(bytes, accept_unchecked)?;
         let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(weights.to_vec()))
             .map_err(|e| format!("weights are not a valid burnpack: {e:?}"))?;
         let model = meta
@@ -139,7 +151,22 @@ impl ModelFile {
     }
 }
 
-fn parse(bytes: &[u8]) -> std::result::Result<(ModelMeta, &[u8]), String> {
+/// Writes a current-format file of `json` metadata and `weights` at `path`, atomically.
+fn write(path: &Path, json: &[u8], weights: &[u8]) -> Result<()> {
+    let mut out = Vec::with_capacity(32 + json.len() + weights.len());
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    out.extend_from_slice(json);
+    out.extend_from_slice(&(weights.len() as u64).to_le_bytes());
+    out.extend_from_slice(weights);
+    out.extend_from_slice(&checksum(&[json, weights]).to_le_bytes());
+    runtime::files::replace_file(path, &out).map_err(|e| UnetError::Io(path.display().to_string(), e))
+}
+
+/// The metadata and weight bytes of a model file of any format this build reads, the
+/// checksum verified where the format has one.
+fn sections(bytes: &[u8]) -> std::result::Result<(&[u8], &[u8]), String> {
     if bytes.len() < 8 || &bytes[..6] != MAGIC {
         return Err("not a Deep Contact U-Net model file (no DCUNET header)".into());
     }
@@ -182,6 +209,20 @@ fn parse(bytes: &[u8]) -> std::result::Result<(ModelMeta, &[u8]), String> {
     }
     if at != bytes.len() {
         return Err(format!("{} bytes after the model's end (damaged?)", bytes.len() - at));
+    }
+    Ok((json, weights))
+}
+
+/// The metadata and weight bytes of a model file; `accept_unchecked` lets a format-1 file (no
+/// checksum) through, for [`ModelFile::upgrade`] only.
+fn parse(bytes: &[u8], accept_unchecked: bool) -> std::result::Result<(ModelMeta, &[u8]), String> {
+    let (json, weights) = sections(bytes)?;
+    let version = u16::from_le_bytes([bytes[6], bytes[7]]);
+    if version < FORMAT_VERSION && !accept_unchecked {
+        return Err(format!(
+            "model format version {version} has no checksum, so damage would go unnoticed: \
+             `dc-unet upgrade FILE` checks its weights and rewrites it as version {FORMAT_VERSION}"
+        ));
     }
     let meta: ModelMeta = serde_json::from_slice(json).map_err(|e| format!("metadata: {e}"))?;
     meta.config.validate().map_err(|e| format!("configuration: {e}"))?;

@@ -305,6 +305,44 @@ fn corrupt_and_mismatched_model_files_are_clear_errors() {
     assert!(e.contains("huge.dcu") && e.contains("announces"), "{e}");
 }
 
+/// A format-1 file (the same layout without the checksum) is refused by every reader; `upgrade`
+/// checks its weights and rewrites it as format 2, which then loads to the same network.
+#[test]
+fn format_1_model_files_are_refused_until_upgraded() {
+    let d = device();
+    let dir = scratch("format-1");
+    let config = small_net();
+    let current = dir.join("m.dcu");
+    let meta = meta_for(&config, [16, 16]);
+    ModelFile::save(&meta, &config.init(&d), &current).unwrap();
+    let bytes = std::fs::read(&current).unwrap();
+    let mut v1 = bytes[..bytes.len() - 8].to_vec();
+    v1[6..8].copy_from_slice(&1u16.to_le_bytes());
+    let old = dir.join("old.dcu");
+    std::fs::write(&old, &v1).unwrap();
+    for e in [ModelFile::load(&old, &d).unwrap_err(), ModelFile::read_meta(&old).unwrap_err()] {
+        let e = e.to_string();
+        assert!(e.contains("old.dcu") && e.contains("no checksum") && e.contains("dc-unet upgrade"), "{e}");
+    }
+    let upgraded = dir.join("upgraded.dcu");
+    ModelFile::upgrade(&old, &upgraded, &d).unwrap();
+    assert_eq!(std::fs::read(&upgraded).unwrap(), bytes, "upgrade writes what save wrote");
+    assert_eq!(ModelFile::load(&upgraded, &d).unwrap().meta, meta);
+
+    // Upgrade still checks what it can: weights that do not fit, or are not finite, are refused
+    // and nothing is written.
+    let mut poisoned = v1.clone();
+    let json_len = u64::from_le_bytes(v1[8..16].try_into().unwrap()) as usize;
+    let weights_at = 16 + json_len + 8;
+    let mid = weights_at + (v1.len() - weights_at) / 2;
+    poisoned[mid..mid + 16].fill(0xff);
+    std::fs::write(&old, &poisoned).unwrap();
+    let refused = dir.join("refused.dcu");
+    let e = ModelFile::upgrade(&old, &refused, &d).unwrap_err().to_string();
+    assert!(e.contains("old.dcu") && e.contains("not finite"), "{e}");
+    assert!(!refused.exists());
+}
+
 /// FNV-1a 64, the model file's checksum.
 fn fnv(parts: &[&[u8]]) -> u64 {
     parts

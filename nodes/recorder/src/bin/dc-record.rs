@@ -23,9 +23,13 @@ struct Args {
     /// Topics to record, comma separated (default: every known topic).
     #[arg(long, value_delimiter = ',')]
     topics: Vec<String>,
-    /// Write everything to this one file instead of one file per run under `--dir`.
+    /// Write everything to this one file instead of one file per run under `--dir`. A file already
+    /// there is refused (before the graph starts) unless `--overwrite`.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Let `--out` truncate a file already at its path.
+    #[arg(long, requires = "out")]
+    overwrite: bool,
     /// Folder of the per-run files `run-<run id>-<UTC time>.mcap`.
     #[arg(long, default_value = "recordings")]
     dir: PathBuf,
@@ -56,7 +60,16 @@ fn main() -> std::process::ExitCode {
 }
 
 fn try_main() -> anyhow::Result<()> {
-    let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
+    // An existing `--out` is refused when the parameters are checked, so `dc launch` refuses the
+    // graph before any node starts; creating the file refuses it again (a file made meanwhile).
+    let Some(args) = runtime::parse_args_checked::<Args, recorder::Error>(|a| match &a.out {
+        Some(path) if a.command.is_none() && !a.overwrite && std::fs::symlink_metadata(path).is_ok() => {
+            Err(recorder::Error::Exists { path: path.clone() })
+        }
+        _ => Ok(()),
+    }) else {
+        return Ok(());
+    };
     runtime::init_logging();
     match &args.command {
         Some(Command::Info { file }) => {
@@ -178,11 +191,12 @@ impl Files<'_> {
     fn file(&mut self, run_id: u64) -> anyhow::Result<&mut Open> {
         let key = if self.args.out.is_some() { 0 } else { run_id };
         if !self.open.contains_key(&key) {
-            let path = match &self.args.out {
-                Some(p) => p.clone(),
-                None => self.args.dir.join(format!("run-{run_id}-{}.mcap", utc_stamp(SystemTime::now()))),
+            let mut writer = match &self.args.out {
+                Some(p) if self.args.overwrite => RecordingWriter::create(p)?,
+                Some(p) => RecordingWriter::create_new(p)?,
+                None => self.new_run_file(run_id)?,
             };
-            let mut writer = RecordingWriter::create(&path)?;
+            let path = writer.path().to_path_buf();
             for (topic, kind) in &self.topics {
                 writer.add_channel(topic, *kind)?;
             }
@@ -193,6 +207,20 @@ impl Files<'_> {
             self.open.insert(key, Open { writer, last_flush: Instant::now() });
         }
         Ok(self.open.get_mut(&key).expect("inserted above"))
+    }
+
+    /// A new file for `run_id` under `--dir`: `run-<id>-<UTC time>.mcap`, or with `-2`, `-3`, ...
+    /// appended when another recorder (of this graph or another) took that name first.
+    fn new_run_file(&self, run_id: u64) -> anyhow::Result<RecordingWriter> {
+        let stem = format!("run-{run_id}-{}", utc_stamp(SystemTime::now()));
+        for n in 1..1000 {
+            let name = if n == 1 { format!("{stem}.mcap") } else { format!("{stem}-{n}.mcap") };
+            match RecordingWriter::create_new(&self.args.dir.join(name)) {
+                Err(recorder::Error::Exists { .. }) => continue,
+                other => return Ok(other?),
+            }
+        }
+        anyhow::bail!("{}: 999 files named {stem}*.mcap already: choose another --dir", self.args.dir.display())
     }
 
     fn finish(&mut self, run_id: u64) -> anyhow::Result<()> {
