@@ -5,8 +5,10 @@
 use crate::{name16, name16_str, SolveStatsHeader, StepHeader};
 use serde::{Deserialize, Serialize};
 
-/// One step's solve, as the simulator reported it.
+/// One step's solve, as the simulator reported it. A field this build does not know is refused
+/// (a renamed column would otherwise leave its field at the default, silently).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct StepStats {
     /// The run (a text string in JSON and CSV: ids exceed 2^53, which JavaScript numbers lose).
     #[serde(with = "crate::id_text")]

@@ -187,8 +187,15 @@ impl Predictor {
     }
 
     /// Writes `(normal, tangent)` warm starts, one per contact: builtin's (`previous`) plus the
-    /// network's correction times the contact's effective masses.
-    pub fn warm_start(&mut self, bodies: &[ProblemBody], contacts: &[ProblemContact], out: &mut [[f32; 2]]) {
+    /// network's correction times the contact's effective masses. A network whose weights are
+    /// finite can still overflow on an input (a damaged or badly trained model): non-finite
+    /// warm starts are an error, never handed to a solver.
+    pub fn warm_start(
+        &mut self,
+        bodies: &[ProblemBody],
+        contacts: &[ProblemContact],
+        out: &mut [[f32; 2]],
+    ) -> Result<(), NonFinite> {
         features::features(bodies, contacts, &mut self.contact_features, &mut self.body_features, &mut self.masses);
         self.pairs.clear();
         self.pairs.extend(contacts.iter().map(|c| (c.body_a, c.body_b)));
@@ -196,7 +203,19 @@ impl Predictor {
         for (((o, c), y), k) in out.iter_mut().zip(contacts).zip(&self.out).zip(&self.masses) {
             *o = [c.previous[0] + y[0] * k[0], c.previous[1] + y[1] * k[1]];
         }
+        match out.iter().flatten().filter(|v| !v.is_finite()).count() {
+            0 => Ok(()),
+            values => Err(NonFinite { values, of: 2 * out.len() }),
+        }
     }
+}
+
+/// A prediction with values that are not finite (overflow in the network).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("the network predicted {values} non-finite values of {of}")]
+pub struct NonFinite {
+    pub values: usize,
+    pub of: usize,
 }
 
 #[cfg(test)]
@@ -271,7 +290,13 @@ mod tests {
         }];
         let mut p = Predictor::new(Net::new(net::NetConfig::default(), 1));
         let mut out = [[0.0; 2]];
-        p.warm_start(&bodies, &contacts, &mut out);
+        p.warm_start(&bodies, &contacts, &mut out).unwrap();
         assert_eq!(out, [[0.7, -0.1]]);
+        // A finite weight large enough to overflow: an error, not a NaN warm start.
+        let mut huge = Net::new(net::NetConfig::default(), 1);
+        huge.decode.weight.fill(f32::MAX);
+        huge.encode_contact.weight.fill(f32::MAX);
+        let mut p = Predictor::new(huge);
+        assert_eq!(p.warm_start(&bodies, &contacts, &mut out), Err(NonFinite { values: 2, of: 2 }));
     }
 }

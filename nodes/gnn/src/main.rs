@@ -128,12 +128,12 @@ fn try_main() -> Result<()> {
             let mut p = Predictor::new(net);
             let mut out = vec![[0.0f32; 2]; c.len()];
             for _ in 0..reps.min(100) {
-                p.warm_start(&b, &c, &mut out);
+                p.warm_start(&b, &c, &mut out)?;
             }
             let mut times: Vec<f64> = (0..reps.max(1))
                 .map(|_| {
                     let t = Instant::now();
-                    p.warm_start(&b, &c, &mut out);
+                    let _ = p.warm_start(&b, &c, &mut out);
                     t.elapsed().as_secs_f64() * 1e3
                 })
                 .collect();
@@ -180,7 +180,7 @@ fn serve(model: &std::path::Path) -> Result<()> {
     tracing::info!(model = %model.display(), made_by = file.provenance, "dc-gnn serving");
     let mut pairer: sph::StepPairer<Vec<ProblemBody>, (ProblemHeader, Vec<ProblemContact>)> = sph::StepPairer::new();
     let (mut out, mut reply) = (Vec::new(), Vec::<Contact>::new());
-    let (mut served, mut busy) = (0u64, std::time::Duration::ZERO);
+    let (mut served, mut refused, mut busy) = (0u64, 0u64, std::time::Duration::ZERO);
     while !node.is_shutdown() {
         while let Some(c) = control.try_recv()? {
             node.observe_control(c.header());
@@ -204,7 +204,15 @@ fn serve(model: &std::path::Path) -> Result<()> {
             let t = Instant::now();
             out.clear();
             out.resize(c.len(), [0.0; 2]);
-            predictor.warm_start(&b, &c, &mut out);
+            if let Err(e) = predictor.warm_start(&b, &c, &mut out) {
+                // No reply: the simulator falls back for this step (counted there), as for a
+                // late one; logged once in full, then counted.
+                if refused == 0 {
+                    tracing::error!(topic = topics::WARM_GNN.name, step = ?step, "not served: {e}");
+                }
+                refused += 1;
+                continue;
+            }
             reply.clear();
             reply.extend(c.iter().zip(&out).map(|(c, o)| Contact {
                 body_a: c.body_a,
@@ -226,6 +234,7 @@ fn serve(model: &std::path::Path) -> Result<()> {
     let mean_us = if served > 0 { busy.as_secs_f64() * 1e6 / served as f64 } else { 0.0 };
     tracing::info!(
         served,
+        refused_non_finite = refused,
         mean_us = format!("{mean_us:.1}"),
         unpaired = pairer.dropped() + pairer.pending() as u64,
         "dc-gnn done"

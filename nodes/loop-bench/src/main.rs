@@ -70,7 +70,7 @@ impl InProcess<'_> {
         let (_, transfer) = self.transfer.as_mut().expect("set above");
         let contacts = self.spec.temporal.then_some(out.contacts);
         let (input, _) = transfer.bodies_grid(out.header, out.bodies, contacts).map_err(|e| e.to_string())?;
-        *self.next.borrow_mut() = self.predictor.predict_batch(&[&input]).map_err(|e| e.to_string())?.pop();
+        *self.next.borrow_mut() = self.predictor.predict(&input).map_err(|e| e.to_string()).map(Some)?;
         Ok(())
     }
 }

@@ -2,7 +2,7 @@
 //! live plots, and writes the report folder when the expected runs have ended (or on shutdown, then
 //! saying what is missing).
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use clap::Parser;
 use metrics::{report, Aggregate, Completeness, StepRecord};
 use msgs::topics;
@@ -155,22 +155,8 @@ fn write_and_print(aggregate: &Aggregate, out: &std::path::Path, title: &str, mi
 
 /// `--from-steps`: the report of an earlier run's steps, without the bus.
 fn report_from_steps(args: &Args, steps: &std::path::Path) -> Result<()> {
-    let records = report::read_steps(steps)?;
-    if records.is_empty() {
-        bail!("{}: no steps (an empty or header-only steps.csv): nothing to report", steps.display());
-    }
-    // The checks the live path applies to every frame: a damaged or edited file must not move a
-    // report's totals (CSV record 1 is the first row after the header).
-    if let Some((i, why)) = Completeness::first_implausible(records.iter().map(|r| &r.stats)) {
-        bail!("{}: record {}: impossible statistics: {why}", steps.display(), i + 1);
-    }
+    let aggregate = report::aggregate_steps(steps, args.settle_speed, &args.phases.0)?;
     let out = args.out.clone().unwrap_or_else(default_out);
-    let mut aggregate = Aggregate::new();
-    aggregate.settle_speed = args.settle_speed;
-    aggregate.phase_boundaries = args.phases.0.clone();
-    for r in records {
-        aggregate.add(r);
-    }
     let missing = [
         format!("{}: per-sweep residuals are not kept in steps.csv, so the convergence plot is empty", steps.display()),
         "the solver settings the runs announced are not kept in steps.csv either: the title is --title's".to_string(),

@@ -76,7 +76,10 @@ impl Predictor {
     }
 
     /// Predicts the impulse grids of several inputs in one batch (all checked first).
-    pub fn predict_batch(&self, grids: &[&Grid]) -> Result<Vec<Grid>> {
+    /// The outer error is the batch's (a grid that does not fit, a prediction that cannot be
+    /// read); the inner one a grid's own: a prediction with non-finite values (a network whose
+    /// finite weights overflow on this input) is refused, never handed to a simulator.
+    pub fn predict_batch(&self, grids: &[&Grid]) -> Result<Vec<Result<Grid>>> {
         if grids.is_empty() {
             return Ok(Vec::new());
         }
@@ -110,12 +113,20 @@ impl Predictor {
         if previous.is_some() {
             names.extend(DELTA_CHANNELS);
         }
-        grids
+        Ok(grids
             .iter()
             .zip(y.chunks_exact(per))
             .map(|(g, chunk)| {
                 let mut values = chunk.to_vec();
                 self.meta.normalization.denormalize_target(&mut values);
+                let non_finite = values.iter().filter(|v| !v.is_finite()).count();
+                if non_finite > 0 {
+                    return Err(UnetError::Input(format!(
+                        "step {:?}: the model predicted {non_finite} non-finite values of {}",
+                        g.header.step,
+                        values.len()
+                    )));
+                }
                 if let Some(previous) = &previous {
                     let plane = h * w;
                     for (c, &p) in previous.iter().enumerate() {
@@ -131,11 +142,11 @@ impl Predictor {
                 let header = geometry.header(g.header.step, &names).map_err(|e| UnetError::Input(e.to_string()))?;
                 Ok(Grid::new(header, values))
             })
-            .collect()
+            .collect())
     }
 
     /// Predicts one grid.
     pub fn predict(&self, grid: &Grid) -> Result<Grid> {
-        Ok(self.predict_batch(&[grid])?.pop().expect("one in, one out"))
+        self.predict_batch(&[grid])?.pop().expect("one in, one out")
     }
 }

@@ -314,7 +314,7 @@ fn run_node(args: NodeArgs) -> Result<()> {
     let mut busy = Duration::ZERO;
     let mut pending: Vec<Grid> = Vec::new();
     let mut run_uses_unet: std::collections::HashMap<u64, bool> = Default::default();
-    let mut skipped = 0u64;
+    let (mut skipped, mut refused) = (0u64, 0u64);
     while !node.is_shutdown() {
         match grids_in.recv_timeout(Duration::from_millis(50)) {
             Ok(Some(g)) => pending.push(g.into_frame()),
@@ -366,9 +366,21 @@ fn run_node(args: NodeArgs) -> Result<()> {
                 }
             }
         }
-        for out in predictor.predict_batch(&good)? {
-            grids_out.publish_frame(&out)?;
-            predicted += 1;
+        for (g, out) in good.iter().zip(predictor.predict_batch(&good)?) {
+            match out {
+                Ok(out) => {
+                    grids_out.publish_frame(&out)?;
+                    predicted += 1;
+                }
+                Err(e) => {
+                    // Answered empty, as a grid the model cannot take: the simulator falls back.
+                    if refused == 0 {
+                        tracing::error!(topic = topics::GRID_UNET.name, "not served: {e}");
+                    }
+                    refused += 1;
+                    grids_out.publish(&GridHeader { channels: 0, ..g.header }, &[])?;
+                }
+            }
         }
         batches += 1;
         busy += t.elapsed();
@@ -377,6 +389,7 @@ fn run_node(args: NodeArgs) -> Result<()> {
     tracing::info!(
         predicted,
         rejected,
+        refused_non_finite = refused,
         skipped,
         batches,
         mean_batch_ms = busy.as_secs_f64() * 1e3 / batches.max(1) as f64,

@@ -15,6 +15,14 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
+/// Most input or output channels of a network.
+pub const MAX_CHANNELS: usize = 64;
+/// Widest first level (the bottom is `2^levels` times wider).
+pub const MAX_BASE_WIDTH: usize = 256;
+/// Most parallel dilated convolutions at the bottom, and the largest dilation.
+pub const MAX_DILATIONS: usize = 8;
+pub const MAX_DILATION: usize = 64;
+
 /// Shape of the network: everything needed to rebuild it before loading weights.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct UNetConfig {
@@ -61,11 +69,23 @@ impl UNetConfig {
         if self.in_channels == 0 || self.out_channels == 0 || self.base_width == 0 {
             return Err("channels and width must be > 0".into());
         }
+        if self.in_channels > MAX_CHANNELS || self.out_channels > MAX_CHANNELS || self.base_width > MAX_BASE_WIDTH {
+            return Err(format!(
+                "{} input / {} output channels, base width {}: at most {MAX_CHANNELS} channels and width {MAX_BASE_WIDTH}",
+                self.in_channels, self.out_channels, self.base_width
+            ));
+        }
         if self.levels > 7 {
             return Err(format!("{} levels: at most 7 (grids of 128 nodes)", self.levels));
         }
         if self.dilations.is_empty() || self.dilations.contains(&0) {
             return Err("dilations must be a non-empty list of positive numbers".into());
+        }
+        if self.dilations.len() > MAX_DILATIONS || self.dilations.iter().any(|&d| d > MAX_DILATION) {
+            return Err(format!(
+                "dilations {:?}: at most {MAX_DILATIONS} of them, each at most {MAX_DILATION}",
+                self.dilations
+            ));
         }
         if let Some(r) = self.residual {
             if r.iter().any(|&c| c >= self.in_channels) || self.out_channels != 2 {
@@ -73,6 +93,19 @@ impl UNetConfig {
             }
         }
         Ok(())
+    }
+
+    /// The network's convolution weights (biases and norms left out): what its weights must hold
+    /// at least, checked against a file before [`UNetConfig::init`] allocates them. Call after
+    /// [`UNetConfig::validate`] (whose bounds keep this far from overflowing).
+    pub fn convolution_weights(&self) -> u64 {
+        let w = |l: usize| self.width(l) as u64;
+        let conv3 = |c_in: u64, c_out: u64| c_in * c_out * 9;
+        let mut n = conv3(self.in_channels as u64, w(0));
+        for l in 1..=self.levels {
+            n += conv3(w(l - 1), w(l)) + w(l) * w(l - 1) * 4 + conv3(2 * w(l - 1), w(l - 1));
+        }
+        n + self.dilations.len() as u64 * conv3(w(self.levels), w(self.levels)) + w(0) * self.out_channels as u64
     }
 
     /// A freshly initialised network on `device`.

@@ -18,6 +18,8 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 const MAGIC: &[u8; 6] = b"DCUNET";
+/// Largest grid side a model file may name (the thesis's grids have 128).
+const MAX_GRID_SIDE: usize = 4096;
 const FORMAT_VERSION: u16 = 2;
 /// The oldest format this build reads (1: no checksum).
 const OLDEST_FORMAT: u16 = 1;
@@ -226,13 +228,34 @@ fn parse(bytes: &[u8], accept_unchecked: bool) -> std::result::Result<(ModelMeta
     }
     let meta: ModelMeta = serde_json::from_slice(json).map_err(|e| format!("metadata: {e}"))?;
     meta.config.validate().map_err(|e| format!("configuration: {e}"))?;
-    let nodes = meta.grid_shape[0] * meta.grid_shape[1];
+    // Before anything is allocated for it: a damaged configuration must not ask for a network
+    // larger than the weights the file holds (4 bytes a weight).
+    let needed = meta.config.convolution_weights().saturating_mul(4);
+    if (weights.len() as u64) < needed {
+        return Err(format!(
+            "the configuration {:?} needs at least {needed} bytes of weights, the file holds {}",
+            meta.config,
+            weights.len()
+        ));
+    }
+    if meta.grid_shape.iter().any(|&side| side == 0 || side > MAX_GRID_SIDE) {
+        return Err(format!("grid shape {:?}: sides from 1 to {MAX_GRID_SIDE}", meta.grid_shape));
+    }
+    let n = &meta.normalization;
     if meta.input_channels.len() != meta.config.in_channels
-        || meta.normalization.input_mean.len() != meta.config.in_channels
-        || meta.normalization.target_mean.len() != meta.config.out_channels
-        || nodes == 0
+        || meta.output_channels.len() != meta.config.out_channels
+        || n.input_mean.len() != meta.config.in_channels
+        || n.input_std.len() != meta.config.in_channels
+        || n.target_mean.len() != meta.config.out_channels
+        || n.target_std.len() != meta.config.out_channels
     {
         return Err("metadata is inconsistent: channel lists, normalisation and configuration disagree".into());
+    }
+    let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
+    if !(finite(&n.input_mean) && finite(&n.target_mean))
+        || n.input_std.iter().chain(&n.target_std).any(|s| !(s.is_finite() && *s > 0.0))
+    {
+        return Err("normalisation: means must be finite and deviations finite and positive".into());
     }
     Ok((meta, weights))
 }

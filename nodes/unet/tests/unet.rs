@@ -255,23 +255,26 @@ fn corrupt_and_mismatched_model_files_are_clear_errors() {
     let e = ModelFile::load(&truncated, &d).unwrap_err().to_string();
     assert!(e.contains("truncated.dcu") && e.contains("truncated"), "{e}");
 
-    // Weights of one configuration under the metadata of another.
-    let other = UNetConfig { base_width: 8, ..config.clone() };
-    let mixed = dir.join("mixed.dcu");
+    // Weights of one configuration under the metadata of another: a smaller network's metadata
+    // is refused by burn's shapes, a larger one's before anything is allocated for it.
     let json_len = u64::from_le_bytes(bytes[8..16].try_into().unwrap()) as usize;
-    let mut meta: serde_json::Value = serde_json::from_slice(&bytes[16..16 + json_len]).unwrap();
-    meta["config"] = serde_json::to_value(&other).unwrap();
-    let json = serde_json::to_vec(&meta).unwrap();
-    let mut out = bytes[..8].to_vec();
-    out.extend_from_slice(&(json.len() as u64).to_le_bytes());
-    out.extend_from_slice(&json);
     let weights = &bytes[16 + json_len + 8..bytes.len() - 8];
-    out.extend_from_slice(&bytes[16 + json_len..16 + json_len + 8]);
-    out.extend_from_slice(weights);
-    out.extend_from_slice(&fnv(&[&json, weights]).to_le_bytes());
-    std::fs::write(&mixed, out).unwrap();
-    let e = ModelFile::load(&mixed, &d).unwrap_err().to_string();
-    assert!(e.contains("mixed.dcu") && e.contains("do not fit the configuration"), "{e}");
+    for (base_width, why) in [(2, "do not fit the configuration"), (8, "bytes of weights, the file holds")] {
+        let other = UNetConfig { base_width, ..config.clone() };
+        let mixed = dir.join("mixed.dcu");
+        let mut meta: serde_json::Value = serde_json::from_slice(&bytes[16..16 + json_len]).unwrap();
+        meta["config"] = serde_json::to_value(&other).unwrap();
+        let json = serde_json::to_vec(&meta).unwrap();
+        let mut out = bytes[..8].to_vec();
+        out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+        out.extend_from_slice(&json);
+        out.extend_from_slice(&bytes[16 + json_len..16 + json_len + 8]);
+        out.extend_from_slice(weights);
+        out.extend_from_slice(&fnv(&[&json, weights]).to_le_bytes());
+        std::fs::write(&mixed, out).unwrap();
+        let e = ModelFile::load(&mixed, &d).unwrap_err().to_string();
+        assert!(e.contains("mixed.dcu") && e.contains(why), "base width {base_width}: {e}");
+    }
 
     // One flipped byte anywhere in the weights: the checksum refuses the file.
     for at in [16 + json_len + 8 + 10, bytes.len() / 2, bytes.len() - 9] {

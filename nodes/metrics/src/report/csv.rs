@@ -6,6 +6,7 @@
 
 use super::error::{csv_error, io, ReportError};
 use crate::aggregate::{Aggregate, ModelSummary, StepRecord};
+use crate::completeness::Completeness;
 use crate::phases::{AccuracyRow, PhaseRow, SweepHistograms};
 use ::csv::{Reader, StringRecord, Writer};
 use serde::{Serialize, Serializer};
@@ -45,6 +46,28 @@ pub fn read_steps(path: &Path) -> Result<Vec<StepRecord>, ReportError> {
         .deserialize::<msgs::StepStats>()
         .map(|row| row.map(|stats| StepRecord { stats, residuals: Vec::new() }).map_err(&e))
         .collect()
+}
+
+/// The aggregate of a report's `steps.csv` (`dc-metrics --from-steps`), with the checks the live
+/// path applies to every frame: an empty file, or an impossible or repeated step, is an error
+/// naming the file and the CSV record (record 1 is the first row after the header), so a damaged
+/// or edited file never moves a report's totals.
+pub fn aggregate_steps(path: &Path, settle_speed: f32, phase_boundaries: &[u32]) -> Result<Aggregate, ReportError> {
+    let records = read_steps(path)?;
+    let refused = |why: String| ReportError::Steps { path: path.display().to_string(), why };
+    if records.is_empty() {
+        return Err(refused("no steps (an empty or header-only steps.csv): nothing to report".into()));
+    }
+    if let Some((i, why)) = Completeness::first_implausible(records.iter().map(|r| &r.stats)) {
+        return Err(refused(format!("record {}: impossible statistics: {why}", i + 1)));
+    }
+    let mut aggregate = Aggregate::new();
+    aggregate.settle_speed = settle_speed;
+    aggregate.phase_boundaries = phase_boundaries.to_vec();
+    for r in records {
+        aggregate.add(r);
+    }
+    Ok(aggregate)
 }
 
 /// A row of `summary.csv`: one model over all its simulations.

@@ -11,6 +11,9 @@ pub enum ReportError {
     /// Writing a CSV, or reading `steps.csv` back.
     #[error("{path}: {source}")]
     Csv { path: String, source: ::csv::Error },
+    /// A `steps.csv` that reads but cannot be reported on.
+    #[error("{path}: {why}")]
+    Steps { path: String, why: String },
     /// Drawing a plot.
     #[error(transparent)]
     Plot(#[from] charts::PlotError),

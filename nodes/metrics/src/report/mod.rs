@@ -12,7 +12,7 @@ mod markdown;
 mod plots;
 mod tables;
 
-pub use self::csv::read_steps;
+pub use self::csv::{aggregate_steps, read_steps};
 pub use error::ReportError;
 pub use markdown::{accuracy_markdown, phases_markdown, summary_markdown};
 pub use plots::SCATTER_POINTS_PER_MODEL;

@@ -164,7 +164,15 @@ impl WarmStarter {
     /// Runs the model, or the fallback when it is unavailable; returns whether it fell back.
     pub fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> bool {
         out.fill(Impulse::default());
-        match self.model.warm_start(input, out) {
+        // A start that is not finite (a model that overflowed, a damaged served frame) would
+        // poison the solve: the step falls back, counted, like a missing one.
+        let checked = self.model.warm_start(input, out).and_then(|()| {
+            match out.iter().filter(|i| !(i.normal.is_finite() && i.tangent.is_finite())).count() {
+                0 => Ok(()),
+                n => Err(Unavailable(format!("{n} of {} warm starts are not finite", out.len()))),
+            }
+        });
+        match checked {
             Ok(()) => false,
             Err(Unavailable(why)) => {
                 tracing::debug!(model = self.model.name(), step = input.step, "fallback: {why}");
@@ -241,5 +249,48 @@ pub(crate) mod harness {
         let mut out = vec![Impulse::default(); contacts.len()];
         model.warm_start(&input, &mut out).unwrap();
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::harness::floor_contact;
+    use super::*;
+
+    /// A model that answers NaN for its first contact (a network that overflowed).
+    struct Overflowing;
+
+    impl WarmStartModel for Overflowing {
+        fn name(&self) -> &str {
+            "overflowing"
+        }
+        fn warm_start(&mut self, _: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+            out.fill(Impulse { normal: 1.0, tangent: 0.0 });
+            out[0].normal = f32::NAN;
+            Ok(())
+        }
+    }
+
+    /// A model's non-finite warm start never reaches the solver: the step falls back, counted.
+    #[test]
+    fn a_non_finite_warm_start_falls_back_and_is_counted() {
+        let contacts = [floor_contact(1, 0, 0.0), floor_contact(2, 0, 1.0)];
+        let history = ImpulseHistory::default();
+        let input = WarmStartInput {
+            run_id: 0,
+            simulation: 0,
+            step: 2,
+            contacts: &contacts,
+            history: &history,
+            problem: None,
+            rows: None,
+            exact: None,
+        };
+        let builtin = crate::warm::ModelKind::Builtin.build(0).unwrap();
+        let mut warm = WarmStarter::new(Box::new(Overflowing), builtin);
+        let mut out = vec![Impulse::default(); contacts.len()];
+        assert!(warm.warm_start(&input, &mut out), "did not fall back");
+        assert_eq!(warm.fallbacks_total(), 1);
+        assert!(out.iter().all(|i| i.normal.is_finite() && i.tangent.is_finite()), "{out:?}");
     }
 }

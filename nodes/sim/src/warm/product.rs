@@ -141,7 +141,9 @@ impl WarmStartModel for GnnModel {
         let problem = step_problem(input)?;
         self.out.clear();
         self.out.resize(problem.contacts.len(), [0.0; 2]);
-        self.predictor.warm_start(&problem.bodies, &problem.contacts, &mut self.out);
+        self.predictor
+            .warm_start(&problem.bodies, &problem.contacts, &mut self.out)
+            .map_err(|e| Unavailable(e.to_string()))?;
         for (o, p) in out.iter_mut().zip(&self.out) {
             *o = Impulse { normal: p[0], tangent: p[1] };
         }
