@@ -377,6 +377,32 @@ fn eval_refuses_an_unwritable_out_folder_before_any_node_starts() {
     assert!(started.elapsed() < Duration::from_secs(30), "took {:?}", started.elapsed());
 }
 
+/// Eight simulators at once (`--jobs 8`, one model each): nine writers of `control` with the
+/// launcher, more than the eight an iceoryx2 service was once made for ("ExceedsMaxSupported
+/// Publishers" at start, after the check had passed). Every model's run reaches the report.
+#[test]
+fn eval_runs_eight_simulators_at_once() {
+    let dir = scratch_dir("eval-jobs-8");
+    let out_dir = dir.join("report");
+    let models = "builtin,none,copy,extrapolate,blend:0.5,noise:1,cg:10,continue";
+    let out = Command::new(bin("dc"))
+        .args(["eval", "--models", models, "--jobs", "8", "--seeds", "0..1", "--steps", "60", "--n", "30", "--out"])
+        .arg(&out_dir)
+        .output()
+        .expect("run dc");
+    assert!(out.status.success(), "{}", text(&out));
+    let summary = std::fs::read_to_string(out_dir.join("summary.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = summary.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 8, "{summary}");
+    for model in models.split(',') {
+        // A model named without its parameter is reported with the default one (`continue:1`).
+        let row = rows.iter().find(|r| r[0] == model || r[0].starts_with(&format!("{model}:")));
+        let row = row.unwrap_or_else(|| panic!("{model} missing: {summary}"));
+        assert_eq!((row[1], row[2]), ("1", "60"), "{model}: one simulation of 60 steps");
+        assert!(row[3].parse::<u64>().unwrap() > 0, "{model} solved nothing: {summary}");
+    }
+}
+
 #[test]
 fn eval_at_budgets_runs_every_model_at_each_and_tabulates_their_accuracy() {
     let dir = scratch_dir("eval-budget");

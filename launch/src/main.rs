@@ -248,6 +248,7 @@ fn pick_host(graph: &Graph, host: Option<String>) -> Result<String> {
 fn print_graph(graph: &Graph, only: Option<&str>) -> Result<()> {
     let ports = launch::plan::describe_ports(graph)?;
     let plan = launch::plan::Plan::new(graph, &ports);
+    plan.check_port_limits(graph)?;
     println!("graph `{}` ({}), bus namespace `{}`", graph.name, graph.file, graph.namespace);
     if let Some((endpoint, host)) = &plan.router {
         println!("zenoh router: {endpoint} (run by the launcher on `{host}`)");

@@ -179,6 +179,66 @@ impl Plan {
         plan
     }
 
+    /// Refuses a graph whose members on one host need more writers, readers or processes on one
+    /// topic than an iceoryx2 service is made for ([`runtime::MAX_PUBLISHERS`] ...): without
+    /// this check the graph would pass `--dry-run` and fail at start with iceoryx2's
+    /// `ExceedsMaxSupportedPublishers`, naming neither the topic nor the limit.
+    pub fn check_port_limits(&self, graph: &Graph) -> Result<(), GraphError> {
+        // (host, topic) -> (writers, readers, processes), over iceoryx2 ports.
+        let mut use_of: BTreeMap<(&str, &str), (Vec<&str>, Vec<&str>, std::collections::BTreeSet<&str>)> =
+            BTreeMap::new();
+        for m in &self.members {
+            for (topic, writes) in
+                m.ports.publishes.iter().map(|t| (t, true)).chain(m.ports.subscribes.iter().map(|t| (t, false)))
+            {
+                let local = self.transports.get(&(m.name.clone(), topic.clone())).is_none_or(|t| t.uses_iceoryx2());
+                if !local {
+                    continue;
+                }
+                let entry = use_of.entry((m.host.as_str(), topic.as_str())).or_default();
+                if writes {
+                    entry.0.push(&m.name)
+                } else {
+                    entry.1.push(&m.name)
+                }
+                entry.2.insert(&m.name);
+            }
+        }
+        let line_of = |member: &str| graph.nodes.iter().find(|n| n.name == member).map_or(1, |n| n.line);
+        let mut problems = Vec::new();
+        for ((host, topic), (writers, readers, processes)) in &use_of {
+            for (what, who, limit) in
+                [("writers", writers, runtime::MAX_PUBLISHERS), ("readers", readers, runtime::MAX_SUBSCRIBERS)]
+            {
+                if who.len() > limit {
+                    problems.push(Problem {
+                        line: line_of(who[limit]),
+                        message: format!(
+                            "topic `{topic}` has {} {what} on host `{host}` ({}), iceoryx2 services here take at most {limit}: split the graph or use fewer simulators (`dc eval --jobs`)",
+                            who.len(),
+                            who.join(", ")
+                        ),
+                    });
+                }
+            }
+            if processes.len() > runtime::MAX_NODES {
+                problems.push(Problem {
+                    line: 1,
+                    message: format!(
+                        "topic `{topic}` is used by {} processes on host `{host}`, at most {}",
+                        processes.len(),
+                        runtime::MAX_NODES
+                    ),
+                });
+            }
+        }
+        if problems.is_empty() {
+            Ok(())
+        } else {
+            Err(GraphError::Invalid { file: graph.file.clone(), problems })
+        }
+    }
+
     /// Whether `member` opens a zenoh session: a port over zenoh, or a launcher of a multi-host
     /// graph (it meets the other launchers).
     pub fn uses_zenoh(&self, member: &str) -> bool {
@@ -341,6 +401,32 @@ mod tests {
             ("sph".to_string(), ports(&["grid/contacts"], &["bodies", "control"])),
         ]
         .into()
+    }
+
+    /// One host with `writers` simulators writing `control` (plus the launcher) and one reader.
+    fn writers_of_control(writers: usize) -> (Graph, BTreeMap<String, Ports>) {
+        let mut text = String::from("[[nodes]]\nname='metrics'\nbinary='sh'\n");
+        let mut p = BTreeMap::from([("metrics".to_string(), ports(&[], &["control", "stats/solve"]))]);
+        for i in 0..writers {
+            text.push_str(&format!("[[nodes]]\nname='sim{i}'\nbinary='sh'\n"));
+            p.insert(format!("sim{i}"), ports(&["control", "stats/solve"], &[]));
+        }
+        (Graph::parse("g.toml", &text).unwrap(), p)
+    }
+
+    /// The writers a service is made for, launcher included, are allowed; one more is refused
+    /// naming the topic, the host, the count and the limit, on the line of the first writer
+    /// past it.
+    #[test]
+    fn a_topic_with_more_writers_than_a_service_takes_is_refused_by_the_check() {
+        let (graph, p) = writers_of_control(runtime::MAX_PUBLISHERS - 1);
+        Plan::new(&graph, &p).check_port_limits(&graph).unwrap();
+        let (graph, p) = writers_of_control(runtime::MAX_PUBLISHERS);
+        let e = Plan::new(&graph, &p).check_port_limits(&graph).unwrap_err().to_string();
+        let limit = runtime::MAX_PUBLISHERS;
+        assert!(e.contains(&format!("topic `control` has {} writers on host `local`", limit + 1)), "{e}");
+        assert!(e.contains(&format!("at most {limit}")) && e.contains("dc-launch-local, sim0"), "{e}");
+        assert!(!e.contains("stats/solve"), "stats/solve has one writer fewer (no launcher): {e}");
     }
 
     #[test]

@@ -495,6 +495,7 @@ impl<'a> Supervisor<'a> {
         }
         let ports = plan::describe_ports(graph)?;
         let plan = Plan::new(graph, &ports);
+        plan.check_port_limits(graph)?;
         let bus = LauncherBus::open(graph, &plan, host)?;
         let (tx, rx) = mpsc::channel::<Event>();
         let with_nodes = graph.hosts.keys().filter(|h| graph.nodes_on(h).next().is_some()).cloned().collect();

@@ -12,6 +12,7 @@
 use crate::{BusConfig, Error, Result};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::PublisherCreateError;
 use iceoryx2::prelude::*;
 use std::time::Duration;
 
@@ -29,6 +30,15 @@ fn service_name(bus: &BusConfig, topic: &str, suffix: &str) -> Result<ServiceNam
     let name = format!("{}{suffix}", bus.iox_key(topic));
     ServiceName::new(&name).map_err(|e| err(topic, format!("invalid service name `{name}`: {e:?}")))
 }
+
+/// Most writers of one topic on one host (every simulator of `dc eval --jobs N` and the
+/// launcher write `control`): iceoryx2 sizes a service for them when it is created, and the
+/// launcher's check refuses a graph that needs more (naming the topic and its writers).
+pub const MAX_PUBLISHERS: usize = 32;
+/// Most readers of one topic on one host.
+pub const MAX_SUBSCRIBERS: usize = 64;
+/// Most processes using one topic on one host.
+pub const MAX_NODES: usize = 128;
 
 impl IoxNode {
     pub(crate) fn new(name: &str) -> Result<IoxNode> {
@@ -55,9 +65,9 @@ impl IoxNode {
             .enable_safe_overflow(bus.is_best_effort(topic))
             .subscriber_max_buffer_size(bus.queue_depth.max(1))
             .history_size(0)
-            .max_publishers(8)
-            .max_subscribers(32)
-            .max_nodes(64)
+            .max_publishers(MAX_PUBLISHERS)
+            .max_subscribers(MAX_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
             .open_or_create()
             .map_err(|e| err(topic, format!("open publish-subscribe service: {e:?}")))
     }
@@ -70,9 +80,9 @@ impl IoxNode {
         self.node
             .service_builder(&service_name(bus, topic, "/@event")?)
             .event()
-            .max_notifiers(8)
-            .max_listeners(32)
-            .max_nodes(64)
+            .max_notifiers(MAX_PUBLISHERS)
+            .max_listeners(MAX_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
             .open_or_create()
             .map_err(|e| err(topic, format!("open event service: {e:?}")))
     }
@@ -83,13 +93,32 @@ impl IoxNode {
         topic: &str,
     ) -> Result<IoxPublisher<H, T>> {
         let service = self.pubsub::<H, T>(bus, topic)?;
-        let publisher = service
-            .publisher_builder()
-            .initial_max_slice_len(1024)
-            .allocation_strategy(AllocationStrategy::PowerOfTwo)
-            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
-            .create()
-            .map_err(|e| err(topic, format!("create publisher: {e:?}")))?;
+        let mut attempt = 0;
+        let publisher = loop {
+            let made = service
+                .publisher_builder()
+                .initial_max_slice_len(1024)
+                .allocation_strategy(AllocationStrategy::PowerOfTwo)
+                .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+                .create();
+            match made {
+                // Seen once in a while with far fewer writers than the limit while many
+                // processes join one service at once (iceoryx2 reports a busy registry as full):
+                // retried for up to a second; a real excess still fails, with the count.
+                Err(PublisherCreateError::ExceedsMaxSupportedPublishers) if attempt < 100 => {
+                    let publishers = service.dynamic_config().number_of_publishers();
+                    tracing::debug!(topic, attempt, publishers, "publisher refused, retrying");
+                    attempt += 1;
+                    std::thread::sleep(std::time::Duration::from_millis(10));
+                }
+                other => {
+                    break other.map_err(|e| {
+                        let publishers = service.dynamic_config().number_of_publishers();
+                        err(topic, format!("create publisher: {e:?} ({publishers} writers, at most {MAX_PUBLISHERS})"))
+                    })?
+                }
+            }
+        };
         let notifier = self
             .event(bus, topic)?
             .notifier_builder()
