@@ -7,7 +7,7 @@
 //!
 //! [hosts.local]              # optional for one-host graphs
 //! address = "127.0.0.1"      # where this host's zenoh endpoints listen
-//! zenoh_port = 0             # first port for this host's nodes; 0 = pick free ports
+//! zenoh_port = 0             # first port for this host's nodes; 0 (one host): the launcher's router
 //!
 //! [topics]                   # transport per topic; default iceoryx2 (same host)
 //! "bench/bodies" = "zenoh"

@@ -42,7 +42,12 @@ pub struct Plan {
     /// TLS on every zenoh link.
     pub security: Option<crate::graph::Security>,
     extra_connect: BTreeMap<String, Vec<String>>,
+    /// `<scheme>/<address>` of a router whose port the launcher picks (one host, no ports named).
+    router_address: Option<String>,
 }
+
+/// The members that write, read, and use (either) one topic on one host.
+type TopicUsers<'a> = (Vec<&'a str>, Vec<&'a str>, std::collections::BTreeSet<&'a str>);
 
 /// Asks each node binary for its ports (`DC_DESCRIBE=1`: it builds its ports from its
 /// parameters, prints them and exits before touching the bus).
@@ -160,7 +165,21 @@ impl Plan {
             best_effort: graph.best_effort.clone(),
             security: graph.security.clone(),
             extra_connect: graph.hosts.iter().map(|(n, h)| (n.clone(), h.zenoh_connect.clone())).collect(),
+            router_address: None,
         };
+        let auto_port = graph.hosts.values().all(|h| h.zenoh_port == 0);
+        if plan.router.is_none() && !multi_host && auto_port {
+            // One host, no ports named: the launcher runs the graph's router on a port it binds
+            // itself (retrying another if it was taken meanwhile, see `choose_router_port`) and
+            // the nodes only connect to it. Nodes listening on ports picked for them could find
+            // a port taken between the pick and their start, and fail the graph under load.
+            let zenoh_used = plan.members.iter().any(|m| plan.uses_zenoh(&m.name));
+            if let Some(host) = graph.hosts.values().next().filter(|_| zenoh_used) {
+                plan.router = Some((String::new(), host.name.clone()));
+                plan.router_address = Some(format!("{}/{}", graph.link_scheme(), host.address));
+                plan.choose_router_port();
+            }
+        }
         if plan.router.is_none() {
             // Every machine computes the same ports from the file: members in file order per host.
             for (name, host) in &graph.hosts {
@@ -171,7 +190,7 @@ impl Plan {
                     .map(|m| m.name.clone())
                     .collect();
                 for (i, member) in users.into_iter().enumerate() {
-                    let port = if host.zenoh_port == 0 { free_port(&host.address) } else { host.zenoh_port + i as u16 };
+                    let port = host.zenoh_port + i as u16;
                     plan.endpoints.insert(member, format!("{}/{}:{port}", graph.link_scheme(), host.address));
                 }
             }
@@ -184,9 +203,8 @@ impl Plan {
     /// this check the graph would pass `--dry-run` and fail at start with iceoryx2's
     /// `ExceedsMaxSupportedPublishers`, naming neither the topic nor the limit.
     pub fn check_port_limits(&self, graph: &Graph) -> Result<(), GraphError> {
-        // (host, topic) -> (writers, readers, processes), over iceoryx2 ports.
-        let mut use_of: BTreeMap<(&str, &str), (Vec<&str>, Vec<&str>, std::collections::BTreeSet<&str>)> =
-            BTreeMap::new();
+        // (host, topic) -> its users over iceoryx2 ports.
+        let mut use_of: BTreeMap<(&str, &str), TopicUsers> = BTreeMap::new();
         for m in &self.members {
             for (topic, writes) in
                 m.ports.publishes.iter().map(|t| (t, true)).chain(m.ports.subscribes.iter().map(|t| (t, false)))
@@ -237,6 +255,16 @@ impl Plan {
         } else {
             Err(GraphError::Invalid { file: graph.file.clone(), problems })
         }
+    }
+
+    /// Gives the launcher-run router a port that is free now; true if the router's port is the
+    /// launcher's to choose (else nothing changes). The launcher binds it at once and, should
+    /// another process have taken it in between, calls this again: the nodes start only after.
+    pub fn choose_router_port(&mut self) -> bool {
+        let (Some(address), Some((endpoint, _))) = (&self.router_address, &mut self.router) else { return false };
+        let host = address.split_once('/').map_or(address.as_str(), |(_, a)| a);
+        *endpoint = format!("{address}:{}", free_port(host));
+        true
     }
 
     /// Whether `member` opens a zenoh session: a port over zenoh, or a launcher of a multi-host
@@ -401,6 +429,48 @@ mod tests {
             ("sph".to_string(), ports(&["grid/contacts"], &["bodies", "control"])),
         ]
         .into()
+    }
+
+    /// One host, zenoh forced, no port named: the launcher's router takes the only port picked
+    /// (the launcher binds it before any node starts, and picks again if it was taken); the
+    /// nodes listen on nothing and connect to it, so no node can lose a port race at start.
+    #[test]
+    fn one_host_without_ports_routes_zenoh_through_a_router_the_launcher_binds() {
+        let text =
+            "[topics]\nbodies = 'zenoh'\n[[nodes]]\nname='sim'\nbinary='sh'\n[[nodes]]\nname='rec'\nbinary='sh'\n";
+        let graph = Graph::parse("g.toml", text).unwrap();
+        let p = BTreeMap::from([
+            ("sim".to_string(), ports(&["bodies"], &[])),
+            ("rec".to_string(), ports(&[], &["bodies"])),
+        ]);
+        let mut plan = Plan::new(&graph, &p);
+        let (endpoint, host) = plan.router.clone().expect("a router");
+        assert_eq!(host, "local");
+        let port: u16 = endpoint.strip_prefix("tcp/127.0.0.1:").expect(&endpoint).parse().unwrap();
+        assert_ne!(port, 0);
+        assert!(plan.endpoints.is_empty(), "no node listens: {:?}", plan.endpoints);
+        for m in ["sim", "rec"] {
+            let z = plan.bus(m, "local").zenoh;
+            assert_eq!(
+                (z.listen.len(), z.connect.clone(), z.mode.as_deref()),
+                (0, vec![endpoint.clone()], Some("client"))
+            );
+        }
+        // Taken meanwhile: the launcher picks again, and the nodes are told the new one.
+        let holder = std::net::TcpListener::bind(("127.0.0.1", port));
+        assert!(plan.choose_router_port());
+        let again = plan.router.clone().unwrap().0;
+        assert_ne!(again, endpoint, "{holder:?}");
+        assert_eq!(plan.bus("sim", "local").zenoh.connect, vec![again]);
+        // Ports named in the file: peers on them, nothing for the launcher to choose.
+        let named =
+            Graph::parse("g.toml", &format!("[hosts.local]\naddress='127.0.0.1'\nzenoh_port=7600\n{text}")).unwrap();
+        let mut plan = Plan::new(&named, &p);
+        assert!(plan.router.is_none() && !plan.choose_router_port());
+        assert_eq!(
+            (plan.endpoints["sim"].as_str(), plan.endpoints["rec"].as_str()),
+            ("tcp/127.0.0.1:7600", "tcp/127.0.0.1:7601")
+        );
     }
 
     /// One host with `writers` simulators writing `control` (plus the launcher) and one reader.

@@ -494,9 +494,19 @@ impl<'a> Supervisor<'a> {
             Err(e) => tracing::warn!("stale resource cleanup failed: {e}"),
         }
         let ports = plan::describe_ports(graph)?;
-        let plan = Plan::new(graph, &ports);
+        let mut plan = Plan::new(graph, &ports);
         plan.check_port_limits(graph)?;
-        let bus = LauncherBus::open(graph, &plan, host)?;
+        let mut attempt = 1;
+        let bus = loop {
+            match LauncherBus::open(graph, &plan, host) {
+                // A port picked for the router was taken before the router bound it: another.
+                Err(RunError::Bus(e)) if attempt < 20 && e.contains("open router") && plan.choose_router_port() => {
+                    tracing::warn!(attempt, "zenoh router port taken ({e}): trying another");
+                    attempt += 1;
+                }
+                other => break other?,
+            }
+        };
         let (tx, rx) = mpsc::channel::<Event>();
         let with_nodes = graph.hosts.keys().filter(|h| graph.nodes_on(h).next().is_some()).cloned().collect();
         Ok(Supervisor {

@@ -12,7 +12,6 @@
 use crate::{BusConfig, Error, Result};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::PublisherCreateError;
 use iceoryx2::prelude::*;
 use std::time::Duration;
 
@@ -93,32 +92,16 @@ impl IoxNode {
         topic: &str,
     ) -> Result<IoxPublisher<H, T>> {
         let service = self.pubsub::<H, T>(bus, topic)?;
-        let mut attempt = 0;
-        let publisher = loop {
-            let made = service
-                .publisher_builder()
-                .initial_max_slice_len(1024)
-                .allocation_strategy(AllocationStrategy::PowerOfTwo)
-                .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
-                .create();
-            match made {
-                // Seen once in a while with far fewer writers than the limit while many
-                // processes join one service at once (iceoryx2 reports a busy registry as full):
-                // retried for up to a second; a real excess still fails, with the count.
-                Err(PublisherCreateError::ExceedsMaxSupportedPublishers) if attempt < 100 => {
-                    let publishers = service.dynamic_config().number_of_publishers();
-                    tracing::debug!(topic, attempt, publishers, "publisher refused, retrying");
-                    attempt += 1;
-                    std::thread::sleep(std::time::Duration::from_millis(10));
-                }
-                other => {
-                    break other.map_err(|e| {
-                        let publishers = service.dynamic_config().number_of_publishers();
-                        err(topic, format!("create publisher: {e:?} ({publishers} writers, at most {MAX_PUBLISHERS})"))
-                    })?
-                }
-            }
-        };
+        let publisher = service
+            .publisher_builder()
+            .initial_max_slice_len(1024)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+            .create()
+            .map_err(|e| {
+                let writers = service.dynamic_config().number_of_publishers();
+                err(topic, format!("create publisher: {e:?} ({writers} writers, at most {MAX_PUBLISHERS})"))
+            })?;
         let notifier = self
             .event(bus, topic)?
             .notifier_builder()
