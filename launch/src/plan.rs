@@ -289,6 +289,12 @@ impl Plan {
             .collect();
         let zenoh = match (&self.router, self.uses_zenoh(member)) {
             (_, false) => ZenohConfig::default(),
+            // The launcher's own router (one host, no ports named): the nodes are peers that
+            // listen on ports the system gives them and meet through the router, which tells
+            // them of each other (gossip); data then goes peer to peer, as with named ports.
+            (Some((endpoint, _)), true) if self.router_address.is_some() => {
+                ZenohConfig { listen: vec![], connect: vec![endpoint.clone()], mode: None, tls: self.tls_of(host) }
+            }
             (Some((endpoint, _)), true) => ZenohConfig {
                 listen: vec![],
                 connect: vec![endpoint.clone()],
@@ -433,7 +439,8 @@ mod tests {
 
     /// One host, zenoh forced, no port named: the launcher's router takes the only port picked
     /// (the launcher binds it before any node starts, and picks again if it was taken); the
-    /// nodes listen on nothing and connect to it, so no node can lose a port race at start.
+    /// nodes listen on ports the system gives them and connect to it, so no node can lose a
+    /// port race at start.
     #[test]
     fn one_host_without_ports_routes_zenoh_through_a_router_the_launcher_binds() {
         let text =
@@ -450,11 +457,9 @@ mod tests {
         assert_ne!(port, 0);
         assert!(plan.endpoints.is_empty(), "no node listens: {:?}", plan.endpoints);
         for m in ["sim", "rec"] {
+            // Peers on ports the system gives them (`listen` empty), meeting through the router.
             let z = plan.bus(m, "local").zenoh;
-            assert_eq!(
-                (z.listen.len(), z.connect.clone(), z.mode.as_deref()),
-                (0, vec![endpoint.clone()], Some("client"))
-            );
+            assert_eq!((z.listen.len(), z.connect.clone(), z.mode.as_deref()), (0, vec![endpoint.clone()], None));
         }
         // Taken meanwhile: the launcher picks again, and the nodes are told the new one.
         let holder = std::net::TcpListener::bind(("127.0.0.1", port));

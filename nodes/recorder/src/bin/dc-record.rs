@@ -183,6 +183,11 @@ struct Files<'a> {
     finished: Vec<(PathBuf, u64)>,
 }
 
+/// After a shutdown, how long topics over zenoh must stay quiet before the recorder ends, and
+/// the longest it waits for that.
+const ZENOH_DRAIN_QUIET: Duration = Duration::from_millis(500);
+const ZENOH_DRAIN_MAX: Duration = Duration::from_secs(5);
+
 /// How long a run's file stays open after its `RunEnd` for frames still queued on other topics.
 const RUN_END_GRACE: Duration = Duration::from_secs(1);
 
@@ -303,6 +308,8 @@ fn record(args: &Args) -> anyhow::Result<()> {
     let mut bytes = 0u64;
     let mut first_frame: Option<Instant> = None;
     let mut last_frame = started;
+    let over_zenoh = names.iter().any(|t| node.bus().transport(t).uses_zenoh());
+    let mut stopped_at: Option<Instant> = None;
     loop {
         let stopping = node.is_shutdown();
         let mut got = 0;
@@ -372,7 +379,14 @@ fn record(args: &Args) -> anyhow::Result<()> {
         }
         if got == 0 {
             if stopping {
-                break; // shut down and drained
+                // Shut down and drained. Frames over zenoh may still be on their way (the graph
+                // stops a recorder when its writers end, and their last frames cross sockets and
+                // perhaps a router): wait until the topics have been quiet a while.
+                let stopped = *stopped_at.get_or_insert_with(Instant::now);
+                let quiet = last_frame.elapsed().min(stopped.elapsed());
+                if !over_zenoh || quiet >= ZENOH_DRAIN_QUIET || stopped.elapsed() >= ZENOH_DRAIN_MAX {
+                    break;
+                }
             }
             std::thread::sleep(Duration::from_micros(500));
         }
