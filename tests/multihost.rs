@@ -478,6 +478,45 @@ fn a_host_that_never_comes_is_named_after_the_wait() {
     assert!(started.elapsed() < Duration::from_secs(30), "gave up late: {:?}", started.elapsed());
 }
 
+/// Two different graphs on one namespace that reach each other over zenoh (as two machines
+/// would; the namespace lock only sees one machine): the one that comes second is refused,
+/// naming the first, before its nodes exchange a frame; the first is not disturbed.
+#[test]
+fn a_second_graph_on_a_namespace_is_refused_across_hosts() {
+    let dir = scratch_dir("namespace-across");
+    let (pa, pb) = (free_port(), free_port());
+    let graph = |count: u32| {
+        format!(
+            "[hosts.a]\naddress = \"127.0.0.1\"\nzenoh_port = {pa}\n[hosts.b]\naddress = \"127.0.0.1\"\nzenoh_port = {pb}\n\
+             [[nodes]]\nname = \"source\"\nbinary = \"dc-bench-bus\"\nhost = \"a\"\nparams = {{ role = \"source\", count = {count} }}\n\
+             [[nodes]]\nname = \"sink\"\nbinary = \"dc-bench-bus\"\nhost = \"b\"\nparams = {{ role = \"sink\", count = {count} }}\n"
+        )
+    };
+    let (first, second) = (dir.join("first.toml"), dir.join("second.toml"));
+    std::fs::write(&first, graph(10)).unwrap();
+    std::fs::write(&second, graph(11)).unwrap();
+    let namespace = unique_namespace("across");
+    let a = start_host(&first, "a", &namespace, None);
+    std::thread::sleep(Duration::from_secs(1));
+    let b = start_host(&second, "b", &namespace, None);
+    let out_b = wait(b, "the second graph's host b", Duration::from_secs(60));
+    let _ = Command::new("kill").arg(a.id().to_string()).status();
+    let out_a = wait(a, "the first graph's host a", Duration::from_secs(30));
+    let err = String::from_utf8_lossy(&out_b.stderr);
+    assert!(!out_b.status.success(), "{}", text(&out_b));
+    assert!(
+        err.contains(&format!("namespace `{namespace}` is in use on host `a` by another graph")),
+        "{}\n--- first graph\n{}",
+        text(&out_b),
+        text(&out_a)
+    );
+    assert!(
+        !String::from_utf8_lossy(&out_a.stderr).contains("in use"),
+        "the first graph was refused: {}",
+        text(&out_a)
+    );
+}
+
 #[test]
 fn a_host_that_disappears_mid_run_does_not_hang_the_other() {
     // Host `b` (SPH + metrics) is killed mid-run, launcher and nodes (they die with it). On host

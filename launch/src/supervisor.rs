@@ -215,6 +215,9 @@ struct LauncherBus {
     // Field order is drop order: ports before the node, the router last.
     control: runtime::Publisher<msgs::Control, u8>,
     sync: Option<runtime::HostSync>,
+    /// [`graph_identity`] and when this launcher started (ns since the epoch), as declared.
+    identity: u64,
+    started: u128,
     _node: runtime::Node,
     _router: Option<runtime::zenoh::Session>,
 }
@@ -233,13 +236,18 @@ impl LauncherBus {
         let name = plan::launcher_name(host);
         let node = runtime::Node::new(name.clone(), plan.bus(&name, host), false);
         let control = node.publisher(msgs::topics::CONTROL).map_err(|e| bus_err(e.to_string()))?;
+        let started = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+        let identity = graph_identity(graph);
         let sync = if plan.multi_host {
             let session = node.zenoh_session().map_err(|e| bus_err(e.to_string()))?;
-            Some(runtime::HostSync::new(session, &format!("dc/{}/_launch", graph.namespace)).map_err(bus_err)?)
+            let mut sync =
+                runtime::HostSync::new(session, &format!("dc/{}/_launch", graph.namespace)).map_err(bus_err)?;
+            sync.declare(host, &format!("{GRAPH_STATE}-{identity:016x}-{started}")).map_err(bus_err)?;
+            Some(sync)
         } else {
             None
         };
-        Ok(LauncherBus { control, sync, _node: node, _router: router })
+        Ok(LauncherBus { control, sync, identity, started, _node: node, _router: router })
     }
 
     /// Tells the graph that a node went down (`up == false`) or came back.
@@ -340,6 +348,50 @@ fn hosts_gate(with_nodes: &[String], connected: &BTreeSet<String>, waited: Durat
     } else {
         HostsGate::Wait
     }
+}
+
+/// The state naming a multi-host launcher's graph and when it started: `graph-<identity>-<start>`
+/// (identity: [`graph_identity`]; start: nanoseconds since the epoch).
+const GRAPH_STATE: &str = "graph";
+
+/// What tells two graphs apart across hosts: the graph's name, hosts and nodes (name, binary,
+/// host, arguments), hashed. Every host's launcher of one graph computes the same value from its
+/// copy of the file; a different graph on the same namespace does not.
+pub fn graph_identity(graph: &Graph) -> u64 {
+    let mut text = format!("{}\n", graph.name);
+    for (name, h) in &graph.hosts {
+        text.push_str(&format!("host {name} {} {} {}\n", h.address, h.zenoh_port, h.router));
+    }
+    for n in &graph.nodes {
+        text.push_str(&format!("node {} {} {} {}\n", n.name, n.binary, n.host, n.args.join(" ")));
+    }
+    text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
+}
+
+/// Among the launchers alive on the namespace, one that was there first and is another graph's,
+/// or another launcher of this graph for this very host: `(its host, what it is)`. The newcomer
+/// refuses; the graph that was there first goes on.
+fn earlier_claim(
+    alive: &BTreeSet<(String, String)>,
+    host: &str,
+    identity: u64,
+    started: u128,
+) -> Option<(String, String)> {
+    alive.iter().find_map(|(h, state)| {
+        let rest = state.strip_prefix(GRAPH_STATE)?.strip_prefix('-')?;
+        let (id, start) = rest.split_once('-')?;
+        let (id, start) = (u64::from_str_radix(id, 16).ok()?, start.parse::<u128>().ok()?);
+        if start >= started {
+            return None;
+        }
+        if id != identity {
+            Some((h.clone(), format!("another graph, identity {id:016x}, on host `{h}`")))
+        } else if h == host {
+            Some((h.clone(), format!("this graph's launcher for host `{h}`, started earlier")))
+        } else {
+            None
+        }
+    })
 }
 
 /// The hosts whose launchers hold `state` among the alive `(host, state)` tokens.
@@ -640,6 +692,14 @@ impl<'a> Supervisor<'a> {
         if !self.hosts.working_declared && self.nodes.iter().any(|n| !n.spec.daemon) {
             sync.declare(self.host, WORKING).map_err(RunError::Bus)?;
             self.hosts.working_declared = true;
+        }
+        // Another graph on this namespace reached over zenoh (another machine: the lock file
+        // only sees this one), or a second launcher for this host: refused before our nodes
+        // talk to theirs.
+        let (identity, started) = (self.bus.identity, self.bus.started);
+        if let Some((host, holder)) = earlier_claim(sync.alive(), self.host, identity, started) {
+            let namespace = self.graph.namespace.clone();
+            return Err(self.abort(RunError::NamespaceInUse { namespace, host, holder }));
         }
         sync.declare(self.host, CONNECTED).map_err(RunError::Bus)?;
         let connected = hosts_in(sync.alive(), CONNECTED);
@@ -1043,6 +1103,27 @@ mod tests {
         );
         // Only the hosts with nodes count; a launcher of another graph's host does not.
         assert_eq!(hosts_gate(&strings(&["a"]), &set(&["a", "z"]), Duration::from_secs(11), timeout), HostsGate::Open);
+    }
+
+    #[test]
+    fn an_earlier_launcher_of_another_graph_or_of_this_host_is_a_claim() {
+        let alive = |states: &[(&str, &str)]| -> BTreeSet<(String, String)> {
+            states.iter().map(|(h, s)| (h.to_string(), s.to_string())).collect()
+        };
+        let graph = |id: u64, start: u128| format!("{GRAPH_STATE}-{id:016x}-{start}");
+        // This graph's other host, and later arrivals of anything: no claim.
+        let ok = alive(&[("b", &graph(7, 100)), ("c", &graph(9, 300)), ("a", CONNECTED)]);
+        assert_eq!(earlier_claim(&ok, "a", 7, 200), None);
+        // Another graph there first, on any host.
+        let other = alive(&[("b", &graph(9, 100))]);
+        let (host, what) = earlier_claim(&other, "a", 7, 200).unwrap();
+        assert_eq!(host, "b");
+        assert!(what.contains("another graph") && what.contains("0000000000000009"), "{what}");
+        // This graph's launcher for this very host, there first.
+        let twice = alive(&[("a", &graph(7, 100))]);
+        assert!(earlier_claim(&twice, "a", 7, 200).unwrap().1.contains("started earlier"));
+        // Our own token is not a claim on ourselves.
+        assert_eq!(earlier_claim(&alive(&[("a", &graph(7, 200))]), "a", 7, 200), None);
     }
 
     #[test]
