@@ -439,3 +439,72 @@ fn eval_at_budgets_runs_every_model_at_each_and_tabulates_their_accuracy() {
         "{table}"
     );
 }
+
+/// `dc topic list --namespace NS` against a running graph: each topic the simulator and the
+/// recorder use, with its frame kind and its writers and readers as they are (control: the
+/// simulator and the launcher); a namespace with no graph says so and exits 1.
+#[test]
+fn topic_list_shows_a_running_graphs_topics_with_their_writers_and_readers() {
+    let dir = scratch_dir("topic-list");
+    let namespace = unique_namespace("topic-list");
+    let file = dir.join("graph.toml");
+    let recording = dir.join("run.mcap");
+    std::fs::write(
+        &file,
+        format!(
+            "[graph]\nname = \"topics\"\n[[nodes]]\nname = \"recorder\"\nbinary = \"dc-record\"\ndaemon = true\n\
+             params = {{ out = \"{}\", topics = \"control,bodies,stats/solve\" }}\n\
+             [[nodes]]\nname = \"sim\"\nbinary = \"dc-sim\"\nparams = {{ seeds = \"0..1\", steps = 1000000, model = \"builtin\", n = 20 }}\n",
+            recording.display()
+        ),
+    )
+    .unwrap();
+    let mut graph = Command::new(bin("dc"))
+        .arg("launch")
+        .arg(&file)
+        .args(["--namespace", &namespace])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let list = || Command::new(bin("dc")).args(["topic", "list", "--namespace", &namespace]).output().unwrap();
+    let started = std::time::Instant::now();
+    let listed = loop {
+        let out = list();
+        let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+        // Up once the recorder reads bodies.
+        if out.status.success()
+            && stdout
+                .lines()
+                .any(|l| l.split_whitespace().collect::<Vec<_>>()[1..] == ["bodies", "Bodies", "1", "1", "reliable"])
+        {
+            break stdout;
+        }
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(60),
+            "the graph's topics never showed: {}",
+            text(&out)
+        );
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    };
+    let _ = Command::new("kill").arg("-INT").arg(graph.id().to_string()).status();
+    graph.wait().unwrap();
+    let rows: Vec<Vec<&str>> = listed.lines().skip(1).map(|l| l.split_whitespace().collect()).collect();
+    let row = |topic: &str| rows.iter().find(|r| r[1] == topic).unwrap_or_else(|| panic!("{topic} missing:\n{listed}"));
+    assert!(rows.iter().all(|r| r[0] == namespace), "{listed}");
+    assert_eq!(row("contacts")[2..5], ["Contacts", "1", "0"], "written by the simulator, read by nobody:\n{listed}");
+    assert_eq!(
+        row("control")[2..5],
+        ["Control", "2", "1"],
+        "the simulator and the launcher write, the recorder reads:\n{listed}"
+    );
+    assert_eq!(row("stats/solve")[2..5], ["SolveStats", "1", "1"], "{listed}");
+
+    let none = Command::new(bin("dc")).args(["topic", "list", "--namespace", "no-graph-here"]).output().unwrap();
+    assert_eq!(none.status.code(), Some(1), "{}", text(&none));
+    assert!(
+        String::from_utf8_lossy(&none.stderr).contains("no topics alive in namespace `no-graph-here`"),
+        "{}",
+        text(&none)
+    );
+}

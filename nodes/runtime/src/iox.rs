@@ -253,3 +253,51 @@ mod tests {
         assert!(service_name(&bus, longest, "/@event").is_ok());
     }
 }
+
+/// A topic alive on this host's iceoryx2 bus: its namespace (with `@host` for a host of a
+/// multi-host graph), its writers and readers now, and whether it is delivered best effort.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LiveTopic {
+    pub namespace: String,
+    pub topic: String,
+    pub writers: usize,
+    pub readers: usize,
+    pub best_effort: bool,
+}
+
+/// Every Deep Contact topic with a service on this host (`dc/<namespace>/<topic>`), sorted by
+/// namespace and topic; `namespace` keeps one namespace (and its hosts' `NS@host`). Writers and
+/// readers are counted on each topic's event service (one notifier per writer, one listener per
+/// reader), which any process may open without joining the topic.
+pub fn live_topics(namespace: Option<&str>) -> Result<Vec<LiveTopic>> {
+    use iceoryx2::service::static_config::messaging_pattern::MessagingPattern as StaticPattern;
+    quiet_iceoryx2_logs();
+    let mut found: Vec<(String, String, bool)> = Vec::new();
+    <ipc::Service as iceoryx2::service::Service>::list(Config::global_config(), |details| {
+        let config = &details.static_details;
+        if let StaticPattern::PublishSubscribe(pubsub) = config.messaging_pattern() {
+            let name = config.name().as_str();
+            if let Some((ns, topic)) = name.strip_prefix("dc/").and_then(|rest| rest.split_once('/')) {
+                let keep = namespace.is_none_or(|want| ns == want || ns.starts_with(&format!("{want}@")));
+                if keep && msgs::topics::info(topic).is_some() {
+                    found.push((ns.to_string(), topic.to_string(), pubsub.has_safe_overflow()));
+                }
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| Error::Node(format!("listing iceoryx2 services: {e:?}")))?;
+    found.sort();
+    let node = IoxNode::new("dc-topic-list")?;
+    let mut topics = Vec::new();
+    for (ns, topic, best_effort) in found {
+        let name = format!("dc/{ns}/{topic}/@event");
+        let service_name = ServiceName::new(&name).map_err(|e| err(&topic, format!("{e:?}")))?;
+        // A service whose last user just left may be gone already: not alive, not listed.
+        let Ok(events) = node.node.service_builder(&service_name).event().open() else { continue };
+        let dynamic = events.dynamic_config();
+        let (writers, readers) = (dynamic.number_of_notifiers(), dynamic.number_of_listeners());
+        topics.push(LiveTopic { namespace: ns, topic, writers, readers, best_effort });
+    }
+    Ok(topics)
+}

@@ -29,7 +29,7 @@ mod iox;
 mod pubsub;
 mod zen;
 
-pub use iox::{MAX_NODES, MAX_PUBLISHERS, MAX_SUBSCRIBERS};
+pub use iox::{live_topics, LiveTopic, MAX_NODES, MAX_PUBLISHERS, MAX_SUBSCRIBERS};
 pub use pubsub::{Publisher, Received, Subscriber};
 pub use zen::{open_router, HostSync};
 /// The zenoh crate, for launchers holding sessions.
