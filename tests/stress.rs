@@ -7,18 +7,9 @@
 use deep_contact::*;
 use recorder::read::RecordingReader;
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
 
 const GRAPHS: usize = 5;
-
-fn text(out: &Output) -> String {
-    format!(
-        "status: {}\n--- stdout\n{}\n--- stderr\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    )
-}
 
 /// A simulator and a recorder of its statistics; `zenoh` sends them over zenoh.
 fn graph(recording: &Path, zenoh: bool) -> String {

@@ -42,12 +42,12 @@ pub struct Plan {
     /// TLS on every zenoh link.
     pub security: Option<crate::graph::Security>,
     extra_connect: BTreeMap<String, Vec<String>>,
-    /// `<scheme>/<address>` of a router whose port the launcher picks (one host, no ports named).
-    router_address: Option<String>,
+    /// `(scheme, address)` of a router whose port the launcher picks (one host, no ports named).
+    router_address: Option<(String, String)>,
 }
 
-/// The members that write, read, and use (either) one topic on one host.
-type TopicUsers<'a> = (Vec<&'a str>, Vec<&'a str>, std::collections::BTreeSet<&'a str>);
+/// The members that write and that read one topic on one host.
+type TopicUsers<'a> = (Vec<&'a str>, Vec<&'a str>);
 
 /// Asks each node binary for its ports (`DC_DESCRIBE=1`: it builds its ports from its
 /// parameters, prints them and exits before touching the bus).
@@ -170,13 +170,13 @@ impl Plan {
         let auto_port = graph.hosts.values().all(|h| h.zenoh_port == 0);
         if plan.router.is_none() && !multi_host && auto_port {
             // One host, no ports named: the launcher runs the graph's router on a port it binds
-            // itself (retrying another if it was taken meanwhile, see `choose_router_port`) and
-            // the nodes only connect to it. Nodes listening on ports picked for them could find
-            // a port taken between the pick and their start, and fail the graph under load.
+            // itself (retrying another if it was taken meanwhile, see `choose_router_port`); the
+            // nodes listen on ports the system gives them and meet through it. Nodes listening on
+            // ports picked for them could find one taken between the pick and their start.
             let zenoh_used = plan.members.iter().any(|m| plan.uses_zenoh(&m.name));
             if let Some(host) = graph.hosts.values().next().filter(|_| zenoh_used) {
                 plan.router = Some((String::new(), host.name.clone()));
-                plan.router_address = Some(format!("{}/{}", graph.link_scheme(), host.address));
+                plan.router_address = Some((graph.link_scheme().to_string(), host.address.clone()));
                 plan.choose_router_port();
             }
         }
@@ -219,12 +219,12 @@ impl Plan {
                 } else {
                     entry.1.push(&m.name)
                 }
-                entry.2.insert(&m.name);
             }
         }
         let line_of = |member: &str| graph.nodes.iter().find(|n| n.name == member).map_or(1, |n| n.line);
         let mut problems = Vec::new();
-        for ((host, topic), (writers, readers, processes)) in &use_of {
+        for ((host, topic), (writers, readers)) in &use_of {
+            let processes: std::collections::BTreeSet<&str> = writers.iter().chain(readers).copied().collect();
             for (what, who, limit) in
                 [("writers", writers, runtime::MAX_PUBLISHERS), ("readers", readers, runtime::MAX_SUBSCRIBERS)]
             {
@@ -261,9 +261,10 @@ impl Plan {
     /// launcher's to choose (else nothing changes). The launcher binds it at once and, should
     /// another process have taken it in between, calls this again: the nodes start only after.
     pub fn choose_router_port(&mut self) -> bool {
-        let (Some(address), Some((endpoint, _))) = (&self.router_address, &mut self.router) else { return false };
-        let host = address.split_once('/').map_or(address.as_str(), |(_, a)| a);
-        *endpoint = format!("{address}:{}", free_port(host));
+        let (Some((scheme, address)), Some((endpoint, _))) = (&self.router_address, &mut self.router) else {
+            return false;
+        };
+        *endpoint = format!("{scheme}/{address}:{}", free_port(address));
         true
     }
 
