@@ -10,6 +10,8 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
+mod topic;
+
 #[derive(Parser)]
 #[command(name = "dc", about = "Deep Contact: learning warm starts for rigid-body contact solvers")]
 struct Cli {
@@ -62,7 +64,7 @@ enum Command {
         #[command(subcommand)]
         what: BenchWhat,
     },
-    /// The live bus of this host: `dc topic list [--namespace NS]`.
+    /// A running graph's topics: `dc topic list | echo TOPIC | hz TOPIC | bw TOPIC`.
     Topic {
         #[command(subcommand)]
         what: TopicWhat,
@@ -71,12 +73,18 @@ enum Command {
 
 #[derive(Subcommand, Debug)]
 enum TopicWhat {
-    /// Topics alive on this host's iceoryx2 bus, with their frame kind, writers, readers and
-    /// delivery (every namespace, or one).
+    /// Topics alive on this host's iceoryx2 bus (or over zenoh with --zenoh), with their frame
+    /// kind, writers, readers and delivery (every namespace, or one).
     List {
-        #[arg(long)]
-        namespace: Option<String>,
+        #[command(flatten)]
+        place: topic::Where,
     },
+    /// Print a topic's frames as they pass, decoded (header fields by name, items summarised).
+    Echo(topic::EchoArgs),
+    /// A topic's rate: mean, min, max and std dev of the period over the latest frames.
+    Hz(topic::RateArgs),
+    /// A topic's bandwidth: bytes per second and frame sizes over the latest frames.
+    Bw(topic::RateArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -238,7 +246,12 @@ fn real_main(cli: Cli) -> Result<()> {
             let graph = Graph::load(&file)?;
             print_graph(&graph, None)
         }
-        Command::Topic { what: TopicWhat::List { namespace } } => topic_list(namespace.as_deref()),
+        Command::Topic { what } => match what {
+            TopicWhat::List { place } => topic::list(&place),
+            TopicWhat::Echo(args) => topic::echo(&args),
+            TopicWhat::Hz(args) => topic::rate(&args, topic::Figure::Hz),
+            TopicWhat::Bw(args) => topic::rate(&args, topic::Figure::Bw),
+        },
         Command::Eval(args) => eval(args),
         Command::Bench { what: BenchWhat::Bus { count, latency_count } } => bench_bus(count, latency_count),
         Command::Bench { what: BenchWhat::Loop { seeds, steps, n, unet_model, repeat } } => {
@@ -258,28 +271,6 @@ fn pick_host(graph: &Graph, host: Option<String>) -> Result<String> {
         None if graph.hosts.len() == 1 => Ok(graph.hosts.keys().next().cloned().unwrap_or_default()),
         None => bail!("{}: the graph has several hosts; say which this is with --host", graph.file),
     }
-}
-
-/// `dc topic list`: one line per live topic; none alive is an error (exit 1) saying where it
-/// looked, so a script can tell a graph that is not running from one without topics.
-fn topic_list(namespace: Option<&str>) -> Result<()> {
-    let topics = runtime::live_topics(namespace)?;
-    if topics.is_empty() {
-        match namespace {
-            Some(ns) => bail!("no topics alive in namespace `{ns}` on this host: is its graph running? (`dc topic list` shows every namespace)"),
-            None => bail!("no Deep Contact topics alive on this host: no graph is running here"),
-        }
-    }
-    let width =
-        |f: fn(&runtime::LiveTopic) -> usize, title: &str| topics.iter().map(f).max().unwrap_or(0).max(title.len());
-    let (wn, wt) = (width(|t| t.namespace.len(), "namespace"), width(|t| t.topic.len(), "topic"));
-    println!("{:wn$}  {:wt$}  {:12}  {:>7}  {:>7}  delivery", "namespace", "topic", "kind", "writers", "readers");
-    for t in &topics {
-        let kind = msgs::topics::info(&t.topic).map(|i| format!("{:?}", i.kind)).unwrap_or_default();
-        let delivery = if t.best_effort { "best effort" } else { "reliable" };
-        println!("{:wn$}  {:wt$}  {kind:12}  {:>7}  {:>7}  {delivery}", t.namespace, t.topic, t.writers, t.readers);
-    }
-    Ok(())
 }
 
 /// What would start where, and how each topic travels (asks the node binaries for their ports).

@@ -325,6 +325,7 @@ impl Plan {
             queue_depth: self.queue_depth,
             best_effort: self.best_effort.clone(),
             host: if self.multi_host { host.to_string() } else { String::new() },
+            observe: false,
         }
     }
 

@@ -57,10 +57,14 @@ impl IoxNode {
         bus: &BusConfig,
         topic: &str,
     ) -> Result<PubSubFactory<H, T>> {
-        self.node
-            .service_builder(&service_name(bus, topic, "")?)
-            .publish_subscribe::<[T]>()
-            .user_header::<H>()
+        let builder =
+            self.node.service_builder(&service_name(bus, topic, "")?).publish_subscribe::<[T]>().user_header::<H>();
+        if bus.observe {
+            // An observer takes the topic as its graph made it (delivery, queue sizes) and never
+            // creates one: no graph, no topic.
+            return builder.open().map_err(|e| err(topic, format!("open publish-subscribe service: {e:?}")));
+        }
+        builder
             .enable_safe_overflow(bus.is_best_effort(topic))
             .subscriber_max_buffer_size(bus.queue_depth.max(1))
             .history_size(0)
@@ -76,9 +80,11 @@ impl IoxNode {
         bus: &BusConfig,
         topic: &str,
     ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>> {
-        self.node
-            .service_builder(&service_name(bus, topic, "/@event")?)
-            .event()
+        let builder = self.node.service_builder(&service_name(bus, topic, "/@event")?).event();
+        if bus.observe {
+            return builder.open().map_err(|e| err(topic, format!("open event service: {e:?}")));
+        }
+        builder
             .max_notifiers(MAX_PUBLISHERS)
             .max_listeners(MAX_SUBSCRIBERS)
             .max_nodes(MAX_NODES)
@@ -116,9 +122,13 @@ impl IoxNode {
         topic: &str,
     ) -> Result<IoxSubscriber<H, T>> {
         let service = self.pubsub::<H, T>(bus, topic)?;
+        // An observer's queue is as deep as the service allows: it holds a reliable topic's
+        // writer back only when that much is unread.
+        let depth =
+            if bus.observe { service.static_config().subscriber_max_buffer_size() } else { bus.queue_depth.max(1) };
         let subscriber = service
             .subscriber_builder()
-            .buffer_size(bus.queue_depth.max(1))
+            .buffer_size(depth)
             .create()
             .map_err(|e| err(topic, format!("create subscriber: {e:?}")))?;
         let listener = self

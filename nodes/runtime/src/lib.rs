@@ -26,12 +26,13 @@
 
 pub mod files;
 mod iox;
+pub mod observe;
 mod pubsub;
 mod zen;
 
 pub use iox::{live_topics, LiveTopic, MAX_NODES, MAX_PUBLISHERS, MAX_SUBSCRIBERS};
 pub use pubsub::{Publisher, Received, Subscriber};
-pub use zen::{open_router, HostSync};
+pub use zen::{live_topics_zenoh, open_router, HostSync, READERS, WRITERS};
 /// The zenoh crate, for launchers holding sessions.
 pub use zenoh;
 
@@ -158,6 +159,10 @@ pub struct BusConfig {
     /// so two "hosts" sharing one machine's shared memory (network namespaces, tests) stay apart.
     #[serde(default)]
     pub host: String,
+    /// This process observes a running graph (`dc topic echo`, `dc record -a`): it opens the
+    /// graph's iceoryx2 topics as the graph made them and never creates one.
+    #[serde(default)]
+    pub observe: bool,
 }
 
 /// The topics a node publishes and subscribes, as `DC_DESCRIBE=1` reports them.

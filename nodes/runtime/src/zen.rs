@@ -20,11 +20,17 @@ const MATCH_TIMEOUT: Duration = Duration::from_secs(10);
 /// Where a subscriber of `key` announces itself: a liveliness token per subscriber, declared after
 /// the subscriber itself, so a publisher that sees the token already routes to the subscriber.
 fn readers_key(key: &str) -> String {
-    format!("{key}/_readers")
+    format!("{key}/{READERS}")
 }
 
-/// Tells subscribers of one session apart.
-static SUBSCRIBER_COUNT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+/// Key segments of the liveliness tokens of a topic's subscribers and publishers
+/// (`<key>/_readers/<zid>/<n>`, `<key>/_writers/<zid>/<n>/<delivery>`), which `dc topic list
+/// --zenoh` counts.
+pub const READERS: &str = "_readers";
+pub const WRITERS: &str = "_writers";
+
+/// Tells the ports (and their tokens) of one session apart.
+static PORT_COUNT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 /// How long a client session waits for the graph's zenoh router before failing.
 const CLIENT_CONNECT_TIMEOUT: Duration = Duration::from_secs(120);
@@ -84,6 +90,8 @@ pub(crate) struct ZenPublisher {
     readers: usize,
     matched: bool,
     buffer: Vec<u8>,
+    /// Announces the publisher (see [`WRITERS`]); undeclared when dropped.
+    _token: zenoh::liveliness::LivelinessToken,
 }
 
 impl ZenPublisher {
@@ -101,7 +109,16 @@ impl ZenPublisher {
             .encoding(zenoh::bytes::Encoding::APPLICATION_CBOR)
             .wait()
             .map_err(|e| err(topic, format!("declare publisher on `{key}`: {e}")))?;
+        let n = PORT_COUNT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let delivery = if best_effort { "best-effort" } else { "reliable" };
+        let token_key = format!("{key}/{WRITERS}/{}/{n}/{delivery}", session.zid());
+        let token = session
+            .liveliness()
+            .declare_token(token_key.clone())
+            .wait()
+            .map_err(|e| err(topic, format!("declare liveliness `{token_key}`: {e}")))?;
         Ok(ZenPublisher {
+            _token: token,
             topic: topic.to_string(),
             publisher,
             session: session.clone(),
@@ -221,7 +238,7 @@ impl ZenSubscriber {
             SubscriberQueue::Fifo(builder.with(zenoh::handlers::FifoChannel::new(capacity)).wait().map_err(declare)?)
         };
         // After the subscriber: a publisher that sees the token already routes to it.
-        let n = SUBSCRIBER_COUNT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let n = PORT_COUNT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let token_key = format!("{}/{}/{n}", readers_key(key), session.zid());
         let token = session
             .liveliness()
@@ -331,5 +348,91 @@ impl HostSync {
             };
         }
         &self.alive
+    }
+}
+
+/// Every Deep Contact topic with a publisher or subscriber reachable over zenoh through
+/// `endpoint` (a node's or a graph's router's), from their liveliness tokens: writers, readers
+/// and delivery per topic, sorted; `namespace` keeps one namespace. Listens for `wait`, long
+/// enough for the gossip of a graph's peers to reach this session.
+pub fn live_topics_zenoh(
+    endpoint: &str,
+    namespace: Option<&str>,
+    wait: Duration,
+) -> Result<Vec<crate::LiveTopic>, String> {
+    let config = ZenohConfig { connect: vec![endpoint.to_string()], ..Default::default() };
+    let session = open_session(&config)?;
+    let replies = session
+        .liveliness()
+        .get("dc/**")
+        .timeout(wait)
+        .wait()
+        .map_err(|e| format!("liveliness query through {endpoint}: {e}"))?;
+    let mut tokens = std::collections::BTreeSet::new();
+    while let Ok(reply) = replies.recv() {
+        if let Ok(sample) = reply.result() {
+            tokens.insert(sample.key_expr().as_str().to_string());
+        }
+    }
+    let mut topics: std::collections::BTreeMap<(String, String), crate::LiveTopic> = Default::default();
+    for key in &tokens {
+        let Some((ns, topic, writer, best_effort)) = parse_port_token(key) else { continue };
+        if namespace.is_some_and(|want| want != ns) {
+            continue;
+        }
+        let entry = topics.entry((ns.clone(), topic.clone())).or_insert_with(|| crate::LiveTopic {
+            namespace: ns,
+            topic,
+            writers: 0,
+            readers: 0,
+            best_effort: false,
+        });
+        if writer {
+            entry.writers += 1;
+            entry.best_effort |= best_effort;
+        } else {
+            entry.readers += 1;
+        }
+    }
+    Ok(topics.into_values().collect())
+}
+
+/// `(namespace, topic, is a writer, best effort)` of a port's liveliness token
+/// (`dc/<ns>/<topic>/_writers/<zid>/<n>/<delivery>`, `dc/<ns>/<topic>/_readers/<zid>/<n>`).
+fn parse_port_token(key: &str) -> Option<(String, String, bool, bool)> {
+    let rest = key.strip_prefix("dc/")?;
+    let (path, writer, tail) = if let Some((p, t)) = rest.split_once(&format!("/{WRITERS}/")) {
+        (p, true, t)
+    } else {
+        let (p, t) = rest.split_once(&format!("/{READERS}/"))?;
+        (p, false, t)
+    };
+    // `dc/<topic>` (no namespace) first: `grid/bodies` is a topic, not `bodies` in `grid`.
+    let (ns, topic) = if msgs::topics::info(path).is_some() {
+        ("", path)
+    } else {
+        let (ns, topic) = path.split_once('/')?;
+        msgs::topics::info(topic)?;
+        (ns, topic)
+    };
+    Some((ns.to_string(), topic.to_string(), writer, writer && tail.ends_with("/best-effort")))
+}
+
+#[cfg(test)]
+mod token_tests {
+    use super::*;
+
+    #[test]
+    fn port_tokens_name_namespace_topic_and_delivery() {
+        let w = "dc/eval-1/stats/solve/_writers/abc/3/best-effort";
+        assert_eq!(parse_port_token(w), Some(("eval-1".into(), "stats/solve".into(), true, true)));
+        let r = "dc/eval-1/bodies/_readers/abc/4";
+        assert_eq!(parse_port_token(r), Some(("eval-1".into(), "bodies".into(), false, false)));
+        assert_eq!(
+            parse_port_token("dc/grid/bodies/_writers/z/1/reliable"),
+            Some(("".into(), "grid/bodies".into(), true, false))
+        );
+        assert_eq!(parse_port_token("dc/ns/nothing/_readers/z/1"), None);
+        assert_eq!(parse_port_token("dc/graph-1234/a"), None);
     }
 }

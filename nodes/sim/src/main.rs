@@ -9,7 +9,7 @@ use sim::source::{BusSource, Inbox, SharedSource, SourceHandle, StepFrame, Waits
 use sim::{
     bench, ModelKind, ModelSpec, SamplerKind, SceneConfig, SceneKind, SimError, SolveParams, WarmStarter, WorldParams,
 };
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// A number `ok` accepts, or an error saying what it `must` be.
 fn f32_where(s: &str, ok: fn(f32) -> bool, must: &str) -> Result<f32, String> {
@@ -140,6 +140,11 @@ struct Args {
     /// simulation, what builtin would have cost on this model's states (`shadow_builtin_sweeps`).
     #[arg(long)]
     shadow_builtin: bool,
+    /// Real-time pacing: start a step no sooner than this after the previous one (`10ms` for
+    /// 100 steps/s, the simulated rate), so a graph can be watched live (`dc topic hz`,
+    /// Foxglove); default: as fast as it solves.
+    #[arg(long, value_parser = required_duration)]
+    step_period: Option<Duration>,
     /// How long to wait for a grid: `none` (lockstep) or a duration (20ms, 0.5s).
     #[arg(long, default_value = "none", value_parser = |s: &str| sim::parse_deadline(s).map(Deadline))]
     deadline: Deadline,
@@ -630,6 +635,8 @@ struct BusSink<'a> {
     run_id: u64,
     /// Publish each step's problem after it (--publish-problem; `gnn-node` sends it itself).
     publish_problem: bool,
+    /// `--step-period`, and when the next step is due.
+    pace: Option<(Duration, Instant)>,
 }
 
 impl RunSink for BusSink<'_> {
@@ -637,6 +644,14 @@ impl RunSink for BusSink<'_> {
         self.pubs.control.publish_frame(msg).map_err(|e| SimError::Output(format!("control: {e}")))
     }
     fn before_step(&mut self, simulation: u32, step: u32) -> bool {
+        if let Some((period, due)) = &mut self.pace {
+            let now = Instant::now();
+            if *due > now && !runtime::sleep_unless_shutdown(self.node, *due - now) {
+                return false;
+            }
+            // Late steps do not bunch up to catch up: the next is due a period after this one.
+            *due = (*due + *period).max(Instant::now());
+        }
         if self.node.is_shutdown() {
             return false;
         }
@@ -702,7 +717,8 @@ fn run(args: &Args, node: &runtime::Node, pubs: &mut Publishers, model_kind: Mod
     let model = model_kind.build_with(args.seed, served, &files)?;
     let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
     let publish_problem = args.publish_problem && model_kind.kind != ModelKind::GnnNode;
-    let mut sink = BusSink { pubs, node, source, run_id: spec.run_id, publish_problem };
+    let pace = args.step_period.map(|p| (p, Instant::now()));
+    let mut sink = BusSink { pubs, node, source, run_id: spec.run_id, publish_problem, pace };
     let summary = sim::run::run(spec, &mut warm, &mut sink)?;
     // The run's totals on stdout (benchmarks read them).
     println!("{}", summary.line());

@@ -12,20 +12,46 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 // In a folder of its own: a file directly in src/bin would be taken for a binary.
+#[path = "dc-record/attach.rs"]
+mod attach;
 #[path = "dc-record/bench.rs"]
 mod bench;
 
 #[derive(Parser, Debug)]
-#[command(about = "Record a Deep Contact graph to MCAP; inspect and repair recordings")]
+#[command(
+    about = "Record a Deep Contact graph to MCAP; inspect and repair recordings",
+    long_about = "Record a Deep Contact graph to MCAP; inspect and repair recordings.\n\n\
+        In a launch file, dc-record is a node of the graph (--topics, --out or --dir). From a \
+        terminal, `dc record -a` or `dc record TOPIC...` attaches to a graph that is already \
+        running and records until Ctrl-C, --duration or the graph's end."
+)]
 struct Args {
     #[command(subcommand)]
     command: Option<Command>,
-    /// Topics to record, comma separated (default: every known topic).
+    /// Attach to a running graph and record these topics (`dc record bodies stats/solve`).
+    #[arg(value_name = "TOPICS", conflicts_with = "all")]
+    attach_topics: Vec<String>,
+    /// Attach to a running graph and record every topic alive in its namespace.
+    #[arg(short = 'a', long)]
+    all: bool,
+    /// Attaching: the graph's namespace (default: the only one running on this host).
+    #[arg(long)]
+    namespace: Option<String>,
+    /// Attaching: reach the graph over zenoh through this endpoint (`tcp/127.0.0.1:7447`).
+    #[arg(long, value_name = "ENDPOINT")]
+    zenoh: Option<String>,
+    /// Attaching: never drop a frame; a recorder that falls behind then holds the graph back.
+    #[arg(long)]
+    reliable: bool,
+    /// Attaching: stop after this long (`30s`); default: Ctrl-C or the graph's end.
+    #[arg(long, value_parser = runtime::parse_duration)]
+    duration: Option<Duration>,
+    /// As a graph's node: topics to record, comma separated (default: every known topic).
     #[arg(long, value_delimiter = ',')]
     topics: Vec<String>,
     /// Write everything to this one file instead of one file per run under `--dir`. A file already
     /// there is refused (before the graph starts) unless `--overwrite`.
-    #[arg(long)]
+    #[arg(short = 'o', long)]
     out: Option<PathBuf>,
     /// Let `--out` truncate a file already at its path.
     #[arg(long, requires = "out")]
@@ -99,6 +125,22 @@ fn try_main() -> anyhow::Result<()> {
             show(&r)
         }
         Some(Command::Bench(bench_args)) => bench::run(bench_args),
+        None if args.all || !args.attach_topics.is_empty() => attach::record(&attach::Attach {
+            topics: &args.attach_topics,
+            namespace: args.namespace.as_deref(),
+            zenoh: args.zenoh.as_deref(),
+            out: args.out.as_deref(),
+            overwrite: args.overwrite,
+            dir: &args.dir,
+            reliable: args.reliable,
+            duration: args.duration,
+            flush_every: Duration::from_millis(args.flush_ms.max(1)),
+            metadata: recorder_metadata("dc-record"),
+        }),
+        None if !in_a_graph() => anyhow::bail!(
+            "say what to record from the running graph: `dc record -a` (every topic) or `dc record TOPIC...`; \
+             `dc record info FILE` and `dc record recover IN OUT` inspect and repair recordings (`dc record --help`)"
+        ),
         None => record(&args),
     }
 }
@@ -276,17 +318,8 @@ fn record(args: &Args) -> anyhow::Result<()> {
     // Control last in every pass: the data a control message follows is taken first.
     subs.sort_by_key(|s| s.kind() == FrameKind::Control);
 
-    let mut node_metadata = BTreeMap::from([
-        ("node".to_string(), node.name().to_string()),
-        ("namespace".to_string(), node.bus().namespace.clone()),
-        ("args".to_string(), std::env::args().skip(1).collect::<Vec<_>>().join(" ")),
-        ("wire_version".to_string(), msgs::WIRE_VERSION.to_string()),
-        ("recorder".to_string(), concat!("dc-record ", env!("CARGO_PKG_VERSION")).to_string()),
-        ("started".to_string(), utc_stamp(SystemTime::now())),
-    ]);
-    if let Some(rev) = git_revision() {
-        node_metadata.insert("git_revision".into(), rev);
-    }
+    let mut node_metadata = recorder_metadata(node.name());
+    node_metadata.insert("namespace".to_string(), node.bus().namespace.clone());
     let mut files = Files {
         args,
         node_metadata,
@@ -345,20 +378,7 @@ fn record(args: &Args) -> anyhow::Result<()> {
                             open.last_flush = Instant::now();
                         }
                         Some(ControlKind::RunStart) => {
-                            // The run's parameters as JSON text, readable by any MCAP tool.
-                            let msg = msgs::decode::<msgs::Control, u8>(&data)?;
-                            let details = match msg.details() {
-                                Ok(msgs::ControlDetails::RunStart(p)) => serde_json::to_string(&p)?,
-                                other => {
-                                    tracing::warn!("control: a run start whose details do not decode: {other:?}");
-                                    String::new()
-                                }
-                            };
-                            let meta = BTreeMap::from([
-                                ("run_id".to_string(), step.run_id.to_string()),
-                                ("details".to_string(), details),
-                            ]);
-                            open.writer.write_metadata("run_start", meta)?;
+                            note_control(&mut open.writer, &data, step)?;
                         }
                         Some(ControlKind::RunEnd) => {
                             open.writer.flush()?;
@@ -430,6 +450,29 @@ fn record(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// What a recorder notes about a control frame it wrote: a run start's parameters as a
+/// `run_start` metadata record (JSON text, readable by any MCAP tool). Returns the frame's kind.
+fn note_control(
+    writer: &mut RecordingWriter,
+    data: &[u8],
+    step: msgs::StepHeader,
+) -> anyhow::Result<Option<ControlKind>> {
+    let c: msgs::Control = msgs::decode_header(data)?;
+    if c.kind() == Some(ControlKind::RunStart) {
+        let msg = msgs::decode::<msgs::Control, u8>(data)?;
+        let details = match msg.details() {
+            Ok(msgs::ControlDetails::RunStart(p)) => serde_json::to_string(&p)?,
+            other => {
+                tracing::warn!("control: a run start whose details do not decode: {other:?}");
+                String::new()
+            }
+        };
+        let meta = BTreeMap::from([("run_id".to_string(), step.run_id.to_string()), ("details".to_string(), details)]);
+        writer.write_metadata("run_start", meta)?;
+    }
+    Ok(c.kind())
+}
+
 /// Prints `text` on stdout; a closed stdout (`dc-record info FILE | head`) ends the output quietly.
 fn show(text: impl std::fmt::Display) -> anyhow::Result<()> {
     use std::io::Write;
@@ -437,6 +480,27 @@ fn show(text: impl std::fmt::Display) -> anyhow::Result<()> {
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("writing to stdout"),
         _ => Ok(()),
     }
+}
+
+/// What every recording says about its recorder: node name, arguments, wire version, recorder
+/// version, start time, git revision.
+fn recorder_metadata(node: &str) -> BTreeMap<String, String> {
+    let mut meta = BTreeMap::from([
+        ("node".to_string(), node.to_string()),
+        ("args".to_string(), std::env::args().skip(1).collect::<Vec<_>>().join(" ")),
+        ("wire_version".to_string(), msgs::WIRE_VERSION.to_string()),
+        ("recorder".to_string(), concat!("dc-record ", env!("CARGO_PKG_VERSION")).to_string()),
+        ("started".to_string(), utc_stamp(SystemTime::now())),
+    ]);
+    if let Some(rev) = git_revision() {
+        meta.insert("git_revision".into(), rev);
+    }
+    meta
+}
+
+/// Started by a launcher (a graph's node) or asked for its ports, rather than from a terminal.
+fn in_a_graph() -> bool {
+    ["DC_LAUNCHED", "DC_DESCRIBE"].iter().any(|v| std::env::var(v).is_ok_and(|v| v == "1"))
 }
 
 /// A control message about the graph rather than a run (run id 0: node down / up).
