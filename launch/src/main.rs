@@ -46,8 +46,19 @@ enum Command {
     },
     /// Print the graph of a launch file.
     List { file: PathBuf },
-    /// Recordings: `dc record info FILE`, `dc record recover IN OUT` (runs dc-record).
+    /// Record a running graph (`dc record -a`, `dc record TOPIC...`, `-o FILE`), inspect and
+    /// repair recordings (`dc record info FILE`, `dc record recover IN OUT`); runs dc-record.
     Record {
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
+    /// Publish a recording onto the bus (runs dc-replay): `dc play FILE [--rate R] [--loop]
+    /// [--topics a,b] [--remap A=B] [--namespace NS]`, so a recorded run can be watched in
+    /// Foxglove or fed to a node.
+    Play {
+        /// The recording (.mcap), or a folder of recordings played in name order.
+        file: PathBuf,
+        /// dc-replay's options (`dc play FILE --help` lists them).
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
     },
@@ -238,6 +249,11 @@ fn real_main(cli: Cli) -> Result<()> {
         }
         Command::Run { node, args } => exec_node(&node, &args),
         Command::Record { args } => exec_node("record", &args),
+        Command::Play { file, args } => {
+            let mut all = vec!["--input".to_string(), file.display().to_string()];
+            all.extend(args);
+            exec_node("replay", &all)
+        }
         Command::Train { args } => {
             let (node, args) = train_command(args)?;
             exec_node(node, &args)

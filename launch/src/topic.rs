@@ -206,7 +206,9 @@ struct Decoded {
     count: usize,
     /// A line about the items (f32: min, max, mean; control: its details).
     summary: Option<Value>,
+    /// With `--items`: each item as JSON, and as a line in field order.
     items: Vec<Value>,
+    item_lines: Vec<String>,
 }
 
 impl Decoded {
@@ -217,7 +219,7 @@ impl Decoded {
         if let Some(Value::Object(fields)) = &self.summary {
             lines.extend(fields.iter().map(|(k, v)| format!("  {k}: {}", inline(v))));
         }
-        lines.extend(self.items.iter().map(|item| format!("  - {}", inline(item))));
+        lines.extend(self.item_lines.iter().map(|item| format!("  - {item}")));
         lines.push(String::new());
         lines.join("\n")
     }
@@ -246,6 +248,14 @@ fn header_lines<H: Serialize>(header: &H) -> Vec<String> {
         }
         Ok(other) => vec![inline_cbor(&other)],
         Err(e) => vec![format!("(header: {e})")],
+    }
+}
+
+/// `value` on one line in field order (see [`inline_cbor`]).
+fn inline_serialized<T: Serialize>(value: &T) -> String {
+    match ciborium::Value::serialized(value) {
+        Ok(v) => inline_cbor(&v),
+        Err(e) => format!("({e})"),
     }
 }
 
@@ -312,6 +322,7 @@ fn decode(kind: FrameKind, cbor: &[u8], items: bool) -> Result<Decoded> {
                 count: frame.items.len(),
                 summary: Some(serde_json::json!({ "details": details })),
                 items: Vec::new(),
+                item_lines: Vec::new(),
             }
         }
     })
@@ -325,7 +336,9 @@ fn structs<H: msgs::FrameHeader, T: msgs::FrameItem + Serialize>(
     let frame = msgs::decode::<H, T>(cbor)?;
     let values =
         if items { frame.items.iter().map(serde_json::to_value).collect::<Result<_, _>>()? } else { Vec::new() };
+    let item_lines = if items { frame.items.iter().map(inline_serialized).collect() } else { Vec::new() };
     Ok(Decoded {
+        item_lines,
         header: serde_json::to_value(frame.header)?,
         header_lines: header_lines(&frame.header),
         item_type,
@@ -349,6 +362,7 @@ fn numbers<H: msgs::FrameHeader>(cbor: &[u8], item_type: &'static str, items: bo
         item_type,
         count: v.len(),
         summary,
+        item_lines: if items { v.iter().map(f32::to_string).collect() } else { Vec::new() },
         items: if items { v.iter().map(|&x| Value::from(x)).collect() } else { Vec::new() },
     })
 }
@@ -484,8 +498,8 @@ pub fn rate(args: &RateArgs, figure: Figure) -> Result<()> {
         if last_print.elapsed() >= Duration::from_secs(1) {
             last_print = Instant::now();
             match window.stats() {
-                Some(s) => println!("{}", stats_line(figure, &s)),
-                None => println!("no new frames"),
+                Some(s) if !printed_since => println!("{}", stats_line(figure, &s)),
+                _ => println!("no new frames"),
             }
             printed_since = true;
         }
@@ -535,7 +549,7 @@ mod tests {
         let text = d.text("bodies");
         assert!(text.contains("run_id: 7") && text.contains("step: 5"), "{text}");
         assert!(text.contains("items: 4 x dc::Body"), "{text}");
-        assert_eq!(text.matches("  - {id: 3").count(), 4, "{text}");
+        assert_eq!(text.matches("  - {id: 3, shape: 0").count(), 4, "{text}");
         let json: Value = serde_json::from_str(&d.json("bodies")).unwrap();
         assert_eq!(json["header"]["simulation"], 2);
         assert_eq!(json["items"]["count"], 4);

@@ -362,17 +362,29 @@ pub fn live_topics_zenoh(
 ) -> Result<Vec<crate::LiveTopic>, String> {
     let config = ZenohConfig { connect: vec![endpoint.to_string()], ..Default::default() };
     let session = open_session(&config)?;
-    let replies = session
-        .liveliness()
-        .get("dc/**")
-        .timeout(wait)
-        .wait()
-        .map_err(|e| format!("liveliness query through {endpoint}: {e}"))?;
+    // A query sent before this session has learnt the graph's routes comes back empty at once:
+    // ask until two answers in a row agree and are not empty, or `wait` passes.
+    let started = Instant::now();
     let mut tokens = std::collections::BTreeSet::new();
-    while let Ok(reply) = replies.recv() {
-        if let Ok(sample) = reply.result() {
-            tokens.insert(sample.key_expr().as_str().to_string());
+    loop {
+        let replies = session
+            .liveliness()
+            .get("dc/**")
+            .timeout(wait)
+            .wait()
+            .map_err(|e| format!("liveliness query through {endpoint}: {e}"))?;
+        let mut now = std::collections::BTreeSet::new();
+        while let Ok(reply) = replies.recv() {
+            if let Ok(sample) = reply.result() {
+                now.insert(sample.key_expr().as_str().to_string());
+            }
         }
+        let settled = !now.is_empty() && now == tokens;
+        tokens = now;
+        if settled || started.elapsed() >= wait {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
     }
     let mut topics: std::collections::BTreeMap<(String, String), crate::LiveTopic> = Default::default();
     for key in &tokens {

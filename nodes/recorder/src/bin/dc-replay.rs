@@ -30,6 +30,15 @@ struct Args {
     /// Start again at the end, until stopped.
     #[arg(long = "loop")]
     repeat: bool,
+    /// Started from a terminal (`dc play`): the bus namespace to publish in, so that a graph
+    /// launched with `--namespace NS` (Foxglove, a trainer) reads it. A launched node takes
+    /// the graph's.
+    #[arg(long, value_parser = namespace)]
+    namespace: Option<String>,
+}
+
+fn namespace(s: &str) -> Result<String, String> {
+    runtime::check_namespace(s).map(|()| s.to_string())
 }
 
 /// Slowest pace: a thousand times slower than recorded (a 100 Hz stream at one frame each 10 s);
@@ -154,7 +163,15 @@ fn try_main() -> anyhow::Result<()> {
             }
         }
     }
-    let node = runtime::Node::from_env("dc-replay")?;
+    let mut node = runtime::Node::from_env("dc-replay")?;
+    if let Some(ns) = &args.namespace {
+        if std::env::var("DC_BUS").is_ok() {
+            tracing::warn!(namespace = %ns, "--namespace ignored: a launched node publishes in its graph's namespace");
+        } else {
+            let bus = runtime::BusConfig { namespace: ns.clone(), queue_depth: 16, ..Default::default() };
+            node = runtime::Node::new(node.name().to_string(), bus, false);
+        }
+    }
     let mut pubs: HashMap<String, Box<dyn ReplayedTopic>> = HashMap::new();
     for (topic, kind) in &channels {
         if wanted(topic) {
