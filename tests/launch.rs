@@ -401,6 +401,15 @@ fn eval_runs_eight_simulators_at_once() {
         assert_eq!((row[1], row[2]), ("1", "60"), "{model}: one simulation of 60 steps");
         assert!(row[3].parse::<u64>().unwrap() > 0, "{model} solved nothing: {summary}");
     }
+    // Without a terminal the log is short: a line per model as its run ends, the result
+    // table, the report's path (plus what nodes warn of); not every node's log.
+    let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.lines().count() + stderr.lines().count() <= 40, "{}", text(&out));
+    for model in ["builtin", "none", "copy", "extrapolate", "blend:0.5", "noise:1", "cg:10", "continue"] {
+        assert!(stdout.lines().any(|l| l.contains(&format!("] model {model}"))), "{model}: {stdout}");
+    }
+    assert_eq!(stdout.lines().filter(|l| l.starts_with("| ") && !l.starts_with("| model")).count(), 8, "{stdout}");
+    assert!(stdout.contains("evaluation report: "), "{stdout}");
 }
 
 #[test]

@@ -162,6 +162,10 @@ struct EvalArgs {
     /// Same states are not measured (every model makes K sweeps).
     #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u32).range(1..=msgs::curve::MAX_BUDGET as i64))]
     budget: Vec<u32>,
+    /// Print every node's log (otherwise: a progress bar on a terminal, one line per finished
+    /// model, and the nodes' warnings and errors; `RUST_LOG` set means the same as -v).
+    #[arg(short, long)]
+    verbose: bool,
     /// More simulator parameters, passed through (after `--`).
     #[arg(last = true)]
     sim_args: Vec<String>,
@@ -654,9 +658,77 @@ fn eval(args: EvalArgs) -> Result<()> {
     // stop the evaluation before it starts, not lose it at the end.
     writable_dir(&out).context("--out")?;
     let flag = interrupt_flag();
-    supervisor::run(&graph, DEFAULT_HOST, Output::Forward, &flag)?;
+    let progress = EvalProgress::new(&args, 1)?;
+    supervisor::run(&graph, DEFAULT_HOST, progress.output(), &flag)?;
+    progress.finish();
     println!("evaluation report: {}", out.join("report.html").display());
     Ok(())
+}
+
+/// What `dc eval` shows while it runs: every node's log with -v; otherwise a progress bar of the
+/// simulations (on a terminal only), a line per model as its run ends, and what nodes warn of.
+struct EvalProgress {
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl EvalProgress {
+    fn new(args: &EvalArgs, evaluations: usize) -> Result<EvalProgress> {
+        if args.verbose || std::env::var_os("RUST_LOG").is_some() {
+            return Ok(EvalProgress { bar: None });
+        }
+        let seeds = msgs::parse_seeds(&args.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
+        let total = (seeds.len() * args.models.len() * evaluations) as u64;
+        let bar = indicatif::ProgressBar::with_draw_target(Some(total), indicatif::ProgressDrawTarget::stderr());
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("eval [{bar:30}] {pos}/{len} simulations, {elapsed}, ~{eta} left")
+                .expect("the template is valid")
+                .progress_chars("=> "),
+        );
+        Ok(EvalProgress { bar: Some(bar) })
+    }
+
+    fn output(&self) -> Output {
+        let Some(bar) = self.bar.clone() else { return Output::Forward };
+        let say = {
+            let bar = bar.clone();
+            // A hidden bar (no terminal) prints nothing of its own, `println` included.
+            move |text: String| if bar.is_hidden() { println!("{text}") } else { bar.println(text) }
+        };
+        // The metrics node's first table (one row per model) is the evaluation's result.
+        let in_table = std::sync::atomic::AtomicBool::new(false);
+        Output::Watch(Arc::new(move |node: &str, stderr: bool, line: &str| {
+            if node == "metrics" && !stderr {
+                if line.starts_with("| model | sims |") {
+                    in_table.store(true, Ordering::Relaxed);
+                } else if line.trim().is_empty() {
+                    in_table.store(false, Ordering::Relaxed);
+                }
+                if in_table.load(Ordering::Relaxed) {
+                    say(line.to_string());
+                }
+            } else if stderr && line.contains(" simulation done ") {
+                bar.inc(1);
+            } else if let (false, Some((_, json))) = (stderr, line.split_once(RunSummary::PREFIX)) {
+                if let Ok(s) = serde_json::from_str::<RunSummary>(json) {
+                    let text = format!(
+                        "[{node}] model {}: {} steps, {:.1} sweeps a step, {} fallbacks, {:.2} s",
+                        s.model,
+                        s.steps,
+                        s.total_sweeps as f64 / s.steps.max(1) as f64,
+                        s.fallbacks,
+                        s.loop_secs
+                    );
+                    say(text);
+                }
+            }
+        }))
+    }
+
+    fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
 }
 
 /// The first item of `list` that an earlier one repeats.
@@ -711,12 +783,14 @@ fn eval_variants(args: &EvalArgs, out: &std::path::Path) -> Result<()> {
     }
     let flag = interrupt_flag();
     let mut summaries = Vec::new();
+    let progress = EvalProgress::new(args, runs.len())?;
     for v in &runs {
-        supervisor::run(&v.graph, DEFAULT_HOST, Output::Forward, &flag)?;
+        supervisor::run(&v.graph, DEFAULT_HOST, progress.output(), &flag)?;
         let path = v.dir.join("summary.csv");
         let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
         summaries.push(launch::solver_table::read_summary(&text).with_context(|| path.display().to_string())?);
     }
+    progress.finish();
     if args.budget.is_empty() {
         let named: Vec<(&str, Vec<_>)> =
             runs.iter().zip(summaries).map(|(v, s)| (v.solver.as_deref().unwrap_or_default(), s)).collect();

@@ -130,12 +130,29 @@ impl NamespaceLock {
 }
 
 /// Where captured node output goes.
+#[derive(Clone)]
 pub enum Output {
     /// Print `[node] line` on our stdout / stderr.
     Forward,
     /// Keep every stdout line per node instead of printing it (for `dc bench`); stderr is
     /// still forwarded.
     Capture,
+    /// Hand every line to a watcher (a progress display) instead of printing it; only
+    /// warnings, errors and lines that are not log records are printed (`[node] line` on
+    /// stderr), and the launcher's own start notices are not.
+    Watch(LineWatcher),
+}
+
+/// Sees each output line of each node: `(node, is stderr, line)`.
+pub type LineWatcher = std::sync::Arc<dyn Fn(&str, bool, &str) + Send + Sync>;
+
+/// Whether a node's stderr line is a routine log record (`... INFO ...`, `DEBUG`, `TRACE`)
+/// rather than a warning, an error or a message of its own.
+fn routine_log_line(line: &str) -> bool {
+    let mut words = line.split_whitespace();
+    let (Some(first), Some(level)) = (words.next(), words.next()) else { return false };
+    // tracing's format: an RFC 3339 time, then the level.
+    first.len() >= 20 && first.as_bytes()[4] == b'-' && matches!(level, "INFO" | "DEBUG" | "TRACE")
 }
 
 enum Event {
@@ -617,15 +634,21 @@ impl<'a> Supervisor<'a> {
             .stderr(Stdio::piped());
         die_with_parent(&mut cmd);
         let mut child = cmd.spawn().map_err(|e| RunError::Spawn { node: spec.name.clone(), what: e.to_string() })?;
-        eprintln!("[dc] node `{}` started (pid {})", spec.name, child.id());
+        let watcher = match &self.output {
+            Output::Watch(w) => Some((spec.name.clone(), w.clone())),
+            Output::Forward | Output::Capture => {
+                eprintln!("[dc] node `{}` started (pid {})", spec.name, child.id());
+                None
+            }
+        };
         let prefix = format!("[{:width$}]", spec.name, width = self.width);
         let forward = matches!(self.output, Output::Forward);
         let stdout = child.stdout.take().expect("piped");
-        let (p, tx) = (prefix.clone(), self.tx.clone());
-        std::thread::spawn(move || read_stdout(i, stdout, forward.then_some(p), tx));
+        let (p, tx, w) = (prefix.clone(), self.tx.clone(), watcher.clone());
+        std::thread::spawn(move || read_stdout(i, stdout, forward.then_some(p), w, tx));
         let stderr = child.stderr.take().expect("piped");
         let tx = self.tx.clone();
-        std::thread::spawn(move || read_stderr(i, stderr, prefix, tx));
+        std::thread::spawn(move || read_stderr(i, stderr, prefix, watcher, tx));
         let stdin = child.stdin.take();
         Ok((child, stdin))
     }
@@ -992,7 +1015,13 @@ fn stop_nodes(nodes: &mut [Running], which: impl Fn(&Running) -> bool) {
 
 /// Turns node `i`'s stdout into events: its handshake markers, and every other line (printed
 /// after `prefix` when there is one).
-fn read_stdout(i: usize, stdout: ChildStdout, prefix: Option<String>, tx: mpsc::Sender<Event>) {
+fn read_stdout(
+    i: usize,
+    stdout: ChildStdout,
+    prefix: Option<String>,
+    watcher: Option<(String, LineWatcher)>,
+    tx: mpsc::Sender<Event>,
+) {
     for line in BufReader::new(stdout).lines().map_while(Result::ok) {
         let event = match line.as_str() {
             runtime::READY_MARKER => Event::Ready(i),
@@ -1002,6 +1031,9 @@ fn read_stdout(i: usize, stdout: ChildStdout, prefix: Option<String>, tx: mpsc::
                 if let Some(p) = &prefix {
                     println!("{p} {line}");
                 }
+                if let Some((node, watch)) = &watcher {
+                    watch(node, false, &line);
+                }
                 Event::Line(i, line)
             }
         };
@@ -1010,9 +1042,23 @@ fn read_stdout(i: usize, stdout: ChildStdout, prefix: Option<String>, tx: mpsc::
 }
 
 /// Prints node `i`'s stderr lines after `prefix` and passes them on, then says it closed.
-fn read_stderr(i: usize, stderr: ChildStderr, prefix: String, tx: mpsc::Sender<Event>) {
+fn read_stderr(
+    i: usize,
+    stderr: ChildStderr,
+    prefix: String,
+    watcher: Option<(String, LineWatcher)>,
+    tx: mpsc::Sender<Event>,
+) {
     for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-        eprintln!("{prefix} {line}");
+        match &watcher {
+            Some((node, watch)) => {
+                watch(node, true, &line);
+                if !routine_log_line(&line) {
+                    eprintln!("{prefix} {line}");
+                }
+            }
+            None => eprintln!("{prefix} {line}"),
+        }
         let _ = tx.send(Event::ErrLine(i, line));
     }
     let _ = tx.send(Event::ErrClosed(i));
