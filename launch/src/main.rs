@@ -10,6 +10,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
+mod bench_observe;
 mod topic;
 
 #[derive(Parser)]
@@ -189,6 +190,9 @@ enum BenchWhat {
         #[arg(long, default_value_t = 3)]
         repeat: usize,
     },
+    /// What watching a running graph costs its simulator: throughput alone and with
+    /// `dc topic echo | hz | bw` and `dc record -a` attached.
+    Observe(bench_observe::ObserveBenchArgs),
     /// One-way latency and throughput of iceoryx2, zenoh and an in-process channel.
     Bus {
         /// Frames in the throughput phase.
@@ -274,6 +278,7 @@ fn real_main(cli: Cli) -> Result<()> {
         },
         Command::Eval(args) => eval(args),
         Command::Bench { what: BenchWhat::Bus { count, latency_count } } => bench_bus(count, latency_count),
+        Command::Bench { what: BenchWhat::Observe(args) } => bench_observe::run(&args),
         Command::Bench { what: BenchWhat::Loop { seeds, steps, n, unet_model, repeat } } => {
             bench_loop(&seeds, steps, n, &unet_model, repeat.max(1))
         }

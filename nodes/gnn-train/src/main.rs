@@ -314,15 +314,25 @@ fn train_end_to_end(
     let key = |sweeps: u64, n: &Net| if by_loss { validation_loss(n).unwrap_or(f64::INFINITY) } else { sweeps as f64 };
     let mut best = (key(untrained, net), untrained, 0usize, net.clone());
     let started = std::time::Instant::now();
+    // Epochs with the time left, on a terminal only (stderr; hidden otherwise).
+    let bar = indicatif::ProgressBar::new(args.epochs as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("train [{bar:30}] {pos}/{len} epochs ({elapsed}, ~{eta} left)")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
     backprop::train(net, &data, train, objective, args.epochs, args.lr, args.seed, |epoch, candidate, loss| {
         let sweeps = validation_sweeps(candidate, validation);
-        println!(
-            "  epoch {}: mean loss {loss:.4e}{}, validation {sweeps} sweeps ({:.3}x builtin), {:.0} s",
-            epoch + 1,
-            shown(validation_loss(candidate)),
-            sweeps as f64 / builtin as f64,
-            started.elapsed().as_secs_f64()
-        );
+        bar.suspend(|| {
+            println!(
+                "  epoch {}: mean loss {loss:.4e}{}, validation {sweeps} sweeps ({:.3}x builtin), {:.0} s",
+                epoch + 1,
+                shown(validation_loss(candidate)),
+                sweeps as f64 / builtin as f64,
+                started.elapsed().as_secs_f64()
+            )
+        });
+        bar.inc(1);
         if args.save_candidates {
             let how = format!("epoch {} of end to end training on the {} loss (lr {})", epoch + 1, args.loss, args.lr);
             save_candidate(args, &format!("epoch{}", epoch + 1), candidate, &how, sweeps);
@@ -332,6 +342,7 @@ fn train_end_to_end(
             best = (k, sweeps, epoch + 1, candidate.clone());
         }
     });
+    bar.finish_and_clear();
     let (_, sweeps, epoch, model) = best;
     let how = format!(
         "end to end on the {} loss{} (Adam, lr {}, {} epochs, best epoch {epoch} by validation {}; 0 = untrained, builtin) on {} steps",

@@ -77,6 +77,11 @@ impl fmt::Display for Recovered {
 /// when complete: an error leaves `output` as it was. An output that is the input under another
 /// name (a hard link, a symlink ...) is refused before anything is written.
 pub fn recover(input: &Path, output: &Path) -> Result<Recovered> {
+    recover_with_progress(input, output, &mut |_, _| {})
+}
+
+/// [`recover`], calling `progress(bytes read, input size)` as it goes.
+pub fn recover_with_progress(input: &Path, output: &Path, progress: &mut dyn FnMut(u64, u64)) -> Result<Recovered> {
     let output_meta = std::fs::metadata(output).ok();
     refuse_same_file(input, output, output_meta.as_ref())?;
     let reader = RecordingReader::open_with(input, ReadOptions { any_wire_version: true, lenient: true })?;
@@ -85,7 +90,7 @@ pub fn recover(input: &Path, output: &Path) -> Result<Recovered> {
         Some(m) if !m.is_file() && !m.is_dir() => RecordingWriter::create(output)?,
         _ => RecordingWriter::create_replacing(output)?,
     };
-    recover_into(reader, writer)
+    recover_into_with(reader, writer, progress)
 }
 
 /// [`Error::SameFile`] when `output` exists (`output_meta`) and is the same file as `input` (same
@@ -101,10 +106,20 @@ fn refuse_same_file(input: &Path, output: &Path, output_meta: Option<&std::fs::M
 }
 
 /// [`recover`] from a reader (best opened lenient, with any wire version) into a writer.
-pub fn recover_into(mut reader: RecordingReader, mut writer: RecordingWriter) -> Result<Recovered> {
+pub fn recover_into(reader: RecordingReader, writer: RecordingWriter) -> Result<Recovered> {
+    recover_into_with(reader, writer, &mut |_, _| {})
+}
+
+/// [`recover_into`], calling `progress(bytes read, input size)` after each record.
+pub fn recover_into_with(
+    mut reader: RecordingReader,
+    mut writer: RecordingWriter,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<Recovered> {
     let mut ids: HashMap<u16, u16> = HashMap::new();
     let mut out = Recovered { input_size: reader.size(), ..Default::default() };
     while let Some(item) = reader.next_item() {
+        progress(reader.consumed(), out.input_size);
         match item {
             Ok(Item::Channel(c)) => {
                 let id = writer.add_raw_channel(&c.topic, &c.encoding, &c.metadata)?;

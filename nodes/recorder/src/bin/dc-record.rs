@@ -109,7 +109,21 @@ fn try_main() -> anyhow::Result<()> {
             }
         }
         Some(Command::Recover { input, output }) => {
-            let r = recorder::recover::recover(input, output)?;
+            // Bytes read, with the time left, on a terminal only (hidden otherwise).
+            let bar = indicatif::ProgressBar::new(0);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "recover [{bar:30}] {bytes}/{total_bytes} ({elapsed}, ~{eta} left)",
+                )
+                .expect("valid template")
+                .progress_chars("=> "),
+            );
+            let r = recorder::recover::recover_with_progress(input, output, &mut |read, size| {
+                bar.set_length(size);
+                bar.set_position(read);
+            });
+            bar.finish_and_clear();
+            let r = r?;
             if r.input_was_sound() {
                 tracing::info!("input was intact");
             }
