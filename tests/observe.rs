@@ -363,3 +363,37 @@ fn over_zenoh_list_and_echo_see_the_graph_and_count_a_garbage_frame() {
     drop(session);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `dc record -a` stopped by Ctrl-C while the graph runs on: it exits cleanly with the file
+/// finished (strictly readable, its frames the graph's own), and the graph goes on unharmed.
+#[test]
+fn an_attached_recorder_stopped_by_ctrl_c_leaves_a_finished_file() {
+    let dir = scratch_dir("observe-ctrl-c");
+    let namespace = unique_namespace("observe-ctrl-c");
+    let (reference, attached) = (dir.join("reference.mcap"), dir.join("attached.mcap"));
+    let graph_run = start(&dir, "observed", &graph(&reference, "", 100_000), &namespace);
+    wait_for_writer(&namespace, "bodies", None);
+    let mut record =
+        dc(&["record", "-a", "--namespace", &namespace, "-o", attached.to_str().unwrap()]).spawn().unwrap();
+    // Recording once it said so, then a while.
+    let mut stderr = BufReader::new(record.stderr.take().unwrap());
+    let mut said = String::new();
+    stderr.read_line(&mut said).unwrap();
+    assert!(said.starts_with("recording "), "{said}");
+    std::thread::sleep(Duration::from_secs(2));
+    let _ = Command::new("kill").arg("-INT").arg(record.id().to_string()).status();
+    let out = finish(record, Duration::from_secs(30), "dc record -a after Ctrl-C");
+    assert!(out.status.success(), "{}", text(&out));
+    let recorded = frames(&attached, "bodies");
+    assert!(recorded.len() >= 50, "two seconds at 100 steps/s: {}", recorded.len());
+    // The graph still runs (its writers are there), then stops on its own Ctrl-C.
+    wait_for_writer(&namespace, "bodies", None);
+    let _ = Command::new("kill").arg("-INT").arg(graph_run.id().to_string()).status();
+    let out = finish(graph_run, Duration::from_secs(60), "the graph after Ctrl-C");
+    assert!(out.status.code() == Some(130) || out.status.success(), "{}", text(&out));
+    let reference = frames(&reference, "bodies");
+    for (key, data) in &recorded {
+        assert_eq!(reference.get(key), Some(data), "{key:?}: the attached file holds what was published");
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -512,9 +512,11 @@ fn recorder_metadata(node: &str) -> BTreeMap<String, String> {
     meta
 }
 
-/// Started by a launcher (a graph's node) or asked for its ports, rather than from a terminal.
+/// Started as a graph's node (by a launcher, or by hand with a bus configuration in `DC_BUS`)
+/// or asked for its ports, rather than from a terminal.
 fn in_a_graph() -> bool {
-    ["DC_LAUNCHED", "DC_DESCRIBE"].iter().any(|v| std::env::var(v).is_ok_and(|v| v == "1"))
+    std::env::var_os("DC_BUS").is_some()
+        || ["DC_LAUNCHED", "DC_DESCRIBE"].iter().any(|v| std::env::var(v).is_ok_and(|v| v == "1"))
 }
 
 /// A control message about the graph rather than a run (run id 0: node down / up).
