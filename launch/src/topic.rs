@@ -4,7 +4,7 @@
 
 use anyhow::{bail, Result};
 use msgs::topics::FrameKind;
-use runtime::observe::{Event, ObserveOptions, Observer, Target};
+use runtime::observe::{Event, ObserveOptions, Observer};
 use runtime::LiveTopic;
 use serde::Serialize;
 use serde_json::Value;
@@ -25,22 +25,13 @@ pub struct Where {
     pub zenoh: Option<String>,
 }
 
-/// How long a zenoh listing waits for the graph's liveliness tokens.
-const ZENOH_LIST_WAIT: Duration = Duration::from_secs(2);
-
 /// The topics alive where `place` says, every namespace or one.
-pub fn live(place: &Where, namespace: Option<&str>) -> Result<Vec<LiveTopic>> {
-    match &place.zenoh {
-        Some(endpoint) => runtime::live_topics_zenoh(endpoint, namespace, ZENOH_LIST_WAIT).map_err(anyhow::Error::msg),
-        None => Ok(runtime::live_topics(namespace)?),
-    }
+fn live(place: &Where, namespace: Option<&str>) -> Result<Vec<LiveTopic>> {
+    runtime::observe::live_topics_at(place.zenoh.as_deref(), namespace)
 }
 
 fn where_text(place: &Where) -> String {
-    match &place.zenoh {
-        Some(e) => format!("over zenoh through {e}"),
-        None => "on this host".to_string(),
-    }
+    runtime::observe::place_text(place.zenoh.as_deref())
 }
 
 /// `dc topic list`: one line per live topic; none alive is an error (exit 1) saying where it
@@ -67,42 +58,10 @@ pub fn list(place: &Where) -> Result<()> {
     Ok(())
 }
 
-/// The observer's target for `topic`: its namespace checked (or found: the only one alive) and
-/// the topic alive there; otherwise an error listing what is alive.
-pub fn target(place: &Where, topic: &str) -> Result<Target> {
-    let known = msgs::topics::info(topic).is_some();
-    let all = live(place, None)?;
-    let in_namespace = |ns: &str| all.iter().filter(|t| t.namespace == ns).map(|t| t.topic.clone()).collect::<Vec<_>>();
-    let namespace = match &place.namespace {
-        Some(ns) => ns.clone(),
-        None => {
-            let mut names: Vec<&str> = all.iter().map(|t| t.namespace.as_str()).collect();
-            names.dedup();
-            match names.as_slice() {
-                [] => bail!("no Deep Contact topics alive {}: no graph is running there", where_text(place)),
-                [one] => one.to_string(),
-                many => bail!(
-                    "several graphs are running {}: say which with --namespace ({})",
-                    where_text(place),
-                    many.join(", ")
-                ),
-            }
-        }
-    };
-    let alive = in_namespace(&namespace);
-    if alive.is_empty() {
-        bail!("no topics alive in namespace `{namespace}` {}: is its graph running?", where_text(place));
-    }
-    if !alive.iter().any(|t| t == topic) {
-        let what = if known { "is not alive" } else { "is not a Deep Contact topic" };
-        bail!("topic `{topic}` {what} in namespace `{namespace}` (alive: {})", alive.join(", "));
-    }
-    Ok(Target { namespace, zenoh: place.zenoh.clone() })
-}
-
 fn observe(place: &Where, topic: &str, encode: bool) -> Result<Observer> {
     let options = ObserveOptions {
-        target: target(place, topic)?,
+        target: runtime::observe::find_graph(place.namespace.as_deref(), place.zenoh.as_deref(), &[topic.to_string()])?
+            .0,
         topics: vec![topic.to_string()],
         encode,
         capacity: 256,

@@ -83,16 +83,31 @@ impl FrameKind {
 
     /// Decodes a payload fully (version, header, item length) and drops it: is it a valid frame?
     pub fn validate(self, payload: &[u8]) -> Result<(), CodecError> {
-        match self {
-            FrameKind::Bodies => decode::<StepHeader, Body>(payload).map(drop),
-            FrameKind::Contacts => decode::<StepHeader, Contact>(payload).map(drop),
-            FrameKind::Grid => decode::<GridHeader, f32>(payload).map(drop),
-            FrameKind::SolveStats => decode::<SolveStatsHeader, f32>(payload).map(drop),
-            FrameKind::Control => decode::<Control, u8>(payload).map(drop),
-            FrameKind::ProblemBodies => decode::<StepHeader, ProblemBody>(payload).map(drop),
-            FrameKind::ProblemContacts => decode::<ProblemHeader, ProblemContact>(payload).map(drop),
+        fn check<H: FrameHeader, T: FrameItem>(payload: &[u8]) -> Result<(), CodecError> {
+            decode::<H, T>(payload).map(drop)
         }
+        with_frame_types!(self, check(payload))
     }
+}
+
+/// Calls the generic function `f::<H, T>(args...)` with the header and item types of a
+/// [`FrameKind`]: the one place that maps kinds to types for code that does the same with every
+/// kind (a subscriber, a publisher, a decoder of each topic's frames).
+#[macro_export]
+macro_rules! with_frame_types {
+    ($kind:expr, $f:ident ( $($arg:expr),* $(,)? )) => {
+        match $kind {
+            $crate::topics::FrameKind::Bodies => $f::<$crate::StepHeader, $crate::Body>($($arg),*),
+            $crate::topics::FrameKind::Contacts => $f::<$crate::StepHeader, $crate::Contact>($($arg),*),
+            $crate::topics::FrameKind::Grid => $f::<$crate::GridHeader, f32>($($arg),*),
+            $crate::topics::FrameKind::SolveStats => $f::<$crate::SolveStatsHeader, f32>($($arg),*),
+            $crate::topics::FrameKind::Control => $f::<$crate::Control, u8>($($arg),*),
+            $crate::topics::FrameKind::ProblemBodies => $f::<$crate::StepHeader, $crate::ProblemBody>($($arg),*),
+            $crate::topics::FrameKind::ProblemContacts => {
+                $f::<$crate::ProblemHeader, $crate::ProblemContact>($($arg),*)
+            }
+        }
+    };
 }
 
 /// Ties a frame type to its [`FrameKind`], so that the table below is checked by the compiler.

@@ -280,6 +280,11 @@ pub struct LiveTopic {
 /// readers are counted on each topic's event service (one notifier per writer, one listener per
 /// reader), which any process may open without joining the topic.
 pub fn live_topics(namespace: Option<&str>) -> Result<Vec<LiveTopic>> {
+    live_topics_on(&IoxNode::new("dc-topic-list")?, namespace)
+}
+
+/// [`live_topics`] through a node this process already has (an observer counting writers).
+pub(crate) fn live_topics_on(node: &IoxNode, namespace: Option<&str>) -> Result<Vec<LiveTopic>> {
     use iceoryx2::service::static_config::messaging_pattern::MessagingPattern as StaticPattern;
     quiet_iceoryx2_logs();
     let mut found: Vec<(String, String, bool)> = Vec::new();
@@ -298,7 +303,6 @@ pub fn live_topics(namespace: Option<&str>) -> Result<Vec<LiveTopic>> {
     })
     .map_err(|e| Error::Node(format!("listing iceoryx2 services: {e:?}")))?;
     found.sort();
-    let node = IoxNode::new("dc-topic-list")?;
     let mut topics = Vec::new();
     for (ns, topic, best_effort) in found {
         let name = format!("dc/{ns}/{topic}/@event");

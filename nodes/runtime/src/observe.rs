@@ -46,6 +46,61 @@ impl Target {
     }
 }
 
+/// How long a listing over zenoh waits for the graph's liveliness tokens.
+const ZENOH_LIST_WAIT: Duration = Duration::from_secs(2);
+
+/// The topics alive on this host's iceoryx2 bus, or over zenoh through `zenoh` (an endpoint of
+/// the graph); every namespace, or one.
+pub fn live_topics_at(zenoh: Option<&str>, namespace: Option<&str>) -> anyhow::Result<Vec<crate::LiveTopic>> {
+    match zenoh {
+        Some(endpoint) => crate::live_topics_zenoh(endpoint, namespace, ZENOH_LIST_WAIT).map_err(anyhow::Error::msg),
+        None => Ok(crate::live_topics(namespace)?),
+    }
+}
+
+/// Where [`live_topics_at`] looks, for messages: `on this host`, `over zenoh through E`.
+pub fn place_text(zenoh: Option<&str>) -> String {
+    match zenoh {
+        Some(e) => format!("over zenoh through {e}"),
+        None => "on this host".to_string(),
+    }
+}
+
+/// The graph an observer of `topics` joins: `namespace`, or the only one alive; and the topics
+/// to take there: `topics`, each alive there, or (none given) every topic alive there. An error
+/// says what is alive instead: no graph, several graphs, a topic not alive or not a topic.
+pub fn find_graph(
+    namespace: Option<&str>,
+    zenoh: Option<&str>,
+    topics: &[String],
+) -> anyhow::Result<(Target, Vec<String>)> {
+    use anyhow::bail;
+    let place = place_text(zenoh);
+    let all = live_topics_at(zenoh, None)?;
+    let namespace = match namespace {
+        Some(ns) => ns.to_string(),
+        None => {
+            let mut names: Vec<&str> = all.iter().map(|t| t.namespace.as_str()).collect();
+            names.dedup();
+            match names.as_slice() {
+                [] => bail!("no Deep Contact topics alive {place}: no graph is running there"),
+                [one] => one.to_string(),
+                many => bail!("several graphs are running {place}: say which with --namespace ({})", many.join(", ")),
+            }
+        }
+    };
+    let alive: Vec<String> = all.iter().filter(|t| t.namespace == namespace).map(|t| t.topic.clone()).collect();
+    if alive.is_empty() {
+        bail!("no topics alive in namespace `{namespace}` {place}: is its graph running?");
+    }
+    if let Some(topic) = topics.iter().find(|t| !alive.contains(t)) {
+        let what = if msgs::topics::info(topic).is_some() { "is not alive" } else { "is not a Deep Contact topic" };
+        bail!("topic `{topic}` {what} in namespace `{namespace}` (alive: {})", alive.join(", "));
+    }
+    let topics = if topics.is_empty() { alive } else { topics.to_vec() };
+    Ok((Target { namespace, zenoh: zenoh.map(str::to_string) }, topics))
+}
+
 /// What an observer is asked to take.
 #[derive(Debug, Clone)]
 pub struct ObserveOptions {
@@ -234,15 +289,7 @@ fn tap(node: &Node, index: usize, topic: &str, encode: bool) -> anyhow::Result<B
     ) -> Result<Box<dyn Tap>> {
         Ok(Box::new(Typed { index, sub: node.subscriber_named::<H, T>(topic)?, undecodable: 0, encode }))
     }
-    Ok(match kind {
-        FrameKind::Bodies => typed::<msgs::StepHeader, msgs::Body>(node, index, topic, encode)?,
-        FrameKind::Contacts => typed::<msgs::StepHeader, msgs::Contact>(node, index, topic, encode)?,
-        FrameKind::Grid => typed::<msgs::GridHeader, f32>(node, index, topic, encode)?,
-        FrameKind::SolveStats => typed::<msgs::SolveStatsHeader, f32>(node, index, topic, encode)?,
-        FrameKind::Control => typed::<msgs::Control, u8>(node, index, topic, encode)?,
-        FrameKind::ProblemBodies => typed::<msgs::StepHeader, msgs::ProblemBody>(node, index, topic, encode)?,
-        FrameKind::ProblemContacts => typed::<msgs::ProblemHeader, msgs::ProblemContact>(node, index, topic, encode)?,
-    })
+    Ok(msgs::with_frame_types!(kind, typed(node, index, topic, encode))?)
 }
 
 /// Watches the writers of the observed iceoryx2 topics: once some were seen, none left for a
@@ -272,13 +319,14 @@ impl WriterWatch {
         }
     }
 
-    fn all_gone(&mut self) -> bool {
+    fn all_gone(&mut self, node: &Node) -> bool {
         let Some(ns) = &self.namespace else { return false };
         if self.last_check.elapsed() < WRITER_CHECK {
             return false;
         }
         self.last_check = Instant::now();
-        let Ok(live) = crate::live_topics(Some(ns)) else { return false };
+        // Through the observer's own iceoryx2 node: no node made and removed every check.
+        let Ok(live) = node.iox().and_then(|iox| crate::iox::live_topics_on(iox, Some(ns))) else { return false };
         let writers: usize =
             live.iter().filter(|t| &t.namespace == ns && self.topics.contains(&t.topic)).map(|t| t.writers).sum();
         if writers > 0 {
@@ -341,7 +389,7 @@ fn run(
         }
     };
     while !shutdown.is_set() && !node.is_shutdown() {
-        if writers.all_gone() {
+        if writers.all_gone(&node) {
             tracing::debug!("the observed topics have no writers left: the graph ended");
             graph_gone.store(true, Ordering::Relaxed);
             shutdown.set();

@@ -201,25 +201,14 @@ impl<H: FrameHeader + HasStep, T: FrameItem> RecordedTopic for Typed<H, T> {
 fn subscribe(node: &runtime::Node, topic: &str) -> anyhow::Result<Box<dyn RecordedTopic>> {
     let kind = FrameKind::of_topic(topic)
         .with_context(|| format!("unknown topic `{topic}` (known: {})", msgs::topics::names_list()))?;
-    Ok(match kind {
-        FrameKind::Bodies => {
-            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::Body>(topic)? })
-        }
-        FrameKind::Contacts => {
-            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::Contact>(topic)? })
-        }
-        FrameKind::Grid => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::GridHeader, f32>(topic)? }),
-        FrameKind::SolveStats => {
-            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::SolveStatsHeader, f32>(topic)? })
-        }
-        FrameKind::Control => Box::new(Typed { kind, sub: node.subscriber_named::<msgs::Control, u8>(topic)? }),
-        FrameKind::ProblemBodies => {
-            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::StepHeader, msgs::ProblemBody>(topic)? })
-        }
-        FrameKind::ProblemContacts => {
-            Box::new(Typed { kind, sub: node.subscriber_named::<msgs::ProblemHeader, msgs::ProblemContact>(topic)? })
-        }
-    })
+    fn typed<H: FrameHeader + HasStep, T: FrameItem>(
+        node: &runtime::Node,
+        topic: &str,
+        kind: FrameKind,
+    ) -> anyhow::Result<Box<dyn RecordedTopic>> {
+        Ok(Box::new(Typed { kind, sub: node.subscriber_named::<H, T>(topic)? }))
+    }
+    msgs::with_frame_types!(kind, typed(node, topic, kind))
 }
 
 /// One open recording file.

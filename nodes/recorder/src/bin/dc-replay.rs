@@ -121,19 +121,13 @@ impl<H: FrameHeader, T: FrameItem> ReplayedTopic for Typed<H, T> {
 }
 
 fn publisher(node: &runtime::Node, kind: FrameKind, topic: &str) -> anyhow::Result<Box<dyn ReplayedTopic>> {
-    Ok(match kind {
-        FrameKind::Bodies => Box::new(Typed(node.publisher_named::<msgs::StepHeader, msgs::Body>(topic)?)),
-        FrameKind::Contacts => Box::new(Typed(node.publisher_named::<msgs::StepHeader, msgs::Contact>(topic)?)),
-        FrameKind::Grid => Box::new(Typed(node.publisher_named::<msgs::GridHeader, f32>(topic)?)),
-        FrameKind::SolveStats => Box::new(Typed(node.publisher_named::<msgs::SolveStatsHeader, f32>(topic)?)),
-        FrameKind::Control => Box::new(Typed(node.publisher_named::<msgs::Control, u8>(topic)?)),
-        FrameKind::ProblemBodies => {
-            Box::new(Typed(node.publisher_named::<msgs::StepHeader, msgs::ProblemBody>(topic)?))
-        }
-        FrameKind::ProblemContacts => {
-            Box::new(Typed(node.publisher_named::<msgs::ProblemHeader, msgs::ProblemContact>(topic)?))
-        }
-    })
+    fn typed<H: FrameHeader, T: FrameItem>(
+        node: &runtime::Node,
+        topic: &str,
+    ) -> anyhow::Result<Box<dyn ReplayedTopic>> {
+        Ok(Box::new(Typed(node.publisher_named::<H, T>(topic)?)))
+    }
+    msgs::with_frame_types!(kind, typed(node, topic))
 }
 
 fn main() -> std::process::ExitCode {
@@ -163,15 +157,19 @@ fn try_main() -> anyhow::Result<()> {
             }
         }
     }
-    let mut node = runtime::Node::from_env("dc-replay")?;
-    if let Some(ns) = &args.namespace {
-        if std::env::var("DC_BUS").is_ok() {
-            tracing::warn!(namespace = %ns, "--namespace ignored: a launched node publishes in its graph's namespace");
-        } else {
+    let node = match &args.namespace {
+        // From a terminal: this namespace. A launched node publishes in its graph's.
+        Some(ns) if std::env::var_os("DC_BUS").is_none() => {
             let bus = runtime::BusConfig { namespace: ns.clone(), queue_depth: 16, ..Default::default() };
-            node = runtime::Node::new(node.name().to_string(), bus, false);
+            runtime::Node::new("dc-replay", bus, false)
         }
-    }
+        ns => {
+            if let Some(ns) = ns {
+                tracing::warn!(namespace = %ns, "--namespace ignored: a launched node publishes in its graph's namespace");
+            }
+            runtime::Node::from_env("dc-replay")?
+        }
+    };
     let mut pubs: HashMap<String, Box<dyn ReplayedTopic>> = HashMap::new();
     for (topic, kind) in &channels {
         if wanted(topic) {

@@ -4,10 +4,10 @@
 //! so a slow disk drops frames (counted) instead of stalling the simulator, unless `--reliable`.
 //! It stops on Ctrl-C, after `--duration`, or when the graph ends, with the file finished.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use msgs::ControlKind;
 use recorder::{FrameKind, RecordingWriter};
-use runtime::observe::{Event, ObserveOptions, Observer, Target};
+use runtime::observe::{Event, ObserveOptions, Observer};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -30,41 +30,9 @@ pub struct Attach<'a> {
 /// Frames the hand-over queue holds before the recorder drops (a 10,000-body frame is 480 KB).
 const QUEUE_FRAMES: usize = 1024;
 
-/// The namespace to attach to and the topics to record there: the given ones (each must be a
-/// topic of the table), or every topic alive.
-fn resolve(a: &Attach) -> Result<(String, Vec<String>)> {
-    for t in a.topics {
-        if msgs::topics::info(t).is_none() {
-            bail!("unknown topic `{t}` (known: {})", msgs::topics::names_list());
-        }
-    }
-    let live = match a.zenoh {
-        Some(e) => runtime::live_topics_zenoh(e, None, Duration::from_secs(2)).map_err(anyhow::Error::msg)?,
-        None => runtime::live_topics(None)?,
-    };
-    let mut namespaces: Vec<&str> = live.iter().map(|t| t.namespace.as_str()).collect();
-    namespaces.dedup();
-    let namespace = match (a.namespace, namespaces.as_slice()) {
-        (Some(ns), _) => ns.to_string(),
-        (None, [one]) => one.to_string(),
-        (None, []) => bail!("no graph is running (no Deep Contact topic alive): nothing to record"),
-        (None, many) => bail!("several graphs are running: say which with --namespace ({})", many.join(", ")),
-    };
-    let alive: Vec<String> = live.iter().filter(|t| t.namespace == namespace).map(|t| t.topic.clone()).collect();
-    if alive.is_empty() {
-        bail!("no topics alive in namespace `{namespace}`: is its graph running?");
-    }
-    if a.topics.is_empty() {
-        return Ok((namespace, alive));
-    }
-    if let Some(missing) = a.topics.iter().find(|t| !alive.contains(t)) {
-        bail!("topic `{missing}` is not alive in namespace `{namespace}` (alive: {})", alive.join(", "));
-    }
-    Ok((namespace, a.topics.to_vec()))
-}
-
 pub fn record(a: &Attach) -> Result<()> {
-    let (namespace, topics) = resolve(a)?;
+    let (target, topics) = runtime::observe::find_graph(a.namespace, a.zenoh, a.topics)?;
+    let namespace = target.namespace.clone();
     let path = match a.out {
         Some(p) => p.to_path_buf(),
         None => {
@@ -74,7 +42,7 @@ pub fn record(a: &Attach) -> Result<()> {
     };
     let mut writer = if a.overwrite { RecordingWriter::create(&path)? } else { RecordingWriter::create_new(&path)? };
     let kinds: Vec<FrameKind> =
-        topics.iter().map(|t| FrameKind::of_topic(t).expect("checked by resolve")).collect::<Vec<_>>();
+        topics.iter().map(|t| FrameKind::of_topic(t).expect("alive topics are known ones")).collect::<Vec<_>>();
     for (t, k) in topics.iter().zip(&kinds) {
         writer.add_channel(t, *k)?;
     }
@@ -85,7 +53,7 @@ pub fn record(a: &Attach) -> Result<()> {
     writer.write_metadata("dc-record", meta)?;
 
     let mut observer = Observer::start(ObserveOptions {
-        target: Target { namespace: namespace.clone(), zenoh: a.zenoh.map(str::to_string) },
+        target,
         topics: topics.clone(),
         encode: true,
         capacity: QUEUE_FRAMES,
