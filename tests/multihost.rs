@@ -281,10 +281,17 @@ fn a_two_host_graph_over_zenoh_matches_the_one_host_run_step_for_step() {
     assert_eq!(report_steps(&tls), one_steps, "over TLS: the same sweeps, step for step");
 }
 
-/// A free TCP port on loopback (the launchers of both "hosts" must agree on it, so it is fixed
-/// in the file rather than picked by each).
+/// A loopback port for a host's `zenoh_port` (the launchers of both "hosts" must agree on it,
+/// so it is fixed in the file rather than picked by each). Never one bound to 0 and released:
+/// another process's system-given port could take it before the launchers bind it (seen: a
+/// sink's "Address already in use"). Instead a block of 8 (nodes listen on `zenoh_port + i`)
+/// below the system's ephemeral range (32768 up), where system-given ports never land, one
+/// block per call in this process, blocks of different test processes apart by process id.
 fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+    static CALLS: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed) % 16;
+    let slot = (std::process::id() % 100) as u16 * 16 + call;
+    18_000 + slot * 8
 }
 
 #[test]
