@@ -10,6 +10,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
+mod bench_bus;
 mod bench_observe;
 mod topic;
 
@@ -193,15 +194,9 @@ enum BenchWhat {
     /// What watching a running graph costs its simulator: throughput alone and with
     /// `dc topic echo | hz | bw` and `dc record -a` attached.
     Observe(bench_observe::ObserveBenchArgs),
-    /// One-way latency and throughput of iceoryx2, zenoh and an in-process channel.
-    Bus {
-        /// Frames in the throughput phase.
-        #[arg(long, default_value_t = 300)]
-        count: u32,
-        /// Frames in the latency phase.
-        #[arg(long, default_value_t = 300)]
-        latency_count: u32,
-    },
+    /// One-way latency and throughput of an in-process channel, iceoryx2 and zenoh used
+    /// directly (raw), and our bus over each, with the ratios of ours to raw.
+    Bus(bench_bus::BusBenchArgs),
 }
 
 fn main() {
@@ -277,7 +272,7 @@ fn real_main(cli: Cli) -> Result<()> {
             TopicWhat::Bw(args) => topic::rate(&args, topic::Figure::Bw),
         },
         Command::Eval(args) => eval(args),
-        Command::Bench { what: BenchWhat::Bus { count, latency_count } } => bench_bus(count, latency_count),
+        Command::Bench { what: BenchWhat::Bus(args) } => bench_bus::run(&args, &interrupt_flag()),
         Command::Bench { what: BenchWhat::Observe(args) } => bench_observe::run(&args),
         Command::Bench { what: BenchWhat::Loop { seeds, steps, n, unet_model, repeat } } => {
             bench_loop(&seeds, steps, n, &unet_model, repeat.max(1))
@@ -355,56 +350,6 @@ fn print_graph(graph: &Graph, only: Option<&str>) -> Result<()> {
         let links = if r.links.is_empty() { "no link".to_string() } else { r.links.join("; ") };
         let qos = if plan.best_effort.contains(&r.topic) { "best-effort" } else { "reliable" };
         println!("  {:<14} {} -> {}  [{links}] {qos}", r.topic, show(&r.writers), show(&r.readers));
-    }
-    Ok(())
-}
-
-fn bench_bus(count: u32, latency_count: u32) -> Result<()> {
-    let program = find_binary("dc-bench-bus").context("dc-bench-bus not built (cargo build --workspace)")?;
-    let payloads: [(&str, Vec<String>); 3] = [
-        ("100 bodies", vec!["--kind=bodies".into(), "--n=100".into()]),
-        ("10,000 bodies", vec!["--kind=bodies".into(), "--n=10000".into()]),
-        ("grid 7x128x128", vec!["--kind=grid".into()]),
-    ];
-    let common = [format!("--count={count}"), format!("--latency-count={latency_count}")];
-    let flag = interrupt_flag();
-    println!(
-        "{:<16} {:<10} {:>10} {:>10} {:>12} {:>10}",
-        "payload", "transport", "p50 us", "p99 us", "frames/s", "MB/s"
-    );
-    for (label, kind_args) in &payloads {
-        let mut results = Vec::new();
-        for transport in ["inproc", "iceoryx2", "zenoh"] {
-            let mut args = kind_args.clone();
-            args.extend(common.iter().cloned());
-            args.push(format!("--label={transport}"));
-            let line = if transport == "inproc" {
-                let out = std::process::Command::new(&program).arg("--role=inproc").args(&args).output()?;
-                if !out.status.success() {
-                    bail!("in-process bench failed: {}", String::from_utf8_lossy(&out.stderr));
-                }
-                String::from_utf8_lossy(&out.stdout).lines().last().unwrap_or_default().to_string()
-            } else {
-                let graph = bench_graph(&args, transport == "zenoh")?;
-                let report = supervisor::run(&graph, DEFAULT_HOST, Output::Capture, &flag)?;
-                report.stdout.get("sink").and_then(|l| l.last().cloned()).context("sink printed no result")?
-            };
-            let r: bench_bus::BenchResult =
-                serde_json::from_str(&line).with_context(|| format!("bad result line `{line}`"))?;
-            println!(
-                "{:<16} {:<10} {:>10.1} {:>10.1} {:>12.0} {:>10.1}",
-                label, transport, r.p50_us, r.p99_us, r.frames_per_s, r.mb_per_s
-            );
-            results.push(r);
-        }
-        println!(
-            "{:<16} ratios vs in-process: p50 iceoryx2 {:.2}x, zenoh {:.2}x; throughput iceoryx2 {:.2}x, zenoh {:.2}x",
-            "",
-            results[1].p50_us / results[0].p50_us,
-            results[2].p50_us / results[0].p50_us,
-            results[1].frames_per_s / results[0].frames_per_s,
-            results[2].frames_per_s / results[0].frames_per_s,
-        );
     }
     Ok(())
 }
@@ -522,23 +467,6 @@ fn loop_graph(
     if zenoh {
         for t in msgs::topics::names() {
             graph.topics.insert(t.to_string(), Transport::Zenoh);
-        }
-    }
-    Ok(graph)
-}
-
-/// A two-node graph (source -> sink) over one transport, in its own namespace.
-fn bench_graph(args: &[String], zenoh: bool) -> Result<Graph> {
-    let node = |role: &str| {
-        let args = std::iter::once(format!("--role={role}")).chain(args.iter().cloned()).collect();
-        NodeSpec::new(role, "dc-bench-bus", false, args)
-            .with_env("RUST_LOG", "warn,zenoh::net::runtime::orchestrator=error")
-    };
-    let mut graph = Graph::single_host("bench-bus", &unique_namespace("bench"), vec![node("sink"), node("source")])?;
-    graph.check_params()?;
-    if zenoh {
-        for t in [msgs::topics::BENCH_BODIES.name, msgs::topics::BENCH_GRID.name] {
-            graph.topics.insert(t.into(), Transport::Zenoh);
         }
     }
     Ok(graph)

@@ -134,8 +134,8 @@ impl NamespaceLock {
 pub enum Output {
     /// Print `[node] line` on our stdout / stderr.
     Forward,
-    /// Keep every stdout line per node instead of printing it (for `dc bench`); stderr is
-    /// still forwarded.
+    /// Keep every stdout line per node instead of printing it (for `dc bench`, whose output is
+    /// a table: the start notices are not printed either); stderr is still forwarded.
     Capture,
     /// Hand every line to a watcher (a progress display) instead of printing it; only
     /// warnings, errors and lines that are not log records are printed (`[node] line` on
@@ -636,10 +636,11 @@ impl<'a> Supervisor<'a> {
         let mut child = cmd.spawn().map_err(|e| RunError::Spawn { node: spec.name.clone(), what: e.to_string() })?;
         let watcher = match &self.output {
             Output::Watch(w) => Some((spec.name.clone(), w.clone())),
-            Output::Forward | Output::Capture => {
+            Output::Forward => {
                 eprintln!("[dc] node `{}` started (pid {})", spec.name, child.id());
                 None
             }
+            Output::Capture => None,
         };
         let prefix = format!("[{:width$}]", spec.name, width = self.width);
         let forward = matches!(self.output, Output::Forward);

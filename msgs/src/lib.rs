@@ -20,7 +20,9 @@ pub mod problem;
 mod stats;
 pub mod topics;
 
-pub use codec::{decode, decode_header, encode, encode_into, CodecError, OLDEST_WIRE_VERSION, WIRE_VERSION};
+pub use codec::{
+    decode, decode_header, decode_reader, encode, encode_into, CodecError, OLDEST_WIRE_VERSION, WIRE_VERSION,
+};
 pub use control::{ControlDetails, DetailsError, NodeNotice, RunParams, RunSummary, SceneInfo};
 pub use names::id_text;
 pub use problem::{ProblemBodies, ProblemBody, ProblemContact, ProblemContacts, ProblemHeader};

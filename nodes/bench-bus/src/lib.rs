@@ -53,6 +53,9 @@ pub fn fill_grid(seq: u32, values: &mut [f32]) {
     }
 }
 
+/// Values of the bench grid.
+pub const GRID_LEN: usize = GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize;
+
 /// The bench grid's header for a frame.
 pub fn grid_header(step: StepHeader) -> GridHeader {
     msgs::Grid::zeros(step, [0.0, 0.0], 0.125, 0, 0, &GRID_CHANNELS).header.with_size(GRID_SIDE, GRID_SIDE)

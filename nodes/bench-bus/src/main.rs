@@ -3,12 +3,16 @@
 //! Roles: `source` publishes, `sink` receives, verifies and measures; `inproc` runs both as threads
 //! over a channel (the floor of the benchmark). In `--verify` mode every frame's contents are
 //! checked bit for bit, in order, none lost; otherwise the sink prints one JSON [`BenchResult`] line.
+//! `--raw` sends the same frames through iceoryx2's or zenoh's own API instead of `runtime`'s
+//! ports (the baseline our layer is measured against, see `raw`).
+
+mod raw;
 
 use anyhow::{bail, Context, Result};
 use bench_bus::*;
 use charts::quantile_nearest_rank;
 use clap::{Parser, ValueEnum};
-use msgs::{topics, Body, StepHeader};
+use msgs::{topics, Body, GridHeader, StepHeader};
 use runtime::Node;
 use std::time::{Duration, Instant};
 
@@ -67,6 +71,10 @@ struct Args {
     /// holds the publisher back once its queue is full, on a best-effort one it must not).
     #[arg(long)]
     stall: bool,
+    /// Use the transport's own API (iceoryx2 or zenoh, as the launcher routes the topic) instead
+    /// of the runtime's ports: the raw baseline.
+    #[arg(long)]
+    raw: bool,
 }
 
 /// Header of frame `seq` of `phase` (0 latency, 1 throughput).
@@ -92,6 +100,12 @@ fn try_main() -> Result<()> {
     }
     std::thread::sleep(Duration::from_millis(args.create_delay_ms));
     let node = Node::from_env("dc-bench-bus")?;
+    // Described (`DC_DESCRIBE`), a raw node names the runtime's ports below: the launcher then
+    // plans the same graph (routes, zenoh router) for both.
+    let describing = std::env::var("DC_DESCRIBE").is_ok_and(|v| v == "1");
+    if args.raw && !describing {
+        return raw_run(&node, &args);
+    }
     match (args.role, args.kind) {
         (Role::Source, Kind::Bodies) => {
             let mut p =
@@ -101,12 +115,12 @@ fn try_main() -> Result<()> {
             }
             source(&node, &args, |h, seq, garbage| {
                 if garbage {
-                    return p.publish_encoded(b"\xa3\x61v\x01\x61h\xff garbage");
+                    return Ok(p.publish_encoded(b"\xa3\x61v\x01\x61h\xff garbage")?);
                 }
-                p.publish_with(args.n, |header, b| {
+                Ok(p.publish_with(args.n, |header, b| {
                     fill_bodies(seq, b);
                     *header = stamped(h);
-                })
+                })?)
             })
         }
         (Role::Source, Kind::Grid) => {
@@ -115,15 +129,14 @@ fn try_main() -> Result<()> {
             if !node.ready()? {
                 return Ok(());
             }
-            let len = GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize;
             source(&node, &args, |h, seq, garbage| {
                 if garbage {
-                    return p.publish_encoded(&[0xff; 40]);
+                    return Ok(p.publish_encoded(&[0xff; 40])?);
                 }
-                p.publish_with(len, |header, v| {
+                Ok(p.publish_with(GRID_LEN, |header, v| {
                     fill_grid(seq, v);
                     *header = grid_header(stamped(h));
-                })
+                })?)
             })
         }
         (Role::Sink, Kind::Bodies) => {
@@ -165,7 +178,7 @@ fn try_main() -> Result<()> {
             if args.stall {
                 return stall(&node);
             }
-            let mut expected = vec![0f32; GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize];
+            let mut expected = vec![0f32; GRID_LEN];
             let errors = std::cell::Cell::new(0);
             sink(
                 &args,
@@ -190,6 +203,90 @@ fn try_main() -> Result<()> {
     }
 }
 
+/// The raw baseline's source or sink (see `raw`).
+fn raw_run(node: &Node, args: &Args) -> Result<()> {
+    if args.garbage_every > 0 || args.stall {
+        bail!("--garbage-every and --stall test the runtime's ports, not --raw");
+    }
+    let topic = args.topic.as_deref().unwrap_or(match args.kind {
+        Kind::Bodies => topics::BENCH_BODIES.name,
+        Kind::Grid => topics::BENCH_GRID.name,
+    });
+    match (args.role, args.kind) {
+        (Role::Source, Kind::Bodies) => raw_source::<StepHeader, Body>(node, args, topic, args.n, fill_bodies, |h| h),
+        (Role::Source, Kind::Grid) => {
+            raw_source::<GridHeader, f32>(node, args, topic, GRID_LEN, fill_grid, grid_header)
+        }
+        (Role::Sink, Kind::Bodies) => {
+            let mut expected = vec![Body::default(); args.n];
+            raw_sink::<StepHeader, Body>(
+                node,
+                args,
+                topic,
+                |h| *h,
+                |h, items| {
+                    fill_bodies(h.step, &mut expected);
+                    items == bytemuck::cast_slice::<Body, u8>(&expected)
+                },
+            )
+        }
+        (Role::Sink, Kind::Grid) => {
+            let mut expected = vec![0f32; GRID_LEN];
+            raw_sink::<GridHeader, f32>(
+                node,
+                args,
+                topic,
+                |h| h.step,
+                |h, items| {
+                    fill_grid(h.step.step, &mut expected);
+                    *h == grid_header(h.step) && items == bytemuck::cast_slice::<f32, u8>(&expected)
+                },
+            )
+        }
+        (Role::Inproc, _) => unreachable!("handled before"),
+    }
+}
+
+fn raw_source<H: msgs::FrameHeader, T: msgs::FrameItem>(
+    node: &Node,
+    args: &Args,
+    topic: &str,
+    len: usize,
+    fill: impl Fn(u32, &mut [T]),
+    header: impl Fn(StepHeader) -> H,
+) -> Result<()> {
+    let mut publisher = raw::RawPublisher::<H, T>::new(node, topic, len)?;
+    if !node.ready()? {
+        return Ok(());
+    }
+    publisher.wait_for_subscriber(Duration::from_secs_f64(args.timeout_s))?;
+    source(node, args, |h, seq, _| publisher.send(len, |items| fill(seq, items), || header(stamped(h))))?;
+    publisher.wait_until_unsubscribed(|| node.is_shutdown())
+}
+
+fn raw_sink<H: msgs::FrameHeader, T: msgs::FrameItem>(
+    node: &Node,
+    args: &Args,
+    topic: &str,
+    step_of: impl Fn(&H) -> StepHeader,
+    mut same: impl FnMut(&H, &[u8]) -> bool,
+) -> Result<()> {
+    let subscriber = raw::RawSubscriber::<H, T>::new(node, topic)?;
+    if !node.ready()? {
+        return Ok(());
+    }
+    sink(
+        args,
+        frame_bytes(args),
+        |timeout| {
+            let got = subscriber.recv_timeout(timeout, |h, items| !args.verify || same(h, items))?;
+            Ok(got.map(|(h, ok)| (step_of(&h), ok)))
+        },
+        || 0,
+        || node.is_shutdown(),
+    )
+}
+
 /// Holds its subscription without reading until the node is stopped.
 fn stall(node: &Node) -> Result<()> {
     tracing::info!("stalling: subscribed, never reading");
@@ -200,13 +297,13 @@ fn stall(node: &Node) -> Result<()> {
 fn frame_bytes(args: &Args) -> usize {
     match args.kind {
         Kind::Bodies => args.n * std::mem::size_of::<Body>(),
-        Kind::Grid => GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize * 4,
+        Kind::Grid => GRID_LEN * 4,
     }
 }
 
 /// Publishes the latency phase (paced) then the throughput phase (back to back); in verify mode
 /// only `count` frames back to back.
-fn source(node: &Node, args: &Args, mut send: impl FnMut(StepHeader, u32, bool) -> runtime::Result<()>) -> Result<()> {
+fn source(node: &Node, args: &Args, mut send: impl FnMut(StepHeader, u32, bool) -> Result<()>) -> Result<()> {
     if !args.verify {
         for seq in 0..args.latency_count {
             send(header(0, seq), seq, false)?;
@@ -232,7 +329,7 @@ fn source(node: &Node, args: &Args, mut send: impl FnMut(StepHeader, u32, bool) 
 fn sink(
     args: &Args,
     bytes: usize,
-    mut recv: impl FnMut(Duration) -> runtime::Result<Option<(StepHeader, bool)>>,
+    mut recv: impl FnMut(Duration) -> Result<Option<(StepHeader, bool)>>,
     decode_errors: impl Fn() -> u64,
     stopped: impl Fn() -> bool,
 ) -> Result<()> {
@@ -330,7 +427,7 @@ fn inproc(args: &Args) -> Result<()> {
                     Payload::Bodies(b)
                 }
                 Kind::Grid => {
-                    let mut v = vec![0f32; GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize];
+                    let mut v = vec![0f32; GRID_LEN];
                     fill_grid(seq, &mut v);
                     Payload::Grid(v)
                 }
@@ -348,7 +445,7 @@ fn inproc(args: &Args) -> Result<()> {
         }
     });
     let mut expected_b = vec![Body::default(); n];
-    let mut expected_g = vec![0f32; GRID_CHANNELS.len() * (GRID_SIDE * GRID_SIDE) as usize];
+    let mut expected_g = vec![0f32; GRID_LEN];
     let result = sink(
         args,
         frame_bytes(args),

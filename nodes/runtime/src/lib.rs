@@ -539,6 +539,13 @@ fn say(marker: &str) -> Result<()> {
     out.flush().map_err(|e| Error::Launcher(e.to_string()))
 }
 
+/// A zenoh session configured as a node's would be from `config` (its endpoints, mode, TLS;
+/// no multicast scouting), for a process that uses zenoh's API directly (the bus benchmark's raw
+/// baseline).
+pub fn open_zenoh_session(config: &ZenohConfig) -> std::result::Result<zenoh::Session, String> {
+    zen::open_session(config)
+}
+
 /// Set by Ctrl-C / SIGTERM.
 static SIGNALLED: AtomicBool = AtomicBool::new(false);
 

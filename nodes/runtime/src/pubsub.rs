@@ -232,7 +232,16 @@ impl<H: FrameHeader, T: FrameItem> Subscriber<H, T> {
     }
 
     fn decode(&mut self, sample: &zenoh::sample::Sample) -> Option<Frame<H, T>> {
-        let bytes = sample.payload().to_bytes();
+        let payload = sample.payload();
+        // A large frame arrives in pieces (zenoh's fragments): read across them, copying the
+        // items once; a frame in one piece is decoded in place.
+        let mut pieces = payload.slices();
+        if let (Some(_), Some(_)) = (pieces.next(), pieces.next()) {
+            if let Some(frame) = msgs::decode_reader::<H, T>(payload.reader()) {
+                return Some(frame);
+            }
+        }
+        let bytes = payload.to_bytes();
         match msgs::decode::<H, T>(&bytes) {
             Ok(frame) => Some(frame),
             Err(source) => {

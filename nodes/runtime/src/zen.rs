@@ -32,6 +32,10 @@ pub const WRITERS: &str = "_writers";
 /// Tells the ports (and their tokens) of one session apart.
 static PORT_COUNT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
+/// Room for a frame's CBOR envelope and header (a grid header with its channel names is the
+/// largest, ~200 bytes) beside its items.
+const ENVELOPE_BYTES: usize = 512;
+
 /// How long a client session waits for the graph's zenoh router before failing.
 const CLIENT_CONNECT_TIMEOUT: Duration = Duration::from_secs(120);
 
@@ -89,7 +93,6 @@ pub(crate) struct ZenPublisher {
     /// Subscribers the launcher planned over zenoh (0: unknown, wait for any match).
     readers: usize,
     matched: bool,
-    buffer: Vec<u8>,
     /// Announces the publisher (see [`WRITERS`]); undeclared when dropped.
     _token: zenoh::liveliness::LivelinessToken,
 }
@@ -125,7 +128,6 @@ impl ZenPublisher {
             key: key.to_string(),
             readers,
             matched: false,
-            buffer: Vec::new(),
         })
     }
 
@@ -133,9 +135,11 @@ impl ZenPublisher {
         if !self.matched {
             self.wait_for_match();
         }
-        msgs::encode_into(header, items, &mut self.buffer)
+        // Encoded into a buffer that zenoh takes over: a buffer of ours would be copied again.
+        let mut bytes = Vec::with_capacity(ENVELOPE_BYTES + std::mem::size_of_val(items));
+        msgs::encode_into(header, items, &mut bytes)
             .map_err(|source| Error::Codec { topic: self.topic.clone(), source })?;
-        self.publisher.put(self.buffer.as_slice()).wait().map_err(|e| err(&self.topic, format!("put: {e}")))
+        self.publisher.put(bytes).wait().map_err(|e| err(&self.topic, format!("put: {e}")))
     }
 
     /// Puts an already encoded payload as it is.
