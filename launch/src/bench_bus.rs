@@ -15,7 +15,8 @@ use std::path::PathBuf;
 /// Options of `dc bench bus`.
 #[derive(clap::Args, Debug)]
 pub struct BusBenchArgs {
-    /// Frames in the throughput phase.
+    /// Frames in the throughput phase (100 bodies: 100 times as many, so that the phase lasts
+    /// long enough to time).
     #[arg(long, default_value_t = 300)]
     count: u32,
     /// Frames in the latency phase.
@@ -61,23 +62,25 @@ impl Variant {
 
 pub fn run(args: &BusBenchArgs, interrupted: &std::sync::Arc<std::sync::atomic::AtomicBool>) -> Result<()> {
     let program = find_binary("dc-bench-bus").context("dc-bench-bus not built (cargo build --workspace)")?;
-    let payloads: [(&str, Vec<String>); 3] = [
-        ("100 bodies", vec!["--kind=bodies".into(), "--n=100".into()]),
-        ("10,000 bodies", vec!["--kind=bodies".into(), "--n=10000".into()]),
-        ("grid 7x128x128", vec!["--kind=grid".into()]),
+    let payloads: [(&str, Vec<String>, u32); 3] = [
+        ("100 bodies", vec!["--kind=bodies".into(), "--n=100".into()], 100),
+        ("10,000 bodies", vec!["--kind=bodies".into(), "--n=10000".into()], 1),
+        ("grid 7x128x128", vec!["--kind=grid".into()], 1),
     ];
-    let common = [format!("--count={}", args.count), format!("--latency-count={}", args.latency_count)];
     let repeat = args.repeat.max(1);
     println!(
-        "one-way latency (p50, p99 of {} paced frames) and throughput ({} frames back to back); median of {repeat} runs",
-        args.latency_count, args.count
+        "one-way latency (p50, p99 of {} paced frames) and throughput ({} frames back to back, 100 bodies {}); median of {repeat} runs",
+        args.latency_count,
+        args.count,
+        args.count * 100
     );
     println!(
         "{:<16} {:<14} {:>10} {:>10} {:>12} {:>10}",
         "payload", "transport", "p50 us", "p99 us", "frames/s", "MB/s"
     );
     let mut csv = String::from("payload,transport,p50_us,p99_us,frames_per_s,mb_per_s,p50_vs_raw,throughput_vs_raw\n");
-    for (label, kind_args) in &payloads {
+    for (label, kind_args, more) in &payloads {
+        let common = [format!("--count={}", args.count * more), format!("--latency-count={}", args.latency_count)];
         let mut runs: Vec<Vec<BenchResult>> = vec![Vec::new(); Variant::ALL.len()];
         for _ in 0..repeat {
             for (i, variant) in Variant::ALL.into_iter().enumerate() {
