@@ -179,3 +179,63 @@ params = { role = "source", kind = "bodies", n = 100, count = 60, verify = true,
     let r = sink_result(&String::from_utf8_lossy(&out.stdout), "late-sink");
     assert_eq!(r["decode_errors"], 0, "{r}");
 }
+
+/// The raw baseline (`--raw`: the transports' own APIs) carries the same frames as the runtime's
+/// ports: every one arrives bit-identical and in order, over iceoryx2 and over zenoh, so the
+/// benchmark compares like with like.
+#[test]
+fn the_raw_baseline_carries_the_same_frames_over_both_transports() {
+    for zenoh in [false, true] {
+        let topics = if zenoh { "[topics]\n\"bench/bodies\" = \"zenoh\"\n\"bench/grid\" = \"zenoh\"\n" } else { "" };
+        let pair = |kind: &str, n: usize, count: u32| {
+            (["sink", "source"].map(|role| {
+                format!(
+                    "[[nodes]]\nname = \"{kind}-{role}\"\nbinary = \"dc-bench-bus\"\nparams = {{ role = \"{role}\", kind = \"{kind}\", n = {n}, count = {count}, verify = true, raw = true }}\n"
+                )
+            }))
+            .join("\n")
+        };
+        let graph = format!("{topics}\n{}\n{}", pair("bodies", N, BODY_FRAMES), pair("grid", N, GRID_FRAMES));
+        let test = if zenoh { "raw-zenoh" } else { "raw-iox" };
+        let (_, out) = launch(test, &graph, &[]);
+        assert!(out.status.success(), "{test}: {}", text(&out));
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert_eq!(sink_result(&stdout, "bodies-sink")["verified"], BODY_FRAMES, "{test}");
+        assert_eq!(sink_result(&stdout, "grid-sink")["verified"], GRID_FRAMES, "{test}");
+    }
+}
+
+/// `dc bench bus --csv`: a row per payload and transport (in-process, raw and ours over
+/// iceoryx2 and zenoh) with positive figures, and the ours/raw ratios on our rows only. Figures
+/// are not judged here (they are the benchmark's to print).
+#[test]
+fn bench_bus_writes_every_case_and_the_ratios_to_raw() {
+    let csv = scratch_dir("bench-bus-csv").join("bench-bus.csv");
+    let out = std::process::Command::new(deep_contact::bin("dc"))
+        .args(["bench", "bus", "--repeat", "1", "--count", "20", "--latency-count", "20", "--csv"])
+        .arg(&csv)
+        .output()
+        .expect("run dc bench bus");
+    assert!(out.status.success(), "{}", text(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(stdout.matches("ours / raw: iceoryx2 p50").count(), 3, "{stdout}");
+    let table = std::fs::read_to_string(&csv).expect("the CSV");
+    let mut lines = table.lines();
+    assert_eq!(
+        lines.next(),
+        Some("payload,transport,p50_us,p99_us,frames_per_s,mb_per_s,p50_vs_raw,throughput_vs_raw")
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 15, "{table}");
+    for row in &rows {
+        assert_eq!(row.len(), 8, "{row:?}");
+        for figure in &row[2..6] {
+            assert!(figure.parse::<f64>().is_ok_and(|v| v > 0.0), "{row:?}");
+        }
+        let ours = row[1] == "iceoryx2" || row[1] == "zenoh";
+        assert_eq!(row[6].parse::<f64>().is_ok_and(|v| v > 0.0), ours, "{row:?}");
+        assert_eq!(row[7].parse::<f64>().is_ok_and(|v| v > 0.0), ours, "{row:?}");
+    }
+    let transports: Vec<&str> = rows.iter().take(5).map(|r| r[1]).collect();
+    assert_eq!(transports, ["inproc", "iceoryx2 raw", "iceoryx2", "zenoh raw", "zenoh"]);
+}

@@ -307,4 +307,93 @@ mod tests {
         assert!(matches!(decode::<StepHeader, Body>(&bytes), Err(CodecError::Version { found: 99, .. })));
         assert!(decode_header::<StepHeader>(&bytes).is_err());
     }
+
+    /// A reader that hands out at most `piece` bytes a call, as a payload in fragments does.
+    struct Pieces<'a> {
+        bytes: &'a [u8],
+        piece: usize,
+    }
+
+    impl std::io::Read for Pieces<'_> {
+        fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+            let n = out.len().min(self.piece).min(self.bytes.len());
+            out[..n].copy_from_slice(&self.bytes[..n]);
+            self.bytes = &self.bytes[n..];
+            Ok(n)
+        }
+    }
+
+    #[test]
+    fn frames_read_in_pieces_equal_the_general_decoders() {
+        let f = bodies(1000);
+        let mut g = Grid::zeros(StepHeader { run_id: 1, simulation: 2, step: 3 }, [1.0, 2.0], 0.125, 64, 64, &["vx"]);
+        g.items.iter_mut().enumerate().for_each(|(i, v)| *v = -(i as f32));
+        let (fb, gb) = (encode(&f).unwrap(), encode(&g).unwrap());
+        for piece in [1, 7, 4096, usize::MAX] {
+            let back: Bodies = decode_reader(Pieces { bytes: &fb, piece }).expect("encode's layout");
+            assert_eq!(back.header, f.header);
+            assert_eq!(bits(&back.items), bits(&f.items));
+            let back: Grid = decode_reader(Pieces { bytes: &gb, piece }).expect("encode's layout");
+            assert_eq!(back, g);
+        }
+        // The slice decoder's fast path and the general decoder agree bit for bit.
+        assert_eq!(
+            bits(&decode::<StepHeader, Body>(&fb).unwrap().items),
+            bits(&decode_any::<StepHeader, Body>(&fb).unwrap().items)
+        );
+        assert_eq!(decode::<GridHeader, f32>(&gb).unwrap(), decode_any(&gb).unwrap());
+        // An empty frame.
+        let empty = Frame::new(StepHeader::default(), Vec::<Body>::new());
+        assert_eq!(decode_reader::<StepHeader, Body>(encode(&empty).unwrap().as_slice()), Some(empty));
+    }
+
+    #[test]
+    fn other_valid_layouts_leave_the_fast_path_and_still_decode() {
+        let f = bodies(10);
+        let items: &[u8] = bytemuck::cast_slice(&f.items);
+        // Keys in another order (as another writer may put them).
+        #[derive(Serialize)]
+        struct Reordered<'a> {
+            #[serde(with = "serde_bytes")]
+            i: &'a [u8],
+            h: StepHeader,
+            v: u32,
+        }
+        let mut reordered = Vec::new();
+        ciborium::into_writer(&Reordered { i: items, h: f.header, v: WIRE_VERSION }, &mut reordered).unwrap();
+        // The items as an indefinite-length byte string in two chunks (0x5f ... 0xff).
+        let mut chunked = encode(&Frame::new(f.header, Vec::<Body>::new())).unwrap();
+        chunked.truncate(chunked.len() - 1); // drop the empty byte string's head (0x40)
+        chunked.push(0x5f);
+        for half in items.chunks(items.len() / 2) {
+            chunked.push(0x59);
+            chunked.extend_from_slice(&(half.len() as u16).to_be_bytes());
+            chunked.extend_from_slice(half);
+        }
+        chunked.push(0xff);
+        for bytes in [&reordered, &chunked] {
+            assert!(decode_reader::<StepHeader, Body>(bytes.as_slice()).is_none());
+            let back: Bodies = decode(bytes).unwrap();
+            assert_eq!(back.header, f.header);
+            assert_eq!(bits(&back.items), bits(&f.items));
+        }
+    }
+
+    #[test]
+    fn invalid_payloads_leave_the_fast_path_with_the_general_decoders_error() {
+        let bytes = encode(&bodies(10)).unwrap();
+        for cut in [0, 1, 5, 30, bytes.len() - 1] {
+            assert!(decode_reader::<StepHeader, Body>(&bytes[..cut]).is_none(), "cut at {cut}");
+        }
+        // A frame of contacts read as bodies: 76-byte items are not whole 48-byte bodies.
+        let contacts =
+            encode(&ProblemContacts::new(ProblemHeader::default(), vec![ProblemContact::default(); 3])).unwrap();
+        assert!(decode_reader::<ProblemHeader, Body>(contacts.as_slice()).is_none());
+        assert!(matches!(decode::<ProblemHeader, Body>(&contacts), Err(CodecError::Length { .. })));
+        // Another wire version goes the general way (and is refused there).
+        let mut future = bytes.clone();
+        future[3] = 0x09;
+        assert!(decode_reader::<StepHeader, Body>(future.as_slice()).is_none());
+        assert!(matches!(decode::<StepHeader, Body>(&future), Err(CodecError::Version { found: 9, .. })));
+    }
 }
