@@ -151,6 +151,7 @@ pub const MODELS: &[ModelInfo] = &[
         "the network's correction as a direction only: builtin plus the amplitudes of it and the previous solve's last K sweeps that the step's own Galerkin system picks (`--gnn-model FILE`)",
     ),
     served("gnn-node", ModelGroup::Product, topics::WARM_GNN.name, "the contact-graph network served over the bus by a `dc-gnn` node, builtin when late or down"),
+    served("gnn-pipelined", ModelGroup::Product, topics::WARM_GNN.name, "the contact-graph network served by a `dc-gnn` node one step ahead, off the critical path: step t's solved problem carried one step on goes out once solved, the prediction is matched to step t+1's contacts by key (builtin on new ones); builtin when late or down"),
     plain("copy-grid", ModelGroup::Reference, "oracle through the value-preserving grid transfer and back"),
     plain("copy-grid-sph", ModelGroup::Reference, "oracle through the thesis's grid transfer and back"),
     served("grid", ModelGroup::Product, topics::GRID_CONTACTS.name, "the previous step's impulses through the SPH node's grid"),

@@ -563,8 +563,8 @@ fn try_main() -> Result<()> {
         contacts: node.publisher(msgs::topics::CONTACTS)?,
         stats: node.publisher(msgs::topics::SOLVE_STATS)?,
         control: node.publisher(msgs::topics::CONTROL)?,
-        // `gnn-node` sends each step's problem to its node itself.
-        problem: if args.publish_problem || models.iter().any(|m| m.kind == ModelKind::GnnNode) {
+        // `gnn-node` and `gnn-pipelined` send problems to their node themselves.
+        problem: if args.publish_problem || models.iter().any(|m| m.kind.sends_problems()) {
             let pair = (node.publisher(msgs::topics::PROBLEM_BODIES)?, node.publisher(msgs::topics::PROBLEM_CONTACTS)?);
             Some(std::rc::Rc::new(std::cell::RefCell::new(pair)))
         } else {
@@ -704,7 +704,7 @@ fn run(args: &Args, node: &runtime::Node, pubs: &mut Publishers, model_kind: Mod
                 Some(Box::new(source)),
             )
         }
-        (None, ModelKind::GnnNode) => {
+        (None, kind) if kind.sends_problems() => {
             let source = open_source!(msgs::topics::WARM_GNN);
             let pubs = pubs.problem.clone().expect("opened for gnn-node");
             let send: sim::warm::ProblemSender =
@@ -716,7 +716,7 @@ fn run(args: &Args, node: &runtime::Node, pubs: &mut Publishers, model_kind: Mod
     };
     let model = model_kind.build_with(args.seed, served, &files)?;
     let mut warm = WarmStarter::new(model, args.fallback.build(args.seed)?);
-    let publish_problem = args.publish_problem && model_kind.kind != ModelKind::GnnNode;
+    let publish_problem = args.publish_problem && !model_kind.kind.sends_problems();
     let pace = args.step_period.map(|p| (p, Instant::now()));
     let mut sink = BusSink { pubs, node, source, run_id: spec.run_id, publish_problem, pace };
     let summary = sim::run::run(spec, &mut warm, &mut sink)?;

@@ -21,7 +21,8 @@ pub mod references;
 pub mod registry;
 
 pub use model::{
-    ContactWarmSource, GridSource, Needs, StepRows, Unavailable, WarmStartInput, WarmStartModel, WarmStarter,
+    ContactWarmSource, GridSource, Needs, SolvedStep, StepRows, Unavailable, WarmStartInput, WarmStartModel,
+    WarmStarter,
 };
-pub use product::{Builtin, Constant, GnnModel, GnnNodeModel, GridModel, ProblemSender};
+pub use product::{Builtin, Constant, GnnModel, GnnNodeModel, GnnPipelinedModel, GridModel, ProblemSender};
 pub use registry::{ModelFiles, ModelKind, ModelSpec, Served};

@@ -74,6 +74,26 @@ pub struct WarmStartInput<'a> {
     pub exact: Option<&'a [Impulse]>,
 }
 
+/// A step once done (solved, integrated, positions corrected), for a model that works ahead
+/// ([`WarmStartModel::after_step`]).
+pub struct SolvedStep<'a> {
+    pub run_id: u64,
+    pub simulation: u32,
+    pub step: u32,
+    /// The step's problem as solved, when the model asked for it ([`Needs::problem`]).
+    pub problem: Option<&'a Problem>,
+    /// The solution, one impulse per contact in the problem's order.
+    pub impulses: &'a [Impulse],
+    /// The bodies after the step (velocities integrated, positions corrected), per body id.
+    pub bodies: &'a [crate::world::BodyState],
+    /// The step's contacts as the position pass measures them, one per contact...
+    pub geometry: &'a [crate::solver::PositionRow],
+    /// ... at these poses (after the position pass), per body id.
+    pub poses: &'a [crate::solver::PoseBody],
+    /// What external forces add to a dynamic body's velocity in one step (`dt * g`).
+    pub gravity_dt: [f32; 2],
+}
+
 /// Why a model gave no warm start this step.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Unavailable(pub String);
@@ -94,6 +114,10 @@ pub trait WarmStartModel {
     /// Writes one impulse per contact of `input` into `out` (zeroed beforehand), or says why it
     /// cannot this step.
     fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable>;
+
+    /// Called once the step is done: a model that predicts the next step's warm start off the
+    /// critical path sends its input here (nothing by default).
+    fn after_step(&mut self, _done: &SolvedStep<'_>) {}
 }
 
 /// The exact solution of the step, or why a reference model has none.
@@ -159,6 +183,11 @@ impl WarmStarter {
     /// Fallbacks in this simulation so far.
     pub fn fallbacks_total(&self) -> u32 {
         self.fallbacks_total
+    }
+
+    /// Tells the model the step is done (see [`WarmStartModel::after_step`]).
+    pub fn after_step(&mut self, done: &SolvedStep<'_>) {
+        self.model.after_step(done);
     }
 
     /// Runs the model, or the fallback when it is unavailable; returns whether it fell back.

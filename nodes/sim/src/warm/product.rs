@@ -1,11 +1,11 @@
 //! The product's warm starts: what a simulator user runs. `none` (a [`Constant`]) and `builtin` (the
 //! simulator's own temporal warm start), the grid-based models fed by another node (`grid`,
-//! `unet`, `unet-delta`), and the contact-graph network in process (`gnn`) or served by a node
-//! (`gnn-node`).
+//! `unet`, `unet-delta`), and the contact-graph network in process (`gnn`), served by a node
+//! (`gnn-node`) or served one step ahead (`gnn-pipelined`).
 
 use crate::problem::Problem;
 use crate::solver::rows::Impulse;
-use crate::warm::model::{
+use crate::warm::model::{SolvedStep, 
     step_problem, ContactWarmSource, GridSource, Needs, Unavailable, WarmStartInput, WarmStartModel,
 };
 use sph::sample_bilinear;
@@ -204,6 +204,114 @@ impl WarmStartModel for GnnNodeModel {
     }
 }
 
+/// `gnn-pipelined`: the network served by a `dc-gnn` node one step ahead, off the simulator's
+/// critical path. Once step t is done, its problem carried one step on goes out
+/// ([`carry_one_step`]); the node predicts step t+1's warm start from it while the simulator
+/// records step t and detects step t+1's contacts. At step t+1 the prediction is matched to the new contacts by key; a contact
+/// it lacks (new at t+1) gets builtin's start. Late, missing or from a node that is down, the
+/// step falls back (counted). A simulation's first step, for which nothing was asked, is
+/// builtin's.
+pub struct GnnPipelinedModel {
+    send: ProblemSender,
+    source: Box<dyn ContactWarmSource>,
+    /// The problem carried one step on (buffers reused).
+    ahead: Problem,
+    /// The step a prediction was asked for, or why asking failed.
+    asked: Option<Result<(u64, u32, u32), String>>,
+}
+
+impl GnnPipelinedModel {
+    pub fn new(send: ProblemSender, source: Box<dyn ContactWarmSource>) -> GnnPipelinedModel {
+        let ahead = Problem { header: Default::default(), bodies: Vec::new(), contacts: Vec::new() };
+        GnnPipelinedModel { send, source, ahead, asked: None }
+    }
+}
+
+/// Step t's problem as step t+1's is expected to look, into `ahead`: the solved impulses as
+/// the previous ones (each contact one step older), the bodies' velocities after the step plus
+/// gravity's, and each contact's normal, arms, depth and height re-measured at the poses the
+/// position pass left. Contacts that t+1 will add or lose are not known yet.
+pub fn carry_one_step(done: &SolvedStep<'_>, problem: &Problem, ahead: &mut Problem) {
+    ahead.header = problem.header;
+    ahead.header.step.step = problem.header.step.step + 1;
+    ahead.bodies.clear();
+    ahead.bodies.extend(problem.bodies.iter().zip(done.bodies).map(|(p, b)| {
+        // External forces act on dynamic bodies only (the ones with mass to move).
+        let g = if p.inv_mass > 0.0 { done.gravity_dt } else { [0.0, 0.0] };
+        msgs::ProblemBody { v: [b.v.x + g[0], b.v.y + g[1]], w: b.w, ..*p }
+    }));
+    ahead.contacts.clear();
+    let measured = done.geometry.len() == problem.contacts.len();
+    for (k, (c, i)) in problem.contacts.iter().zip(done.impulses).enumerate() {
+        let mut next = msgs::ProblemContact {
+            age: c.age + 1,
+            previous: [i.normal, i.tangent],
+            before_previous: c.previous,
+            reference: [f32::NAN; 2],
+            ..*c
+        };
+        if measured {
+            let (n, point, separation) = crate::solver::measure(&done.geometry[k], done.poses);
+            let (a, b) = (done.poses[c.body_a as usize].x, done.poses[c.body_b as usize].x);
+            next.normal = n.into();
+            next.ra = (point - a).into();
+            next.rb = (point - b).into();
+            next.penetration = -separation;
+            next.height = point.y;
+        }
+        ahead.contacts.push(next);
+    }
+}
+
+impl WarmStartModel for GnnPipelinedModel {
+    fn name(&self) -> &str {
+        "gnn-pipelined"
+    }
+
+    fn needs(&self) -> Needs {
+        Needs::PROBLEM
+    }
+
+    fn begin_simulation(&mut self, _simulation: u32, _seed: u64) {
+        self.asked = None;
+    }
+
+    fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        // Builtin's start under whatever the prediction covers.
+        input.history.fill_previous(input.contacts, out);
+        match self.asked.take() {
+            Some(Ok(asked)) if asked == (input.run_id, input.simulation, input.step) => {}
+            Some(Err(why)) => return Err(Unavailable(format!("sending step {} ahead: {why}", input.step - 1))),
+            // Nothing asked for this step (a simulation's first): builtin's, not a fallback.
+            _ => return Ok(()),
+        }
+        let reply = self
+            .source
+            .warm(input.run_id, input.simulation, input.step)
+            .ok_or_else(|| Unavailable(format!("no prediction for step {} in time", input.step)))?;
+        let key = |r: &msgs::Contact| crate::contact::ContactKey { body_a: r.body_a, body_b: r.body_b, feature: r.feature };
+        // Both lists are sorted by key (the world sorts its contacts; the node answers in the
+        // problem's order): one merge.
+        if !reply.items.is_sorted_by_key(key) {
+            return Err(Unavailable(format!("the prediction for step {} is not in contact order", input.step)));
+        }
+        let mut predicted = reply.items.iter().peekable();
+        for (c, o) in input.contacts.iter().zip(out.iter_mut()) {
+            while predicted.next_if(|r| key(r) < c.key).is_some() {}
+            if let Some(r) = predicted.next_if(|r| key(r) == c.key) {
+                *o = Impulse { normal: r.normal_impulse, tangent: r.tangent_impulse };
+            }
+        }
+        Ok(())
+    }
+
+    fn after_step(&mut self, done: &SolvedStep<'_>) {
+        let Some(problem) = done.problem else { return };
+        carry_one_step(done, problem, &mut self.ahead);
+        self.asked = Some((self.send)(&self.ahead).map(|()| (done.run_id, done.simulation, done.step + 1)));
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -242,5 +350,79 @@ mod tests {
         // The plain model overwrites every contact with the grid's value.
         let g = guess(&mut GridModel::new("unet", Box::new(source)), &contacts, &history);
         assert!((g[0].normal - 2.0).abs() < 1e-6, "{g:?}");
+    }
+
+    /// A budget of 8 sweeps (the regime the pipelined model is for).
+    struct SolveParamsAt8;
+    impl SolveParamsAt8 {
+        fn at(p: crate::solver::SolveParams) -> crate::solver::SolveParams {
+            crate::solver::SolveParams { max_sweeps: 8, ..p }
+        }
+    }
+
+    /// Keeps, at each step, the problem the world captured and the problem carried one step on.
+    #[derive(Default)]
+    struct Watch {
+        actual: Vec<Problem>,
+        ahead: Vec<Problem>,
+    }
+
+    impl WarmStartModel for std::rc::Rc<std::cell::RefCell<Watch>> {
+        fn name(&self) -> &str {
+            "builtin"
+        }
+        fn needs(&self) -> Needs {
+            Needs::PROBLEM
+        }
+        fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+            self.borrow_mut().actual.push(step_problem(input)?.clone());
+            input.history.fill_previous(input.contacts, out);
+            Ok(())
+        }
+        fn after_step(&mut self, done: &SolvedStep<'_>) {
+            let mut ahead = Problem { header: Default::default(), bodies: Vec::new(), contacts: Vec::new() };
+            carry_one_step(done, done.problem.expect("asked for"), &mut ahead);
+            self.borrow_mut().ahead.push(ahead);
+        }
+    }
+
+    /// The problem carried one step on is the next step's problem on every contact that
+    /// persists: the same previous impulses and ages exactly, the same velocities, and the
+    /// geometry re-measured at the corrected poses within a small fraction of a body's size.
+    #[test]
+    fn a_step_carried_on_is_the_next_steps_problem_on_persisting_contacts() {
+        use crate::{scene::SceneConfig, world::World, WorldParams};
+        let watch = std::rc::Rc::new(std::cell::RefCell::new(Watch::default()));
+        let mut warm = crate::warm::WarmStarter::new(Box::new(watch.clone()), Box::new(Builtin));
+        let recommended = WorldParams::recommended();
+        let params = WorldParams { solve: SolveParamsAt8::at(recommended.solve), ..recommended };
+        let mut world = World::new(&SceneConfig { n: 60, seed: 5, ..Default::default() }, params).unwrap();
+        for _ in 0..120 {
+            world.step(&mut warm);
+        }
+        let watch = watch.borrow();
+        let (mut compared, mut worst) = (0, [0.0f32; 5]);
+        for (ahead, next) in watch.ahead.iter().zip(&watch.actual[1..]) {
+            assert_eq!(ahead.header.step, next.header.step);
+            for (a, n) in ahead.bodies.iter().zip(&next.bodies) {
+                worst[0] = worst[0].max((a.v[0] - n.v[0]).abs().max((a.v[1] - n.v[1]).abs()).max((a.w - n.w).abs()));
+            }
+            for n in &next.contacts {
+                let Some(a) = ahead.contacts.iter().find(|a| (a.body_a, a.body_b, a.feature) == (n.body_a, n.body_b, n.feature)) else {
+                    continue;
+                };
+                compared += 1;
+                assert_eq!((a.age, a.previous, a.before_previous), (n.age, n.previous, n.before_previous));
+                let d = |x: [f32; 2], y: [f32; 2]| (x[0] - y[0]).hypot(x[1] - y[1]);
+                worst[1] = worst[1].max(d(a.normal, n.normal));
+                worst[2] = worst[2].max(d(a.ra, n.ra).max(d(a.rb, n.rb)));
+                worst[3] = worst[3].max((a.penetration - n.penetration).abs());
+                worst[4] = worst[4].max((a.height - n.height).abs());
+            }
+        }
+        eprintln!("{compared} contacts compared; worst: velocity {}, normal {}, arm {}, depth {}, height {}", worst[0], worst[1], worst[2], worst[3], worst[4]);
+        assert!(compared > 1000, "{compared}");
+        assert!(worst[0] < 1e-5, "velocities differ by {}", worst[0]);
+        assert!(worst[1] < 0.05 && worst[2] < 0.05 && worst[3] < 0.01 && worst[4] < 0.05, "{worst:?}");
     }
 }

@@ -7,7 +7,7 @@ use crate::error::SimError;
 use crate::solver::rows::Impulse;
 use crate::warm::model::{ContactWarmSource, GridSource, WarmStartModel, WarmStarter};
 use crate::warm::probes::{BuiltinReappear, Coarse, ConjugateGradient, Continue, Extrapolate, Subspace};
-use crate::warm::product::{Builtin, Constant, GnnModel, GnnNodeModel, GridModel, ProblemSender};
+use crate::warm::product::{Builtin, Constant, GnnModel, GnnNodeModel, GnnPipelinedModel, GridModel, ProblemSender};
 use crate::warm::references::{Ablation, Copy, OracleAblation, Random};
 use msgs::models::ModelGroup;
 use std::str::FromStr;
@@ -70,6 +70,8 @@ pub enum ModelKind {
     GnnSubspace,
     /// The contact-graph network over the bus.
     GnnNode,
+    /// The contact-graph network over the bus, one step ahead.
+    GnnPipelined,
     /// The exact solution through the value-preserving grid transfer and back.
     CopyGrid,
     /// The exact solution through the thesis's grid transfer and back.
@@ -84,7 +86,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 28] = [
+    pub const ALL: [ModelKind; 29] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -108,6 +110,7 @@ impl ModelKind {
         ModelKind::Gnn,
         ModelKind::GnnSubspace,
         ModelKind::GnnNode,
+        ModelKind::GnnPipelined,
         ModelKind::CopyGrid,
         ModelKind::CopyGridSph,
         ModelKind::Grid,
@@ -123,6 +126,12 @@ impl ModelKind {
     /// The model's name.
     pub fn name(self) -> &'static str {
         self.info().name
+    }
+
+    /// Whether the model sends problems to a `dc-gnn` node and reads its answers
+    /// ([`Served::contact`]).
+    pub fn sends_problems(self) -> bool {
+        matches!(self, ModelKind::GnnNode | ModelKind::GnnPipelined)
     }
 
     /// Whether the model needs a [`GridSource`].
@@ -247,6 +256,10 @@ impl ModelSpec {
             ModelKind::GnnNode => {
                 let (send, source) = served.contact.ok_or_else(no_source)?;
                 Box::new(GnnNodeModel::new(send, source))
+            }
+            ModelKind::GnnPipelined => {
+                let (send, source) = served.contact.ok_or_else(no_source)?;
+                Box::new(GnnPipelinedModel::new(send, source))
             }
             // References.
             ModelKind::Copy => Box::new(Copy::exact()),

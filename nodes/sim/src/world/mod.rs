@@ -35,7 +35,7 @@ use crate::solver::position::rotate;
 use crate::solver::{
     correct_positions, ContactRow, ContactSolver, Impulse, PoseBody, PositionRow, SolveParams, SolveReport, SolverBody,
 };
-use crate::warm::{ModelKind, StepRows, WarmStartInput, WarmStarter};
+use crate::warm::{ModelKind, SolvedStep, StepRows, WarmStartInput, WarmStarter};
 use collide::Collision;
 use instruments::{Instruments, StepView};
 use msgs::StepStats;
@@ -264,6 +264,7 @@ impl World {
     /// Advances the world by one step, taking the warm start from `warm`.
     pub fn step(&mut self, warm: &mut WarmStarter) -> &StepStats {
         let t_step = Instant::now();
+        let solved_step = self.step;
         self.collide();
         self.apply_external_forces();
 
@@ -277,12 +278,18 @@ impl World {
         let t_warm = Instant::now();
         let fallback = self.warm_start(warm);
         let warm_start_us = t_warm.elapsed().as_secs_f32() * 1e6;
-        let used = if fallback { warm.fallback.name() } else { warm.model.name() };
+        fn used_model(warm: &WarmStarter, fallback: bool) -> &str {
+            if fallback {
+                warm.fallback.name()
+            } else {
+                warm.model.name()
+            }
+        }
 
         // builtin on this same problem, when asked (a builtin step is its own answer); not part
         // of the step's time.
         let t_shadow = Instant::now();
-        let shadow = (self.instruments.shadow_builtin && used != ModelKind::Builtin.name())
+        let shadow = (self.instruments.shadow_builtin && used_model(warm, fallback) != ModelKind::Builtin.name())
             .then(|| self.instruments.builtin_sweeps(step_view!(self), &self.params.solve));
         if !self.instruments.menu.is_empty() {
             self.instruments.solve_menu(step_view!(self));
@@ -296,13 +303,17 @@ impl World {
 
         self.integrate();
         self.min_separation = self.correct_positions();
+        // A model working ahead sends the step now (its time is the warm start's).
+        let t_ahead = Instant::now();
+        self.after_step(warm, solved_step);
+        let warm_start_us = warm_start_us + t_ahead.elapsed().as_secs_f32() * 1e6;
 
         let timings = StepTimings {
             solve_us,
             warm_start_us,
             step_us: t_step.elapsed().saturating_sub(capture_time + shadow_time).as_secs_f32() * 1e6,
         };
-        self.record(warm, used, fallback, report, builtin_sweeps, timings);
+        self.record(warm, used_model(warm, fallback), fallback, report, builtin_sweeps, timings);
         &self.stats
     }
 
@@ -367,6 +378,23 @@ impl World {
             exact: needs.exact.then(|| self.instruments.exact()),
         };
         warm.warm_start(&input, &mut self.warm)
+    }
+
+    /// Stage 7: the done step to a model that predicts the next step's warm start meanwhile.
+    fn after_step(&mut self, warm: &mut WarmStarter, step: u32) {
+        let needs = warm.needs();
+        let g = Vec2::from(self.params.gravity) * self.params.dt;
+        warm.after_step(&SolvedStep {
+            run_id: self.run_id,
+            simulation: self.simulation,
+            step,
+            problem: needs.problem.then(|| self.instruments.problem()),
+            impulses: self.solver.impulses(),
+            bodies: &self.bodies,
+            geometry: &self.position_rows,
+            poses: &self.poses,
+            gravity_dt: [g.x, g.y],
+        });
     }
 
     /// Stage 5: positions from the solved velocities (dynamic bodies, Box2D's caps; kinematic ones
