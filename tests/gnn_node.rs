@@ -1,6 +1,7 @@
 //! The contact-graph network as a node (`dc-gnn` serving `warm/gnn`, the simulator's `gnn-node`
-//! model): over the bus it gives the in-process model's sweeps step for step; killed mid-run, the
-//! simulator falls back to builtin (counted) until the launcher has restarted it, then uses it again.
+//! model, and `gnn-pipelined`, served one step ahead): over the bus it gives the in-process
+//! model's sweeps step for step; killed mid-run, the simulator falls back to builtin (counted)
+//! until the launcher has restarted it, then uses it again.
 
 use deep_contact::{bin, report_steps, scratch_dir, text, unique_namespace};
 use std::io::{BufRead, BufReader};
@@ -61,14 +62,28 @@ fn served_over_the_bus_the_network_gives_the_in_process_sweeps_step_for_step() {
 
 #[test]
 fn a_killed_gnn_node_is_restarted_and_the_simulator_falls_back_meanwhile() {
-    let dir = scratch_dir("gnn-node-fault");
+    killed_node_falls_back_then_serves_again("gnn-node");
+}
+
+/// The same for the network served one step ahead: its predictions are asked for after each
+/// step; while the node is away every asked-for step falls back, counted, and once restarted it
+/// predicts again.
+#[test]
+fn a_killed_pipelined_gnn_node_is_restarted_and_the_simulator_falls_back_meanwhile() {
+    killed_node_falls_back_then_serves_again("gnn-pipelined");
+}
+
+/// Kills the `dc-gnn` node serving `model` once the first simulation is done: the steps solved
+/// while it is away fall back to builtin (counted), and the restarted node serves again.
+fn killed_node_falls_back_then_serves_again(model: &str) {
+    let dir = scratch_dir(&format!("{model}-fault"));
     let report = dir.join("report");
     let file = dir.join("graph.toml");
-    std::fs::write(&file, graph("gnn-node", true, &report, "0..4", 250)).unwrap();
+    std::fs::write(&file, graph(model, true, &report, "0..4", 250)).unwrap();
     let mut child = Command::new(bin("dc"))
         .arg("launch")
         .arg(&file)
-        .args(["--namespace", &unique_namespace("gnn-node-fault")])
+        .args(["--namespace", &unique_namespace(&format!("{model}-fault"))])
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
@@ -113,7 +128,7 @@ fn a_killed_gnn_node_is_restarted_and_the_simulator_falls_back_meanwhile() {
     assert!(fallbacks.iter().all(|(sim, _)| *sim >= 1), "the first simulation ran before the kill: {fallbacks:?}");
     let last_fallback = *fallbacks.last().unwrap();
     assert!(
-        steps.iter().any(|(k, (_, _, used))| *k > last_fallback && used == "gnn-node"),
+        steps.iter().any(|(k, (_, _, used))| *k > last_fallback && used == model),
         "the restarted node serves again after the last fallback {last_fallback:?}"
     );
 }

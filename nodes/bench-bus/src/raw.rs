@@ -58,7 +58,9 @@ fn zenoh_session(node: &Node) -> Result<zenoh::Session> {
     runtime::open_zenoh_session(&node.bus().zenoh).map_err(|e| anyhow!("raw zenoh session: {e}"))
 }
 
-/// Publishes frames of `len` items through a transport's own API.
+/// Publishes frames of `len` items through a transport's own API. (One per process: the
+/// variants' sizes do not matter.)
+#[allow(clippy::large_enum_variant)]
 pub enum RawPublisher<H: FrameHeader, T: FrameItem> {
     Iceoryx2 {
         _node: iceoryx2::node::Node<ipc::Service>,
@@ -156,6 +158,7 @@ impl<H: FrameHeader, T: FrameItem> RawPublisher<H, T> {
 }
 
 /// Receives raw frames.
+#[allow(clippy::large_enum_variant)]
 pub enum RawSubscriber<H: FrameHeader, T: FrameItem> {
     Iceoryx2 {
         _node: iceoryx2::node::Node<ipc::Service>,

@@ -5,8 +5,8 @@
 
 use crate::problem::Problem;
 use crate::solver::rows::Impulse;
-use crate::warm::model::{SolvedStep, 
-    step_problem, ContactWarmSource, GridSource, Needs, Unavailable, WarmStartInput, WarmStartModel,
+use crate::warm::model::{
+    step_problem, ContactWarmSource, GridSource, Needs, SolvedStep, Unavailable, WarmStartInput, WarmStartModel,
 };
 use sph::sample_bilinear;
 
@@ -289,7 +289,8 @@ impl WarmStartModel for GnnPipelinedModel {
             .source
             .warm(input.run_id, input.simulation, input.step)
             .ok_or_else(|| Unavailable(format!("no prediction for step {} in time", input.step)))?;
-        let key = |r: &msgs::Contact| crate::contact::ContactKey { body_a: r.body_a, body_b: r.body_b, feature: r.feature };
+        let key =
+            |r: &msgs::Contact| crate::contact::ContactKey { body_a: r.body_a, body_b: r.body_b, feature: r.feature };
         // Both lists are sorted by key (the world sorts its contacts; the node answers in the
         // problem's order): one merge.
         if !reply.items.is_sorted_by_key(key) {
@@ -408,7 +409,9 @@ mod tests {
                 worst[0] = worst[0].max((a.v[0] - n.v[0]).abs().max((a.v[1] - n.v[1]).abs()).max((a.w - n.w).abs()));
             }
             for n in &next.contacts {
-                let Some(a) = ahead.contacts.iter().find(|a| (a.body_a, a.body_b, a.feature) == (n.body_a, n.body_b, n.feature)) else {
+                let Some(a) =
+                    ahead.contacts.iter().find(|a| (a.body_a, a.body_b, a.feature) == (n.body_a, n.body_b, n.feature))
+                else {
                     continue;
                 };
                 compared += 1;
@@ -420,7 +423,10 @@ mod tests {
                 worst[4] = worst[4].max((a.height - n.height).abs());
             }
         }
-        eprintln!("{compared} contacts compared; worst: velocity {}, normal {}, arm {}, depth {}, height {}", worst[0], worst[1], worst[2], worst[3], worst[4]);
+        eprintln!(
+            "{compared} contacts compared; worst: velocity {}, normal {}, arm {}, depth {}, height {}",
+            worst[0], worst[1], worst[2], worst[3], worst[4]
+        );
         assert!(compared > 1000, "{compared}");
         assert!(worst[0] < 1e-5, "velocities differ by {}", worst[0]);
         assert!(worst[1] < 0.05 && worst[2] < 0.05 && worst[3] < 0.01 && worst[4] < 0.05, "{worst:?}");
