@@ -47,6 +47,9 @@ pub struct BudgetSpec {
     pub files: ModelFiles,
     /// The reference run's tolerance (natural residual), e.g. 1e-6.
     pub reference_tolerance: f32,
+    /// Also split each judged run's warm-start error into its smooth and rough parts
+    /// ([`ErrorSplit`]): one more pass per run, with the step's exact solution.
+    pub error_split: bool,
 }
 
 impl BudgetSpec {
@@ -127,6 +130,151 @@ pub struct BudgetRun {
     pub budget: u32,
     /// Every step's statistics, seed by seed (`simulation` is the seed).
     pub steps: Vec<StepStats>,
+    /// The warm-start error split into smooth and rough parts (`n == 0`: not measured).
+    pub split: ErrorSplit,
+}
+
+/// Which part of builtin's error a model's warm start removes, on the model's own steps: the
+/// model's and builtin's warm-start error against the step's exact solution, each split as the
+/// `smooth-error` / `rough-error` references split it (the part a few passes of averaging over
+/// the contact graph keeps — pile-wide — and the rest — local), as sums of squares over the
+/// contacts (impulse units, normal and tangent together).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ErrorSplit {
+    pub model_smooth: f64,
+    pub model_rough: f64,
+    pub builtin_smooth: f64,
+    pub builtin_rough: f64,
+    /// Contacts summed over.
+    pub n: u64,
+}
+
+impl ErrorSplit {
+    fn rms(&self, sum: f64) -> f64 {
+        (sum / self.n.max(1) as f64).sqrt()
+    }
+
+    /// RMS of the model's smooth and rough error parts.
+    pub fn model_rms(&self) -> (f64, f64) {
+        (self.rms(self.model_smooth), self.rms(self.model_rough))
+    }
+
+    /// RMS of builtin's smooth and rough error parts on the same steps.
+    pub fn builtin_rms(&self) -> (f64, f64) {
+        (self.rms(self.builtin_smooth), self.rms(self.builtin_rough))
+    }
+
+    /// The fractions of builtin's smooth and rough error (RMS) the model removes.
+    pub fn removed(&self) -> (f64, f64) {
+        let ((ms, mr), (bs, br)) = (self.model_rms(), self.builtin_rms());
+        let frac = |m: f64, b: f64| if b > 0.0 { 1.0 - m / b } else { 0.0 };
+        (frac(ms, bs), frac(mr, br))
+    }
+}
+
+/// A model whose every warm start is also measured against the step's exact solution and split
+/// ([`ErrorSplit`]); it answers what the model answers.
+struct Splitting {
+    inner: Box<dyn crate::warm::WarmStartModel>,
+    split: std::rc::Rc<std::cell::RefCell<ErrorSplit>>,
+    fixed: Vec<bool>,
+    builtin: Vec<crate::solver::Impulse>,
+    error: Vec<crate::solver::Impulse>,
+    smooth: Vec<crate::solver::Impulse>,
+}
+
+impl Splitting {
+    /// `(smooth, rough)` sums of squares of `warm - exact` into `self.smooth`'s scratch.
+    fn parts(
+        &mut self,
+        contacts: &[crate::contact::ContactPoint],
+        warm: &[crate::solver::Impulse],
+        exact: &[crate::solver::Impulse],
+    ) -> (f64, f64) {
+        use crate::warm::references::ablations::{smooth_over_contacts, SMOOTHING_PASSES};
+        self.error.clear();
+        self.error.extend(
+            warm.iter()
+                .zip(exact)
+                .map(|(w, e)| crate::solver::Impulse { normal: w.normal - e.normal, tangent: w.tangent - e.tangent }),
+        );
+        smooth_over_contacts(contacts, &self.fixed, &self.error, SMOOTHING_PASSES, &mut self.smooth);
+        let sq = |i: &crate::solver::Impulse| (i.normal as f64).powi(2) + (i.tangent as f64).powi(2);
+        let smooth: f64 = self.smooth.iter().map(sq).sum();
+        let rough: f64 = self
+            .error
+            .iter()
+            .zip(&self.smooth)
+            .map(|(e, s)| sq(&crate::solver::Impulse { normal: e.normal - s.normal, tangent: e.tangent - s.tangent }))
+            .sum();
+        (smooth, rough)
+    }
+}
+
+impl crate::warm::WarmStartModel for Splitting {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    fn begin_simulation(&mut self, simulation: u32, seed: u64) {
+        self.inner.begin_simulation(simulation, seed);
+    }
+    fn needs(&self) -> crate::warm::Needs {
+        self.inner.needs().union(crate::warm::Needs::EXACT).union(crate::warm::Needs::ROWS)
+    }
+    fn warm_start(
+        &mut self,
+        input: &crate::warm::WarmStartInput<'_>,
+        out: &mut [crate::solver::Impulse],
+    ) -> Result<(), crate::warm::Unavailable> {
+        self.inner.warm_start(input, out)?;
+        let exact = crate::warm::model::exact_solution(input)?;
+        self.fixed.clear();
+        if let Some(step) = input.rows {
+            self.fixed.extend(step.bodies.iter().map(|b| b.inv_mass == 0.0));
+        }
+        self.builtin.clear();
+        self.builtin.resize(input.contacts.len(), Default::default());
+        input.history.fill_previous(input.contacts, &mut self.builtin);
+        let builtin = std::mem::take(&mut self.builtin);
+        let (ms, mr) = self.parts(input.contacts, out, exact);
+        let (bs, br) = self.parts(input.contacts, &builtin, exact);
+        self.builtin = builtin;
+        let mut split = self.split.borrow_mut();
+        split.model_smooth += ms;
+        split.model_rough += mr;
+        split.builtin_smooth += bs;
+        split.builtin_rough += br;
+        split.n += input.contacts.len() as u64;
+        Ok(())
+    }
+    fn after_step(&mut self, done: &crate::warm::SolvedStep<'_>) {
+        self.inner.after_step(done);
+    }
+}
+
+/// [`run_seed`] again with every warm start measured and split: the run's [`ErrorSplit`] on
+/// this seed (the same trajectory: measuring changes no warm start).
+pub fn split_seed(spec: &BudgetSpec, seed: u64, model: &ModelSpec, solve: SolveParams) -> Result<ErrorSplit, SimError> {
+    let params = WorldParams { solve, ..spec.params };
+    let mut world = World::new(&SceneConfig { seed, ..spec.scene.clone() }, params)?;
+    world.set_ids(0, seed as u32);
+    let split = std::rc::Rc::new(std::cell::RefCell::new(ErrorSplit::default()));
+    let inner = model.build_with(seed, Served::default(), &spec.files)?;
+    let wrapped = Splitting {
+        inner,
+        split: split.clone(),
+        fixed: Vec::new(),
+        builtin: Vec::new(),
+        error: Vec::new(),
+        smooth: Vec::new(),
+    };
+    let mut warm = WarmStarter::new(Box::new(wrapped), ModelKind::Builtin.build(seed)?);
+    warm.begin_simulation(seed as u32, seed);
+    for _ in 0..spec.steps {
+        world.step(&mut warm);
+    }
+    let out = *split.borrow();
+    Ok(out)
 }
 
 /// Runs `model` with `solve` on `seed`: every step's statistics.
@@ -151,18 +299,38 @@ pub fn run_seed(
 pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) -> Result<Vec<BudgetRun>, SimError> {
     spec.validate()?;
     let builtin = ModelSpec::of(ModelKind::Builtin);
-    let mut runs = vec![BudgetRun { label: "reference".into(), model: builtin.name(), budget: 0, steps: Vec::new() }];
+    let mut runs = vec![BudgetRun {
+        label: "reference".into(),
+        model: builtin.name(),
+        budget: 0,
+        steps: Vec::new(),
+        split: ErrorSplit::default(),
+    }];
     let mut plan: Vec<(ModelSpec, u32)> = spec.curve_budgets().into_iter().map(|k| (builtin, k)).collect();
     for &k in &spec.budgets {
         plan.extend(spec.models.iter().filter(|m| m.kind != ModelKind::Builtin).map(|&m| (m, k)));
     }
     for (m, k) in &plan {
-        runs.push(BudgetRun { label: format!("{}@{k}", m.name()), model: m.name(), budget: *k, steps: Vec::new() });
+        runs.push(BudgetRun {
+            label: format!("{}@{k}", m.name()),
+            model: m.name(),
+            budget: *k,
+            steps: Vec::new(),
+            split: ErrorSplit::default(),
+        });
     }
     for &seed in seeds {
         runs[0].steps.extend(run_seed(spec, seed, &builtin, spec.reference())?);
         for (run, (m, k)) in runs[1..].iter_mut().zip(&plan) {
             run.steps.extend(run_seed(spec, seed, m, spec.at_budget(*k))?);
+            if spec.error_split && spec.budgets.contains(k) {
+                let s = split_seed(spec, seed, m, spec.at_budget(*k))?;
+                let t = &mut run.split;
+                (t.model_smooth, t.model_rough) = (t.model_smooth + s.model_smooth, t.model_rough + s.model_rough);
+                (t.builtin_smooth, t.builtin_rough) =
+                    (t.builtin_smooth + s.builtin_smooth, t.builtin_rough + s.builtin_rough);
+                t.n += s.n;
+            }
         }
         progress(seed);
     }
@@ -207,6 +375,8 @@ pub struct RunSummary {
     pub fallbacks: usize,
     /// Per phase ([`phase_labels`]).
     pub phases: Vec<PhaseAccuracy>,
+    /// The warm-start error's smooth / rough split (`n == 0`: not measured).
+    pub split: ErrorSplit,
 }
 
 impl RunSummary {
@@ -245,6 +415,7 @@ impl RunSummary {
             critical_us: steps.iter().map(|s| (s.warm_start_us + s.solve_us) as f64).sum::<f64>() / all,
             fallbacks: steps.iter().filter(|s| s.fallback).count(),
             phases,
+            split: run.split,
         }
     }
 }
@@ -321,6 +492,28 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
                 num(s.accuracy.penetration_mean),
                 num(s.accuracy.late_kinetic_energy),
                 s.fallbacks
+            );
+        }
+    }
+    for &k in budgets {
+        let split: Vec<&RunSummary> = summaries.iter().filter(|s| s.budget == k && s.split.n > 0).collect();
+        if split.is_empty() {
+            continue;
+        }
+        out += &format!(
+            "\n## At {k} sweeps: which part of builtin's error each model removes\n\nEach model's warm-start error against the step's exact solution and builtin's on the same steps (the model's own trajectory), split as the smooth-error / rough-error references split it: the part 4 passes of averaging over the contact graph keep (smooth, pile-wide) and the rest (rough, local); RMS over the contacts, impulse units.\n\n| model | smooth RMS | rough RMS | builtin's smooth RMS | builtin's rough RMS | smooth removed | rough removed |\n|---|---:|---:|---:|---:|---:|---:|\n"
+        );
+        for s in split {
+            let ((ms, mr), (bs, br), (fs, fr)) = (s.split.model_rms(), s.split.builtin_rms(), s.split.removed());
+            out += &format!(
+                "| {} | {} | {} | {} | {} | {:.0}% | {:.0}% |\n",
+                s.model,
+                num(ms),
+                num(mr),
+                num(bs),
+                num(br),
+                100.0 * fs,
+                100.0 * fr
             );
         }
     }
@@ -430,6 +623,7 @@ mod tests {
             models: vec![ModelSpec::of(ModelKind::None)],
             files: ModelFiles::default(),
             reference_tolerance: 1e-6,
+            error_split: false,
         }
     }
 
@@ -491,8 +685,32 @@ mod tests {
             models: vec![],
             files: ModelFiles::default(),
             reference_tolerance: 1e-6,
+            error_split: false,
         };
         assert_eq!(spec.curve_budgets(), vec![1, 2, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128]);
         assert_eq!(phase_labels(), ["0-99", "100-149", "150-end"]);
+    }
+
+    /// The split is linear in the error: a blend that removes half of builtin's error (against
+    /// the same exact solution the split uses) removes half of its smooth and half of its rough
+    /// part; builtin removes none of either, and its split is builtin's own.
+    #[test]
+    fn a_blend_removes_its_fraction_of_both_parts_and_builtin_none() {
+        let mut spec = spec("pgs", vec![4], 60);
+        spec.models = vec!["blend:0.5".parse().unwrap()];
+        spec.error_split = true;
+        let runs = study(&spec, &[101], |_| {}).unwrap();
+        let summaries = summaries(&runs);
+        let of = |label: &str| summaries.iter().find(|s| s.label == label).unwrap().split;
+        let (blend, builtin) = (of("blend:0.5@4"), of("builtin@4"));
+        assert!(blend.n > 150 && builtin.n > 150, "{blend:?} {builtin:?}");
+        let (smooth, rough) = blend.removed();
+        assert!((smooth - 0.5).abs() < 1e-3 && (rough - 0.5).abs() < 1e-3, "{blend:?}");
+        assert_eq!(builtin.removed(), (0.0, 0.0));
+        assert_eq!(builtin.model_rms(), builtin.builtin_rms());
+        // Only the judged budgets are split; the table says so.
+        assert_eq!(of("builtin@8").n, 0);
+        let table = markdown(&summaries, &spec.budgets);
+        assert!(table.contains("which part of builtin's error") && table.contains("| blend:0.5 |"), "{table}");
     }
 }

@@ -206,6 +206,11 @@ struct Args {
     /// With --budget-study: the reference run's tolerance (natural residual).
     #[arg(long, default_value_t = 1e-6, value_parser = positive_f32)]
     reference_tolerance: f32,
+    /// With --budget-study: also split each judged model's warm-start error (against the step's
+    /// exact solution) into its smooth, pile-wide part and the rest, beside builtin's on the
+    /// same steps (one more pass per run).
+    #[arg(long, requires = "budget_study")]
+    error_split: bool,
     /// Run the benchmark and print it instead of running the node.
     #[arg(long)]
     bench: bool,
@@ -464,6 +469,7 @@ fn budget_spec(args: &Args, first_seed: u64) -> Result<sim::budget::BudgetSpec> 
         models,
         files: sim::ModelFiles { gnn: args.gnn_model.clone() },
         reference_tolerance: args.reference_tolerance,
+        error_split: args.error_split,
     })
 }
 
