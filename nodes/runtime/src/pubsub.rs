@@ -139,6 +139,9 @@ pub struct Subscriber<H: FrameHeader, T: FrameItem> {
     decode_errors: u64,
 }
 
+/// The end of a wait that is polled instead of slept (see [`Subscriber::recv_timeout`]).
+const EXACT_WAIT: Duration = Duration::from_millis(5);
+
 /// How often a blocked receive looks at the shutdown signal.
 const SHUTDOWN_POLL: Duration = Duration::from_millis(100);
 
@@ -201,9 +204,15 @@ impl<H: FrameHeader, T: FrameItem> Subscriber<H, T> {
             if now >= deadline || self.shutdown.is_set() {
                 return Ok(None);
             }
-            let left = (deadline - now).min(SHUTDOWN_POLL);
+            let to_deadline = deadline - now;
+            let left = to_deadline.min(SHUTDOWN_POLL);
             match &self.inner {
-                SubInner::Iox(s) => s.wait(left)?,
+                // The event wait's timeout is a socket timeout, counted in the kernel's ticks
+                // (1-4 ms): the last stretch before the deadline is polled, so that a deadline
+                // of a few hundred microseconds ends on time (a late frame is then late, not
+                // waited for).
+                SubInner::Iox(_) if to_deadline < EXACT_WAIT => std::thread::yield_now(),
+                SubInner::Iox(s) => s.wait(left.min(to_deadline - EXACT_WAIT))?,
                 // Two sources and no common wait: short naps (this is the bridge case only).
                 SubInner::Both(..) => std::thread::sleep(left.min(Duration::from_millis(1))),
                 SubInner::Detached => std::thread::sleep(left),

@@ -228,6 +228,9 @@ impl<F: StepFrame, I: Inbox<F>> BusSource<I, F> {
             self.producer = Producer::Up;
             match key(got.step()).cmp(&want) {
                 Ordering::Less => continue, // stale: its step was already solved
+                // A wait can overrun its limit (an event wait is not exact below a millisecond):
+                // a frame that came after the deadline is late, as if it had not come.
+                Ordering::Equal if self.wait_limit().is_some_and(|limit| start.elapsed() > limit) => return None,
                 Ordering::Equal => return Some(got),
                 Ordering::Greater => {
                     self.pending = Some(got);
@@ -271,6 +274,8 @@ mod tests {
         controls: VecDeque<ControlMsg>,
         waits: usize,
         shutdown: bool,
+        /// How long a wait takes before it hands over a queued grid (a wait that overruns).
+        delay: Duration,
     }
 
     impl Inbox<Grid> for Script {
@@ -283,7 +288,10 @@ mod tests {
         fn frame_timeout(&mut self, timeout: Duration) -> Result<Option<Grid>, String> {
             self.waits += 1;
             match self.grids.pop_front() {
-                Some(g) => Ok(Some(g)),
+                Some(g) => {
+                    std::thread::sleep(self.delay);
+                    Ok(Some(g))
+                }
                 None => {
                     std::thread::sleep(timeout);
                     Ok(None)
@@ -383,6 +391,21 @@ mod tests {
         s.inbox.shutdown = true;
         assert_eq!(s.frame(7, 0, 1), None);
         assert_eq!(s.inbox.waits, 0);
+    }
+
+    /// A frame that a wait hands over only after the deadline is late: the step falls back, and
+    /// the producer still counts as up (lockstep takes it whenever it comes).
+    #[test]
+    fn a_frame_that_comes_after_the_deadline_is_late() {
+        let mut s = source(Some(Duration::from_millis(5)));
+        s.inbox.delay = Duration::from_millis(20);
+        s.inbox.grids.push_back(grid(7, 0, 1));
+        assert_eq!(s.frame(7, 0, 1), None);
+        assert_eq!(s.producer(), Producer::Up);
+        let mut s = source(None);
+        s.inbox.delay = Duration::from_millis(20);
+        s.inbox.grids.push_back(grid(7, 0, 1));
+        assert_eq!(step_of(&s.frame(7, 0, 1)), Some((0, 1)));
     }
 
     #[test]
