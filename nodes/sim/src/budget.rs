@@ -145,11 +145,26 @@ pub struct ErrorSplit {
     pub model_rough: f64,
     pub builtin_smooth: f64,
     pub builtin_rough: f64,
+    /// What the budget's sweeps leave of each start's error (the part slow for the solver): the
+    /// error after K sweeps from the model's start and from builtin's, on the same step.
+    pub model_left: f64,
+    pub builtin_left: f64,
     /// Contacts summed over.
     pub n: u64,
 }
 
 impl ErrorSplit {
+    /// Adds another seed's sums.
+    pub fn add(&mut self, other: &ErrorSplit) {
+        self.model_smooth += other.model_smooth;
+        self.model_rough += other.model_rough;
+        self.builtin_smooth += other.builtin_smooth;
+        self.builtin_rough += other.builtin_rough;
+        self.model_left += other.model_left;
+        self.builtin_left += other.builtin_left;
+        self.n += other.n;
+    }
+
     fn rms(&self, sum: f64) -> f64 {
         (sum / self.n.max(1) as f64).sqrt()
     }
@@ -162,6 +177,11 @@ impl ErrorSplit {
     /// RMS of builtin's smooth and rough error parts on the same steps.
     pub fn builtin_rms(&self) -> (f64, f64) {
         (self.rms(self.builtin_smooth), self.rms(self.builtin_rough))
+    }
+
+    /// RMS of the error the budget's sweeps leave from the model's start and from builtin's.
+    pub fn left_rms(&self) -> (f64, f64) {
+        (self.rms(self.model_left), self.rms(self.builtin_left))
     }
 
     /// The fractions of builtin's smooth and rough error (RMS) the model removes.
@@ -177,6 +197,10 @@ impl ErrorSplit {
 struct Splitting {
     inner: Box<dyn crate::warm::WarmStartModel>,
     split: std::rc::Rc<std::cell::RefCell<ErrorSplit>>,
+    /// The budget's solve, run on scratch velocities from each start.
+    solve: SolveParams,
+    solver: crate::solver::ContactSolver,
+    scratch: Vec<crate::solver::SolverBody>,
     fixed: Vec<bool>,
     builtin: Vec<crate::solver::Impulse>,
     error: Vec<crate::solver::Impulse>,
@@ -184,6 +208,24 @@ struct Splitting {
 }
 
 impl Splitting {
+    /// The sum of squares of the error `solve`'s sweeps leave from `warm`.
+    fn left_after_budget(
+        &mut self,
+        step: crate::warm::StepRows<'_>,
+        warm: &[crate::solver::Impulse],
+        exact: &[crate::solver::Impulse],
+    ) -> f64 {
+        self.scratch.clear();
+        self.scratch.extend_from_slice(step.bodies);
+        self.solver.solve(step.rows, &mut self.scratch, warm, &self.solve);
+        self.solver
+            .impulses()
+            .iter()
+            .zip(exact)
+            .map(|(l, e)| ((l.normal - e.normal) as f64).powi(2) + ((l.tangent - e.tangent) as f64).powi(2))
+            .sum()
+    }
+
     /// `(smooth, rough)` sums of squares of `warm - exact` into `self.smooth`'s scratch.
     fn parts(
         &mut self,
@@ -238,8 +280,14 @@ impl crate::warm::WarmStartModel for Splitting {
         let builtin = std::mem::take(&mut self.builtin);
         let (ms, mr) = self.parts(input.contacts, out, exact);
         let (bs, br) = self.parts(input.contacts, &builtin, exact);
+        let (ml, bl) = match input.rows {
+            Some(step) => (self.left_after_budget(step, out, exact), self.left_after_budget(step, &builtin, exact)),
+            None => (0.0, 0.0),
+        };
         self.builtin = builtin;
         let mut split = self.split.borrow_mut();
+        split.model_left += ml;
+        split.builtin_left += bl;
         split.model_smooth += ms;
         split.model_rough += mr;
         split.builtin_smooth += bs;
@@ -263,6 +311,9 @@ pub fn split_seed(spec: &BudgetSpec, seed: u64, model: &ModelSpec, solve: SolveP
     let wrapped = Splitting {
         inner,
         split: split.clone(),
+        solve,
+        solver: crate::solver::ContactSolver::new(),
+        scratch: Vec::new(),
         fixed: Vec::new(),
         builtin: Vec::new(),
         error: Vec::new(),
@@ -325,11 +376,7 @@ pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) ->
             run.steps.extend(run_seed(spec, seed, m, spec.at_budget(*k))?);
             if spec.error_split && spec.budgets.contains(k) {
                 let s = split_seed(spec, seed, m, spec.at_budget(*k))?;
-                let t = &mut run.split;
-                (t.model_smooth, t.model_rough) = (t.model_smooth + s.model_smooth, t.model_rough + s.model_rough);
-                (t.builtin_smooth, t.builtin_rough) =
-                    (t.builtin_smooth + s.builtin_smooth, t.builtin_rough + s.builtin_rough);
-                t.n += s.n;
+                run.split.add(&s);
             }
         }
         progress(seed);
@@ -501,19 +548,22 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
             continue;
         }
         out += &format!(
-            "\n## At {k} sweeps: which part of builtin's error each model removes\n\nEach model's warm-start error against the step's exact solution and builtin's on the same steps (the model's own trajectory), split as the smooth-error / rough-error references split it: the part 4 passes of averaging over the contact graph keep (smooth, pile-wide) and the rest (rough, local); RMS over the contacts, impulse units.\n\n| model | smooth RMS | rough RMS | builtin's smooth RMS | builtin's rough RMS | smooth removed | rough removed |\n|---|---:|---:|---:|---:|---:|---:|\n"
+            "\n## At {k} sweeps: which part of builtin's error each model removes\n\nEach model's warm-start error against the step's exact solution and builtin's on the same steps (the model's own trajectory), split as the smooth-error / rough-error references split it: the part 4 passes of averaging over the contact graph keep (smooth, pile-wide) and the rest (rough, local); and what {k} sweeps from each start leave of it (the part slow for the solver; the rest they remove); RMS over the contacts, impulse units.\n\n| model | smooth RMS | rough RMS | builtin's smooth RMS | builtin's rough RMS | smooth removed | rough removed | left after {k} sweeps | builtin's left |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
         );
         for s in split {
             let ((ms, mr), (bs, br), (fs, fr)) = (s.split.model_rms(), s.split.builtin_rms(), s.split.removed());
+            let (ml, bl) = s.split.left_rms();
             out += &format!(
-                "| {} | {} | {} | {} | {} | {:.0}% | {:.0}% |\n",
+                "| {} | {} | {} | {} | {} | {:.0}% | {:.0}% | {} | {} |\n",
                 s.model,
                 num(ms),
                 num(mr),
                 num(bs),
                 num(br),
                 100.0 * fs,
-                100.0 * fr
+                100.0 * fr,
+                num(ml),
+                num(bl)
             );
         }
     }
@@ -708,6 +758,11 @@ mod tests {
         assert!((smooth - 0.5).abs() < 1e-3 && (rough - 0.5).abs() < 1e-3, "{blend:?}");
         assert_eq!(builtin.removed(), (0.0, 0.0));
         assert_eq!(builtin.model_rms(), builtin.builtin_rms());
+        // The budget's sweeps from builtin's own start are builtin's left error, and they leave
+        // less than the start had; from half the error, less than from all of it.
+        assert_eq!(builtin.left_rms().0, builtin.left_rms().1);
+        assert!(builtin.left_rms().1 < builtin.builtin_rms().0.hypot(builtin.builtin_rms().1), "{builtin:?}");
+        assert!(blend.left_rms().0 < blend.left_rms().1, "{blend:?}");
         // Only the judged budgets are split; the table says so.
         assert_eq!(of("builtin@8").n, 0);
         let table = markdown(&summaries, &spec.budgets);
