@@ -101,6 +101,7 @@ pub fn run(args: &BusBenchArgs, interrupted: &std::sync::Arc<std::sync::atomic::
             }
         }
         let medians: Vec<BenchResult> = runs.iter().map(|r| median(r)).collect();
+        let of = |v: Variant| &medians[Variant::ALL.iter().position(|x| *x == v).expect("a variant")];
         for (variant, m) in Variant::ALL.into_iter().zip(&medians) {
             println!(
                 "{:<16} {:<14} {:>10.1} {:>10.1} {:>12.0} {:>10.1}",
@@ -112,7 +113,7 @@ pub fn run(args: &BusBenchArgs, interrupted: &std::sync::Arc<std::sync::atomic::
                 m.mb_per_s
             );
             let raw = match variant {
-                Variant::Ours(t) => Variant::ALL.iter().position(|v| *v == Variant::Raw(t)).map(|i| &medians[i]),
+                Variant::Ours(t) => Some(of(Variant::Raw(t))),
                 _ => None,
             };
             let (p50_ratio, fps_ratio) = raw.map_or((String::new(), String::new()), |r| {
@@ -128,7 +129,6 @@ pub fn run(args: &BusBenchArgs, interrupted: &std::sync::Arc<std::sync::atomic::
                 m.mb_per_s
             ));
         }
-        let of = |v: Variant| &medians[Variant::ALL.iter().position(|x| *x == v).expect("a variant")];
         let ratios: Vec<String> = TARGETS
             .iter()
             .map(|(t, p50_max, fps_min)| {

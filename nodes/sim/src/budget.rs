@@ -303,13 +303,9 @@ impl crate::warm::WarmStartModel for Splitting {
 /// [`run_seed`] again with every warm start measured and split: the run's [`ErrorSplit`] on
 /// this seed (the same trajectory: measuring changes no warm start).
 pub fn split_seed(spec: &BudgetSpec, seed: u64, model: &ModelSpec, solve: SolveParams) -> Result<ErrorSplit, SimError> {
-    let params = WorldParams { solve, ..spec.params };
-    let mut world = World::new(&SceneConfig { seed, ..spec.scene.clone() }, params)?;
-    world.set_ids(0, seed as u32);
     let split = std::rc::Rc::new(std::cell::RefCell::new(ErrorSplit::default()));
-    let inner = model.build_with(seed, Served::default(), &spec.files)?;
     let wrapped = Splitting {
-        inner,
+        inner: model.build_with(seed, Served::default(), &spec.files)?,
         split: split.clone(),
         solve,
         solver: crate::solver::ContactSolver::new(),
@@ -319,11 +315,7 @@ pub fn split_seed(spec: &BudgetSpec, seed: u64, model: &ModelSpec, solve: SolveP
         error: Vec::new(),
         smooth: Vec::new(),
     };
-    let mut warm = WarmStarter::new(Box::new(wrapped), ModelKind::Builtin.build(seed)?);
-    warm.begin_simulation(seed as u32, seed);
-    for _ in 0..spec.steps {
-        world.step(&mut warm);
-    }
+    drive(spec, seed, Box::new(wrapped), solve)?;
     let out = *split.borrow();
     Ok(out)
 }
@@ -335,12 +327,21 @@ pub fn run_seed(
     model: &ModelSpec,
     solve: SolveParams,
 ) -> Result<Vec<StepStats>, SimError> {
+    drive(spec, seed, model.build_with(seed, Served::default(), &spec.files)?, solve)
+}
+
+/// Runs the seed's world with `model` (builtin its fallback) and `solve`: every step's statistics.
+fn drive(
+    spec: &BudgetSpec,
+    seed: u64,
+    model: Box<dyn crate::warm::WarmStartModel>,
+    solve: SolveParams,
+) -> Result<Vec<StepStats>, SimError> {
     let params = WorldParams { solve, ..spec.params };
     let mut world = World::new(&SceneConfig { seed, ..spec.scene.clone() }, params)?;
     // Simulation ids are u32 (checked by the caller's seed list).
     world.set_ids(0, seed as u32);
-    let network = model.build_with(seed, Served::default(), &spec.files)?;
-    let mut warm = WarmStarter::new(network, ModelKind::Builtin.build(seed)?);
+    let mut warm = WarmStarter::new(model, ModelKind::Builtin.build(seed)?);
     warm.begin_simulation(seed as u32, seed);
     Ok((0..spec.steps).map(|_| world.step(&mut warm).clone()).collect())
 }

@@ -185,6 +185,15 @@ impl WarmStarter {
         self.fallbacks_total
     }
 
+    /// The name of the model that gave the warm start: the fallback's when it fell back.
+    pub fn used_name(&self, fell_back: bool) -> &str {
+        if fell_back {
+            self.fallback.name()
+        } else {
+            self.model.name()
+        }
+    }
+
     /// Tells the model the step is done (see [`WarmStartModel::after_step`]).
     pub fn after_step(&mut self, done: &SolvedStep<'_>) {
         self.model.after_step(done);

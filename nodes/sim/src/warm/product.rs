@@ -353,14 +353,6 @@ mod tests {
         assert!((g[0].normal - 2.0).abs() < 1e-6, "{g:?}");
     }
 
-    /// A budget of 8 sweeps (the regime the pipelined model is for).
-    struct SolveParamsAt8;
-    impl SolveParamsAt8 {
-        fn at(p: crate::solver::SolveParams) -> crate::solver::SolveParams {
-            crate::solver::SolveParams { max_sweeps: 8, ..p }
-        }
-    }
-
     /// Keeps, at each step, the problem the world captured and the problem carried one step on.
     #[derive(Default)]
     struct Watch {
@@ -396,7 +388,9 @@ mod tests {
         let watch = std::rc::Rc::new(std::cell::RefCell::new(Watch::default()));
         let mut warm = crate::warm::WarmStarter::new(Box::new(watch.clone()), Box::new(Builtin));
         let recommended = WorldParams::recommended();
-        let params = WorldParams { solve: SolveParamsAt8::at(recommended.solve), ..recommended };
+        // A budget of 8 sweeps: the regime the pipelined model is for.
+        let params =
+            WorldParams { solve: crate::solver::SolveParams { max_sweeps: 8, ..recommended.solve }, ..recommended };
         let mut world = World::new(&SceneConfig { n: 60, seed: 5, ..Default::default() }, params).unwrap();
         for _ in 0..120 {
             world.step(&mut warm);

@@ -278,18 +278,11 @@ impl World {
         let t_warm = Instant::now();
         let fallback = self.warm_start(warm);
         let warm_start_us = t_warm.elapsed().as_secs_f32() * 1e6;
-        fn used_model(warm: &WarmStarter, fallback: bool) -> &str {
-            if fallback {
-                warm.fallback.name()
-            } else {
-                warm.model.name()
-            }
-        }
 
         // builtin on this same problem, when asked (a builtin step is its own answer); not part
         // of the step's time.
         let t_shadow = Instant::now();
-        let shadow = (self.instruments.shadow_builtin && used_model(warm, fallback) != ModelKind::Builtin.name())
+        let shadow = (self.instruments.shadow_builtin && warm.used_name(fallback) != ModelKind::Builtin.name())
             .then(|| self.instruments.builtin_sweeps(step_view!(self), &self.params.solve));
         if !self.instruments.menu.is_empty() {
             self.instruments.solve_menu(step_view!(self));
@@ -313,7 +306,7 @@ impl World {
             warm_start_us,
             step_us: t_step.elapsed().saturating_sub(capture_time + shadow_time).as_secs_f32() * 1e6,
         };
-        self.record(warm, used_model(warm, fallback), fallback, report, builtin_sweeps, timings);
+        self.record(warm, warm.used_name(fallback), fallback, report, builtin_sweeps, timings);
         &self.stats
     }
 
