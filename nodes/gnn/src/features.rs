@@ -39,9 +39,10 @@ pub fn contact_masses(bodies: &[ProblemBody], c: &ProblemContact) -> [f32; 2] {
 }
 
 /// Body velocities after applying every contact's `previous` impulse (builtin's warm start), as
-/// the solver does before its first sweep.
-fn velocities_after_builtin(bodies: &[ProblemBody], contacts: &[ProblemContact]) -> Vec<([f32; 2], f32)> {
-    let mut v: Vec<([f32; 2], f32)> = bodies.iter().map(|b| (b.v, b.w)).collect();
+/// the solver does before its first sweep, into `v`.
+fn velocities_after_builtin(bodies: &[ProblemBody], contacts: &[ProblemContact], v: &mut Vec<([f32; 2], f32)>) {
+    v.clear();
+    v.extend(bodies.iter().map(|b| (b.v, b.w)));
     for c in contacts {
         let t = tangent(c.normal);
         let p =
@@ -55,7 +56,15 @@ fn velocities_after_builtin(bodies: &[ProblemBody], contacts: &[ProblemContact])
         v[ib].0[1] += p[1] * bb.inv_mass;
         v[ib].1 += bb.inv_inertia * cross(c.rb, p);
     }
-    v
+}
+
+/// `ln(1 + age)` for the ages most contacts have (a table: the same values, without a logarithm
+/// per contact and step).
+fn log_age(age: u32) -> f32 {
+    const TABLE: usize = 256;
+    static LOGS: std::sync::OnceLock<[f32; TABLE]> = std::sync::OnceLock::new();
+    let logs = LOGS.get_or_init(|| std::array::from_fn(|a| (1.0 + a as f32).ln()));
+    logs.get(age as usize).copied().unwrap_or_else(|| (1.0 + age as f32).ln())
 }
 
 /// The features of a problem: `contact_out` gets [`CONTACT_FEATURES`] per contact, `body_out`
@@ -68,7 +77,20 @@ pub fn features(
     body_out: &mut Vec<f32>,
     masses_out: &mut Vec<[f32; 2]>,
 ) {
-    let v = velocities_after_builtin(bodies, contacts);
+    features_with(&mut Vec::new(), bodies, contacts, contact_out, body_out, masses_out)
+}
+
+/// [`features`] with a reusable buffer for the bodies' velocities (what a predictor calls every
+/// step).
+pub fn features_with(
+    v: &mut Vec<([f32; 2], f32)>,
+    bodies: &[ProblemBody],
+    contacts: &[ProblemContact],
+    contact_out: &mut Vec<f32>,
+    body_out: &mut Vec<f32>,
+    masses_out: &mut Vec<[f32; 2]>,
+) {
+    velocities_after_builtin(bodies, contacts, v);
     contact_out.clear();
     masses_out.clear();
     for c in contacts {
@@ -88,7 +110,7 @@ pub fn features(
             c.previous[1] * per(kt),
             (c.previous[0] - c.before_previous[0]) * per(kn),
             (c.previous[1] - c.before_previous[1]) * per(kt),
-            (1.0 + c.age as f32).ln(),
+            log_age(c.age),
             (c.age == 0) as u32 as f32,
             c.friction,
             if cone > 0.0 { (c.previous[1].abs() / cone).min(1.0) } else { 0.0 },
@@ -103,7 +125,7 @@ pub fn features(
         masses_out.push([kn, kt]);
     }
     body_out.clear();
-    for (b, (vb, wb)) in bodies.iter().zip(&v) {
+    for (b, (vb, wb)) in bodies.iter().zip(v.iter()) {
         let speed = (vb[0] * vb[0] + vb[1] * vb[1]).sqrt();
         body_out.extend_from_slice(&[(b.inv_mass == 0.0) as u32 as f32, (1.0 + b.inv_mass).ln(), speed, wb.abs()]);
     }
@@ -159,5 +181,12 @@ mod tests {
         };
         let [kn, _] = contact_masses(&bodies, &c);
         assert!((kn - 2.0).abs() < 1e-6, "{kn}");
+    }
+
+    #[test]
+    fn the_age_table_is_the_logarithm() {
+        for age in (0..300).chain([u32::MAX]) {
+            assert_eq!(log_age(age).to_bits(), (1.0 + age as f32).ln().to_bits(), "age {age}");
+        }
     }
 }

@@ -10,7 +10,7 @@ pub mod features;
 pub mod net;
 
 use msgs::{ProblemBody, ProblemContact};
-use net::{Net, Scratch};
+use net::{Net, Plan, Scratch};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -161,10 +161,12 @@ impl ModelFile {
 #[derive(Debug)]
 pub struct Predictor {
     net: Net,
+    plan: Plan,
     scratch: Scratch,
     contact_features: Vec<f32>,
     body_features: Vec<f32>,
     masses: Vec<[f32; 2]>,
+    velocities: Vec<([f32; 2], f32)>,
     pairs: Vec<(u32, u32)>,
     out: Vec<[f32; 2]>,
 }
@@ -172,11 +174,13 @@ pub struct Predictor {
 impl Predictor {
     pub fn new(net: Net) -> Predictor {
         Predictor {
+            plan: Plan::new(&net),
             net,
             scratch: Scratch::default(),
             contact_features: Vec::new(),
             body_features: Vec::new(),
             masses: Vec::new(),
+            velocities: Vec::new(),
             pairs: Vec::new(),
             out: Vec::new(),
         }
@@ -196,10 +200,17 @@ impl Predictor {
         contacts: &[ProblemContact],
         out: &mut [[f32; 2]],
     ) -> Result<(), NonFinite> {
-        features::features(bodies, contacts, &mut self.contact_features, &mut self.body_features, &mut self.masses);
+        features::features_with(
+            &mut self.velocities,
+            bodies,
+            contacts,
+            &mut self.contact_features,
+            &mut self.body_features,
+            &mut self.masses,
+        );
         self.pairs.clear();
         self.pairs.extend(contacts.iter().map(|c| (c.body_a, c.body_b)));
-        self.net.predict(&self.contact_features, &self.body_features, &self.pairs, &mut self.scratch, &mut self.out);
+        self.plan.predict(&self.contact_features, &self.body_features, &self.pairs, &mut self.scratch, &mut self.out);
         for (((o, c), y), k) in out.iter_mut().zip(contacts).zip(&self.out).zip(&self.masses) {
             *o = [c.previous[0] + y[0] * k[0], c.previous[1] + y[1] * k[1]];
         }

@@ -39,26 +39,6 @@ impl Linear {
         Linear { inputs, outputs, weight, bias: vec![0.0; outputs] }
     }
 
-    /// `out = W x + b` (out cleared first), then `relu` if asked.
-    #[inline]
-    fn apply(&self, x: &[f32], relu: bool, out: &mut [f32]) {
-        debug_assert_eq!(x.len(), self.inputs);
-        for (o, (row, b)) in out.iter_mut().zip(self.weight.chunks_exact(self.inputs).zip(&self.bias)) {
-            let s = dot(row, x) + b;
-            *o = if relu { s.max(0.0) } else { s };
-        }
-    }
-
-    /// `out = W[:, first..first + x.len()] x`: the part of the layer that reads one block of its
-    /// input, without the bias.
-    #[inline]
-    fn apply_block(&self, first: usize, x: &[f32], out: &mut [f32]) {
-        debug_assert!(first + x.len() <= self.inputs);
-        for (o, row) in out.iter_mut().zip(self.weight.chunks_exact(self.inputs)) {
-            *o = dot(&row[first..first + x.len()], x);
-        }
-    }
-
     fn check(&self, name: &str, inputs: usize, outputs: usize) -> Result<(), String> {
         if (self.inputs, self.outputs) != (inputs, outputs)
             || self.weight.len() != inputs * outputs
@@ -77,24 +57,6 @@ impl Linear {
         }
         Ok(())
     }
-}
-
-/// A dot product in four independent lanes (so it vectorises).
-#[inline]
-fn dot(a: &[f32], b: &[f32]) -> f32 {
-    let mut acc = [0.0f32; 4];
-    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
-    let (ra, rb) = (ca.remainder(), cb.remainder());
-    for (x, y) in ca.zip(cb) {
-        for k in 0..4 {
-            acc[k] += x[k] * y[k];
-        }
-    }
-    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
-    for (x, y) in ra.iter().zip(rb) {
-        s += x * y;
-    }
-    s
 }
 
 /// A uniform double in [0, 1) with 53 random bits.
@@ -133,12 +95,19 @@ pub struct Net {
 /// Reusable buffers of one prediction.
 #[derive(Debug, Default)]
 pub struct Scratch {
+    /// Contact states, then body states (of the bodies with contacts), and the bodies' means.
     hc: Vec<f32>,
     hb: Vec<f32>,
     mb: Vec<f32>,
+    /// Per body of the problem, its number among the bodies with contacts (`u32::MAX`: none).
+    slot: Vec<u32>,
+    /// The bodies with contacts, their contact counts and features; each contact's two bodies
+    /// by their numbers.
+    touched: Vec<u32>,
     counts: Vec<f32>,
-    input: Vec<f32>,
-    update: Vec<f32>,
+    xb: Vec<f32>,
+    local: Vec<(usize, usize)>,
+    acc: Vec<f32>,
     global: Vec<f32>,
     /// Per body, the contact layer's terms for a contact's body a and body b.
     from_a: Vec<f32>,
@@ -182,6 +151,7 @@ impl Net {
 
     /// The output per contact (velocity units): `contact_features` holds [`CONTACT_FEATURES`]
     /// per contact, `body_features` [`BODY_FEATURES`] per body, `pairs` each contact's bodies.
+    /// Lays the weights out for inference on every call: [`Plan`] keeps them for repeated use.
     pub fn predict(
         &self,
         contact_features: &[f32],
@@ -190,20 +160,7 @@ impl Net {
         s: &mut Scratch,
         out: &mut Vec<[f32; 2]>,
     ) {
-        out.clear();
-        out.resize(pairs.len(), [0.0; 2]);
-        if pairs.is_empty() {
-            return;
-        }
-        self.embed(contact_features, body_features, pairs, s);
-        let h = self.config.hidden;
-        for ((o, hc), x) in
-            out.iter_mut().zip(s.hc.chunks_exact(h)).zip(contact_features.chunks_exact(CONTACT_FEATURES))
-        {
-            s.input[..h].copy_from_slice(hc);
-            s.input[h..h + CONTACT_FEATURES].copy_from_slice(x);
-            self.decode.apply(&s.input[..h + CONTACT_FEATURES], false, o);
-        }
+        Plan::new(self).predict(contact_features, body_features, pairs, s, out)
     }
 
     /// The decoder's input per contact (`readout_width` each): what a readout is fitted on.
@@ -219,59 +176,379 @@ impl Net {
         if pairs.is_empty() {
             return;
         }
-        self.embed(contact_features, body_features, pairs, s);
         let h = self.config.hidden;
+        Plan::new(self).embed(contact_features, body_features, pairs, s);
         for (hc, x) in s.hc.chunks_exact(h).zip(contact_features.chunks_exact(CONTACT_FEATURES)) {
             out.extend_from_slice(hc);
             out.extend_from_slice(x);
         }
     }
+}
+
+/// A layer laid out for inference: the weights transposed (`[in][out]`), so that `W x` is a sum
+/// of weight columns scaled by the inputs, which vectorises across the outputs without the
+/// horizontal sums of row-by-row dot products.
+#[derive(Debug, Clone)]
+struct Columns {
+    outputs: usize,
+    columns: Vec<f32>,
+    bias: Vec<f32>,
+}
+
+impl Columns {
+    fn new(l: &Linear) -> Columns {
+        let mut columns = vec![0.0; l.inputs * l.outputs];
+        for (o, row) in l.weight.chunks_exact(l.inputs).enumerate() {
+            for (i, w) in row.iter().enumerate() {
+                columns[i * l.outputs + o] = *w;
+            }
+        }
+        Columns { outputs: l.outputs, columns, bias: l.bias.clone() }
+    }
+
+    /// `acc[r] += W[:, first..first + width] x[r]` for every row `r` of `acc` (`w` values each),
+    /// row `r`'s input being `x[r * stride..][..width]`: the part of the layer that reads one
+    /// block of its input, for many inputs at once.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn accumulate<K: Kernel>(&self, w: impl Width, first: usize, width: usize, x: &[f32], stride: usize, acc: &mut [f32]) {
+        let n = w.get();
+        debug_assert_eq!(n, self.outputs);
+        K::accumulate(&self.columns[first * n..(first + width) * n], n, width, x, stride, acc);
+    }
+
+    /// `rows` copies of the bias in `out`.
+    fn bias_rows(&self, rows: usize, out: &mut Vec<f32>) {
+        out.clear();
+        for _ in 0..rows {
+            out.extend_from_slice(&self.bias);
+        }
+    }
+}
+
+/// The width of the network's states: known when the code is compiled for the usual widths
+/// (every loop over a state then has a fixed length, unrolled and vectorised), else at run time.
+trait Width: Copy {
+    fn get(self) -> usize;
+}
+
+#[derive(Clone, Copy)]
+struct Fixed<const N: usize>;
+
+impl<const N: usize> Width for Fixed<N> {
+    #[inline(always)]
+    fn get(self) -> usize {
+        N
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Dynamic(usize);
+
+impl Width for Dynamic {
+    #[inline(always)]
+    fn get(self) -> usize {
+        self.0
+    }
+}
+
+/// How `acc[r] += W x[r]` is computed for a block of rows: `columns` holds `width` columns of `n`
+/// values, row `r`'s input is `x[r * stride..][..width]` and its accumulators
+/// `acc[r * n..(r + 1) * n]`. Every kernel makes the same roundings in the same order (per value:
+/// a product, then a sum, column after column), so all give the same bits.
+trait Kernel {
+    fn accumulate(columns: &[f32], n: usize, width: usize, x: &[f32], stride: usize, acc: &mut [f32]);
+}
+
+/// Plain loops (any processor).
+struct Portable;
+
+impl Kernel for Portable {
+    #[inline(always)]
+    fn accumulate(columns: &[f32], n: usize, width: usize, x: &[f32], stride: usize, acc: &mut [f32]) {
+        for (r, acc) in acc.chunks_exact_mut(n).enumerate() {
+            for (column, &xi) in columns.chunks_exact(n).zip(&x[r * stride..r * stride + width]) {
+                for (a, w) in acc.iter_mut().zip(column) {
+                    *a += w * xi;
+                }
+            }
+        }
+    }
+}
+
+/// AVX2 for 8, 16 and 32 values a row: a few rows at a time with their accumulators in registers
+/// and each weight column loaded once for them (the compiler keeps a loop's accumulators in
+/// memory, and does not vectorise a fixed-size array of them either). Used only where the
+/// processor has AVX2.
+#[cfg(target_arch = "x86_64")]
+struct Avx2;
+
+#[cfg(target_arch = "x86_64")]
+impl Kernel for Avx2 {
+    #[inline(always)]
+    fn accumulate(columns: &[f32], n: usize, width: usize, x: &[f32], stride: usize, acc: &mut [f32]) {
+        let rows = acc.len() / n;
+        assert!(acc.len() == rows * n && columns.len() >= width * n);
+        assert!(rows == 0 || x.len() >= (rows - 1) * stride + width);
+        let (c, x, a) = (columns.as_ptr(), x.as_ptr(), acc.as_mut_ptr());
+        // SAFETY: `Avx2` is only used by `Plan::embed_avx2`, called once AVX2 was detected; the
+        // asserts above keep every read and write inside the slices.
+        unsafe {
+            match n {
+                8 => rows_avx2::<1, 4>(c, width, x, stride, a, rows),
+                16 => rows_avx2::<2, 4>(c, width, x, stride, a, rows),
+                32 => rows_avx2::<4, 2>(c, width, x, stride, a, rows),
+                _ => Portable::accumulate(columns, n, width, x_slice(x, rows, stride, width), stride, acc),
+            }
+        }
+    }
+}
+
+/// The input rows' slice back from its pointer (the fallback of [`Avx2`] for other widths).
+#[cfg(target_arch = "x86_64")]
+unsafe fn x_slice<'a>(x: *const f32, rows: usize, stride: usize, width: usize) -> &'a [f32] {
+    std::slice::from_raw_parts(x, if rows == 0 { 0 } else { (rows - 1) * stride + width })
+}
+
+/// `rows` rows of `8 V` values, `R` rows at a time (then one at a time).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn rows_avx2<const V: usize, const R: usize>(
+    columns: *const f32,
+    width: usize,
+    x: *const f32,
+    stride: usize,
+    acc: *mut f32,
+    rows: usize,
+) {
+    let n = 8 * V;
+    let mut r = 0;
+    while r + R <= rows {
+        block_avx2::<V, R>(columns, width, x.add(r * stride), stride, acc.add(r * n));
+        r += R;
+    }
+    while r < rows {
+        block_avx2::<V, 1>(columns, width, x.add(r * stride), stride, acc.add(r * n));
+        r += 1;
+    }
+}
+
+/// `R` rows of `8 V` values: `R V` accumulators in registers, each column loaded once.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn block_avx2<const V: usize, const R: usize>(
+    columns: *const f32,
+    width: usize,
+    x: *const f32,
+    stride: usize,
+    acc: *mut f32,
+) {
+    use std::arch::x86_64::{__m256, _mm256_add_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_set1_ps, _mm256_storeu_ps};
+    let n = 8 * V;
+    let mut a: [[__m256; V]; R] = [[_mm256_set1_ps(0.0); V]; R];
+    for (r, row) in a.iter_mut().enumerate() {
+        for (v, a) in row.iter_mut().enumerate() {
+            *a = _mm256_loadu_ps(acc.add(r * n + 8 * v));
+        }
+    }
+    for k in 0..width {
+        let mut w: [__m256; V] = [_mm256_set1_ps(0.0); V];
+        for (v, w) in w.iter_mut().enumerate() {
+            *w = _mm256_loadu_ps(columns.add(k * n + 8 * v));
+        }
+        for (r, row) in a.iter_mut().enumerate() {
+            let s = _mm256_set1_ps(*x.add(r * stride + k));
+            for (a, w) in row.iter_mut().zip(&w) {
+                *a = _mm256_add_ps(*a, _mm256_mul_ps(*w, s));
+            }
+        }
+    }
+    for (r, row) in a.iter().enumerate() {
+        for (v, a) in row.iter().enumerate() {
+            _mm256_storeu_ps(acc.add(r * n + 8 * v), *a);
+        }
+    }
+}
+
+/// A network laid out for inference (what [`crate::Predictor`] keeps): the same function as
+/// [`Net`], computed with transposed weights, many contacts (or bodies) a layer at once, only
+/// for the bodies that have contacts, and with AVX2 where the processor has it (the same
+/// operations in the same order: the same bits).
+#[derive(Debug, Clone)]
+pub struct Plan {
+    config: NetConfig,
+    encode_contact: Columns,
+    encode_body: Columns,
+    body: Columns,
+    contact: Columns,
+    /// The decoder with its two outputs padded to [`DECODE_LANES`] (zero weights), so that it
+    /// runs through the same kernels.
+    decode: Columns,
+}
+
+/// The decoder's outputs as the inference layout holds them (two used).
+const DECODE_LANES: usize = 8;
+
+impl Plan {
+    pub fn new(net: &Net) -> Plan {
+        Plan {
+            config: net.config,
+            encode_contact: Columns::new(&net.encode_contact),
+            encode_body: Columns::new(&net.encode_body),
+            body: Columns::new(&net.body),
+            contact: Columns::new(&net.contact),
+            decode: Columns::new(&Linear {
+                inputs: net.decode.inputs,
+                outputs: DECODE_LANES,
+                weight: net.decode.weight.iter().copied().chain(std::iter::repeat(0.0)).take(DECODE_LANES * net.decode.inputs).collect(),
+                bias: net.decode.bias.iter().copied().chain(std::iter::repeat(0.0)).take(DECODE_LANES).collect(),
+            }),
+        }
+    }
+
+    /// [`Net::predict`].
+    pub fn predict(
+        &self,
+        contact_features: &[f32],
+        body_features: &[f32],
+        pairs: &[(u32, u32)],
+        s: &mut Scratch,
+        out: &mut Vec<[f32; 2]>,
+    ) {
+        out.clear();
+        out.resize(pairs.len(), [0.0; 2]);
+        if pairs.is_empty() {
+            return;
+        }
+        self.embed(contact_features, body_features, pairs, s);
+        self.decode(contact_features, s);
+        for (o, y) in out.iter_mut().zip(s.acc.chunks_exact(DECODE_LANES)) {
+            *o = [y[0], y[1]];
+        }
+    }
+
+    /// The decoder over [h_c, x_c] for every contact, into `s.acc` ([`DECODE_LANES`] a contact).
+    fn decode(&self, contact_features: &[f32], s: &mut Scratch) {
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor has AVX2 (checked just above).
+            unsafe { self.decode_avx2(contact_features, s) };
+            return;
+        }
+        self.decode_with::<Portable>(contact_features, s)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn decode_avx2(&self, contact_features: &[f32], s: &mut Scratch) {
+        self.decode_with::<Avx2>(contact_features, s)
+    }
+
+    #[inline(always)]
+    fn decode_with<K: Kernel>(&self, contact_features: &[f32], s: &mut Scratch) {
+        let (h, lanes) = (self.config.hidden, Fixed::<DECODE_LANES>);
+        self.decode.bias_rows(s.hc.len() / h, &mut s.acc);
+        self.decode.accumulate::<K>(lanes, 0, h, &s.hc, h, &mut s.acc);
+        self.decode.accumulate::<K>(lanes, h, CONTACT_FEATURES, contact_features, CONTACT_FEATURES, &mut s.acc);
+    }
 
     /// Encodes and runs the message-passing rounds: the final contact states are in `s.hc`.
     fn embed(&self, contact_features: &[f32], body_features: &[f32], pairs: &[(u32, u32)], s: &mut Scratch) {
-        let h = self.config.hidden;
-        let (nc, nb) = (pairs.len(), body_features.len() / BODY_FEATURES);
-        // The body layer's input [h_b, m_b] and the decoder's [h_c, x_c]; the contact layer reads
-        // its blocks in place.
-        s.input.resize((2 * h).max(h + CONTACT_FEATURES), 0.0);
-        s.hc.resize(nc * h, 0.0);
-        s.hb.resize(nb * h, 0.0);
-        s.mb.resize(nb * h, 0.0);
-        s.update.resize(h, 0.0);
-        s.global.resize(h, 0.0);
-        s.from_a.resize(nb * h, 0.0);
-        s.from_b.resize(nb * h, 0.0);
-        s.from_global.resize(h, 0.0);
-        for (x, hc) in contact_features.chunks_exact(CONTACT_FEATURES).zip(s.hc.chunks_exact_mut(h)) {
-            self.encode_contact.apply(x, true, hc);
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor has AVX2 (checked just above).
+            unsafe { self.embed_avx2(contact_features, body_features, pairs, s) };
+            return;
         }
-        for (x, hb) in body_features.chunks_exact(BODY_FEATURES).zip(s.hb.chunks_exact_mut(h)) {
-            self.encode_body.apply(x, true, hb);
+        self.embed_sized::<Portable>(contact_features, body_features, pairs, s)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn embed_avx2(&self, contact_features: &[f32], body_features: &[f32], pairs: &[(u32, u32)], s: &mut Scratch) {
+        self.embed_sized::<Avx2>(contact_features, body_features, pairs, s)
+    }
+
+    #[inline(always)]
+    fn embed_sized<K: Kernel>(&self, contact_features: &[f32], body_features: &[f32], pairs: &[(u32, u32)], s: &mut Scratch) {
+        match self.config.hidden {
+            8 => self.embed_with::<K>(Fixed::<8>, contact_features, body_features, pairs, s),
+            16 => self.embed_with::<K>(Fixed::<16>, contact_features, body_features, pairs, s),
+            32 => self.embed_with::<K>(Fixed::<32>, contact_features, body_features, pairs, s),
+            h => self.embed_with::<K>(Dynamic(h), contact_features, body_features, pairs, s),
         }
-        s.counts.clear();
-        s.counts.resize(nb, 0.0);
+    }
+
+    #[inline(always)]
+    fn embed_with<K: Kernel>(
+        &self,
+        w: impl Width,
+        contact_features: &[f32],
+        body_features: &[f32],
+        pairs: &[(u32, u32)],
+        s: &mut Scratch,
+    ) {
+        let h = w.get();
+        let nc = pairs.len();
+        // The bodies that have contacts (the others never reach a contact), numbered in the
+        // order the contacts name them; each contact's bodies by that number.
+        s.slot.clear();
+        s.slot.resize(body_features.len() / BODY_FEATURES, u32::MAX);
+        s.touched.clear();
+        s.local.clear();
         for &(a, b) in pairs {
-            s.counts[a as usize] += 1.0;
-            s.counts[b as usize] += 1.0;
+            let mut number = |body: u32| {
+                let slot = &mut s.slot[body as usize];
+                if *slot == u32::MAX {
+                    *slot = s.touched.len() as u32;
+                    s.touched.push(body);
+                }
+                *slot as usize
+            };
+            let local = (number(a), number(b));
+            s.local.push(local);
         }
+        let nt = s.touched.len();
+        s.counts.clear();
+        s.counts.resize(nt, 0.0);
+        for &(a, b) in &s.local {
+            s.counts[a] += 1.0;
+            s.counts[b] += 1.0;
+        }
+        s.xb.clear();
+        for &i in &s.touched {
+            s.xb.extend_from_slice(&body_features[i as usize * BODY_FEATURES..(i as usize + 1) * BODY_FEATURES]);
+        }
+        let relu = |v: &mut [f32]| v.iter_mut().for_each(|v| *v = v.max(0.0));
+        self.encode_contact.bias_rows(nc, &mut s.hc);
+        self.encode_contact.accumulate::<K>(w, 0, CONTACT_FEATURES, contact_features, CONTACT_FEATURES, &mut s.hc);
+        relu(&mut s.hc);
+        self.encode_body.bias_rows(nt, &mut s.hb);
+        self.encode_body.accumulate::<K>(w, 0, BODY_FEATURES, &s.xb, BODY_FEATURES, &mut s.hb);
+        relu(&mut s.hb);
+        s.mb.resize(nt * h, 0.0);
+        s.global.resize(h, 0.0);
         for _ in 0..self.config.rounds {
             // Bodies gather the mean of their contacts.
             s.mb.fill(0.0);
-            for (&(a, b), hc) in pairs.iter().zip(s.hc.chunks_exact(h)) {
-                for body in [a as usize, b as usize] {
+            for (&(a, b), hc) in s.local.iter().zip(s.hc.chunks_exact(h)) {
+                for body in [a, b] {
                     for (m, v) in s.mb[body * h..(body + 1) * h].iter_mut().zip(hc) {
                         *m += v;
                     }
                 }
             }
-            for (i, (hb, mb)) in s.hb.chunks_exact_mut(h).zip(s.mb.chunks_exact_mut(h)).enumerate() {
-                let inv = if s.counts[i] > 0.0 { 1.0 / s.counts[i] } else { 0.0 };
-                s.input[..h].copy_from_slice(hb);
-                for (dst, m) in s.input[h..2 * h].iter_mut().zip(mb.iter()) {
-                    *dst = m * inv;
-                }
-                self.body.apply(&s.input[..2 * h], true, hb);
+            for (mb, count) in s.mb.chunks_exact_mut(h).zip(&s.counts) {
+                let inv = 1.0 / count;
+                mb.iter_mut().for_each(|m| *m *= inv);
             }
+            self.body.bias_rows(nt, &mut s.acc);
+            self.body.accumulate::<K>(w, 0, h, &s.hb, h, &mut s.acc);
+            self.body.accumulate::<K>(w, h, h, &s.mb, h, &mut s.acc);
+            relu(&mut s.acc);
+            std::mem::swap(&mut s.hb, &mut s.acc);
             // The pile-wide mean, then each contact from itself, its bodies and the mean. The
             // contact layer is linear in its four input blocks: the body and mean blocks are
             // computed once per body and once per round, not once per contact.
@@ -283,22 +560,22 @@ impl Net {
             }
             let inv = 1.0 / nc as f32;
             s.global.iter_mut().for_each(|g| *g *= inv);
-            self.contact.apply_block(3 * h, &s.global, &mut s.from_global);
-            for (g, b) in s.from_global.iter_mut().zip(&self.contact.bias) {
-                *g += b;
+            self.contact.bias_rows(1, &mut s.from_global);
+            self.contact.accumulate::<K>(w, 3 * h, h, &s.global, h, &mut s.from_global);
+            for (from, first) in [(&mut s.from_a, h), (&mut s.from_b, 2 * h)] {
+                from.clear();
+                from.resize(nt * h, 0.0);
+                self.contact.accumulate::<K>(w, first, h, &s.hb, h, from);
             }
-            for ((hb, fa), fb) in
-                s.hb.chunks_exact(h).zip(s.from_a.chunks_exact_mut(h)).zip(s.from_b.chunks_exact_mut(h))
-            {
-                self.contact.apply_block(h, hb, fa);
-                self.contact.apply_block(2 * h, hb, fb);
+            s.acc.clear();
+            for _ in 0..nc {
+                s.acc.extend_from_slice(&s.from_global);
             }
-            for (&(a, b), hc) in pairs.iter().zip(s.hc.chunks_exact_mut(h)) {
-                self.contact.apply_block(0, hc, &mut s.update);
-                let (fa, fb) =
-                    (&s.from_a[a as usize * h..(a as usize + 1) * h], &s.from_b[b as usize * h..(b as usize + 1) * h]);
-                for ((((v, u), x), y), g) in hc.iter_mut().zip(&s.update).zip(fa).zip(fb).zip(&s.from_global) {
-                    *v += (u + x + y + g).max(0.0);
+            self.contact.accumulate::<K>(w, 0, h, &s.hc, h, &mut s.acc);
+            for ((&(a, b), hc), u) in s.local.iter().zip(s.hc.chunks_exact_mut(h)).zip(s.acc.chunks_exact(h)) {
+                let (fa, fb) = (&s.from_a[a * h..(a + 1) * h], &s.from_b[b * h..(b + 1) * h]);
+                for (((v, u), x), y) in hc.iter_mut().zip(u).zip(fa).zip(fb) {
+                    *v += (u + x + y).max(0.0);
                 }
             }
         }
@@ -355,5 +632,121 @@ mod tests {
         let mut net = Net::new(NetConfig::default(), 1);
         net.body.bias[0] = f32::NAN;
         assert!(net.validate().unwrap_err().contains("not finite"));
+    }
+
+    /// The network as its definition reads (module docs), in f64, weights row by row, every
+    /// body included: what the inference layout must compute.
+    fn by_definition(net: &Net, xc: &[f32], xb: &[f32], pairs: &[(u32, u32)]) -> Vec<[f64; 2]> {
+        let h = net.config.hidden;
+        let layer = |l: &Linear, x: &[f64], relu: bool| -> Vec<f64> {
+            (0..l.outputs)
+                .map(|o| {
+                    let row = &l.weight[o * l.inputs..(o + 1) * l.inputs];
+                    let s = row.iter().zip(x).map(|(w, x)| *w as f64 * x).sum::<f64>() + l.bias[o] as f64;
+                    if relu {
+                        s.max(0.0)
+                    } else {
+                        s
+                    }
+                })
+                .collect()
+        };
+        let f64s = |x: &[f32]| x.iter().map(|v| *v as f64).collect::<Vec<f64>>();
+        let mut hc: Vec<Vec<f64>> =
+            xc.chunks_exact(CONTACT_FEATURES).map(|x| layer(&net.encode_contact, &f64s(x), true)).collect();
+        let mut hb: Vec<Vec<f64>> = xb.chunks_exact(BODY_FEATURES).map(|x| layer(&net.encode_body, &f64s(x), true)).collect();
+        for _ in 0..net.config.rounds {
+            for (i, hb) in hb.iter_mut().enumerate() {
+                let touching = pairs.iter().map(|&(a, b)| (a as usize == i) as usize + (b as usize == i) as usize);
+                let count = touching.clone().sum::<usize>();
+                let mut m = vec![0.0; h];
+                for (c, times) in hc.iter().zip(touching) {
+                    for (m, v) in m.iter_mut().zip(c) {
+                        *m += *v * times as f64;
+                    }
+                }
+                let input: Vec<f64> =
+                    hb.iter().copied().chain(m.iter().map(|m| if count > 0 { m / count as f64 } else { 0.0 })).collect();
+                *hb = layer(&net.body, &input, true);
+            }
+            let g: Vec<f64> = (0..h).map(|k| hc.iter().map(|c| c[k]).sum::<f64>() / hc.len() as f64).collect();
+            hc = pairs
+                .iter()
+                .zip(&hc)
+                .map(|(&(a, b), c)| {
+                    let input: Vec<f64> =
+                        c.iter().chain(&hb[a as usize]).chain(&hb[b as usize]).chain(&g).copied().collect();
+                    c.iter().zip(layer(&net.contact, &input, true)).map(|(c, u)| c + u).collect()
+                })
+                .collect();
+        }
+        hc.iter()
+            .zip(xc.chunks_exact(CONTACT_FEATURES))
+            .map(|(c, x)| {
+                let y = layer(&net.decode, &c.iter().copied().chain(f64s(x)).collect::<Vec<f64>>(), false);
+                [y[0], y[1]]
+            })
+            .collect()
+    }
+
+    /// A trained-looking network: every layer random, the decoder too.
+    fn random_net(hidden: usize, rounds: usize, seed: u64) -> Net {
+        let mut net = Net::new(NetConfig { hidden, rounds }, seed);
+        net.decode = Linear::glorot(hidden + CONTACT_FEATURES, 2, &mut SplitMix64::new(seed + 1));
+        for l in [&mut net.encode_contact, &mut net.encode_body, &mut net.body, &mut net.contact, &mut net.decode] {
+            let mut rng = SplitMix64::new(seed + l.inputs as u64);
+            l.bias.iter_mut().for_each(|b| *b = (unit_f64(&mut rng) as f32 - 0.5) * 0.2);
+        }
+        net
+    }
+
+    #[test]
+    fn the_inference_layout_computes_the_network_as_defined() {
+        // Every width the plan compiles for, one it does not (12), and bodies without contacts
+        // (60..80), which the plan skips.
+        for (hidden, rounds) in [(8, 2), (16, 4), (32, 1), (12, 3)] {
+            let net = random_net(hidden, rounds, hidden as u64);
+            let (xc, xb, mut pairs) = inputs(150, 80);
+            pairs.iter_mut().for_each(|p| *p = (p.0 % 60, p.1 % 60));
+            let want = by_definition(&net, &xc, &xb, &pairs);
+            let mut got = Vec::new();
+            net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut got);
+            let scale = want.iter().flatten().fold(0f64, |m, v| m.max(v.abs()));
+            let worst = want.iter().flatten().zip(got.iter().flatten()).map(|(w, g)| (w - *g as f64).abs()).fold(0f64, f64::max);
+            assert!(scale > 0.1, "a non-trivial output: {scale}");
+            assert!(worst <= 1e-5 * scale, "hidden {hidden}: max difference {worst} vs output scale {scale}");
+        }
+    }
+
+    #[test]
+    fn every_kernel_gives_the_same_bits_and_scratch_is_reusable() {
+        let (xc, xb, pairs) = inputs(97, 41);
+        for hidden in [8, 16, 32, 12] {
+            let plan = Plan::new(&random_net(hidden, 3, 5));
+            let mut s = Scratch::default();
+            plan.embed_sized::<Portable>(&xc, &xb, &pairs, &mut s);
+            let portable = s.hc.clone();
+            // The dispatching path (AVX2 where the processor has it), through a scratch that
+            // served a larger problem first.
+            let (big_c, big_b, big_p) = inputs(300, 120);
+            let mut out = Vec::new();
+            plan.predict(&big_c, &big_b, &big_p, &mut s, &mut out);
+            plan.embed(&xc, &xb, &pairs, &mut s);
+            assert_eq!(portable.len(), s.hc.len());
+            assert!(portable.iter().zip(&s.hc).all(|(a, b)| a.to_bits() == b.to_bits()), "hidden {hidden}");
+        }
+    }
+
+    #[test]
+    fn bodies_without_contacts_do_not_change_the_prediction() {
+        let net = random_net(16, 2, 9);
+        let (xc, mut xb, pairs) = inputs(40, 30);
+        let mut before = Vec::new();
+        net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut before);
+        // Ten more bodies nobody touches, with wild features.
+        xb.extend((0..10 * BODY_FEATURES).map(|i| 1e3 * i as f32));
+        let mut after = Vec::new();
+        net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut after);
+        assert_eq!(before, after);
     }
 }

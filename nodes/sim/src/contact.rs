@@ -80,9 +80,25 @@ impl ImpulseHistory {
 
     /// builtin's warm start: each contact's impulse in the previous step, 0 for new ones.
     pub fn fill_previous(&self, contacts: &[ContactPoint], out: &mut [Impulse]) {
+        let mut previous = Cursor::new(&self.previous);
         for (c, o) in contacts.iter().zip(out.iter_mut()) {
-            *o = self.previous(&c.key).unwrap_or_default();
+            *o = previous.find(&c.key).map(|e| e.impulse).unwrap_or_default();
         }
+    }
+
+    /// Each contact's past, in order: its age, its impulse in the previous step and in the one
+    /// before. A step's contacts come sorted by key, and so are the past steps: one walk along
+    /// both instead of three searches per contact (any order is still answered right).
+    pub fn pasts<'a>(&'a self, keys: impl Iterator<Item = &'a ContactKey> + 'a) -> impl Iterator<Item = Past> + 'a {
+        let (mut previous, mut before) = (Cursor::new(&self.previous), Cursor::new(&self.before_previous));
+        keys.map(move |key| {
+            let last = previous.find(key);
+            Past {
+                age: last.map_or(0, |e| e.age + 1),
+                previous: last.map(|e| e.impulse),
+                before_previous: before.find(key).map(|e| e.impulse),
+            }
+        })
     }
 
     /// How many consecutive steps contact `key` has existed before the current one (0: new).
@@ -122,8 +138,40 @@ impl ImpulseHistory {
     }
 }
 
+/// A contact's past (see [`ImpulseHistory::pasts`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Past {
+    /// Consecutive steps it has existed before the current one (0: new).
+    pub age: u32,
+    pub previous: Option<Impulse>,
+    pub before_previous: Option<Impulse>,
+}
+
 fn lookup<'a>(list: &'a [Entry], key: &ContactKey) -> Option<&'a Entry> {
     list.binary_search_by(|e| e.key.cmp(key)).ok().map(|i| &list[i])
+}
+
+/// Finds keys in a sorted list by walking it forward, for keys asked in sorted order; a key
+/// asked out of order (one the walk may have passed) is searched for.
+struct Cursor<'a> {
+    list: &'a [Entry],
+    at: usize,
+}
+
+impl<'a> Cursor<'a> {
+    fn new(list: &'a [Entry]) -> Cursor<'a> {
+        Cursor { list, at: 0 }
+    }
+
+    fn find(&mut self, key: &ContactKey) -> Option<&'a Entry> {
+        if self.at > 0 && self.list[self.at - 1].key >= *key {
+            return lookup(self.list, key);
+        }
+        while self.list.get(self.at).is_some_and(|e| e.key < *key) {
+            self.at += 1;
+        }
+        self.list.get(self.at).filter(|e| e.key == *key)
+    }
 }
 
 /// One contact point of the current step.
@@ -154,6 +202,32 @@ pub fn feature_key(fa: PackedFeatureId, fb: PackedFeatureId) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_walk_finds_what_the_searches_find_in_any_order() {
+        let k = |b, f| ContactKey { body_a: 1, body_b: b, feature: f };
+        let imp = |n: f32| Impulse { normal: n, tangent: -n };
+        let mut h = ImpulseHistory::default();
+        let first = [k(2, 0), k(2, 1), k(3, 0), k(5, 0), k(7, 2)];
+        h.push(first.iter().copied(), &first.map(|c| imp(c.body_b as f32)), ImpulseHistory::no_trail());
+        let second = [k(2, 1), k(3, 0), k(4, 0), k(7, 2), k(9, 0)];
+        h.push(second.iter().copied(), &second.map(|c| imp(10.0 + c.feature as f32)), ImpulseHistory::no_trail());
+        let searched = |key: &ContactKey| Past { age: h.age(key), previous: h.previous(key), before_previous: h.before_previous(key) };
+        // Sorted (a step's contacts), with keys absent from either step, then out of order and repeated.
+        for keys in [
+            vec![k(1, 0), k(2, 0), k(2, 1), k(3, 0), k(4, 0), k(6, 0), k(7, 2), k(9, 0), k(10, 0)],
+            vec![k(9, 0), k(2, 1), k(7, 2), k(2, 1), k(3, 0), k(2, 0), k(10, 0), k(1, 0)],
+        ] {
+            let walked: Vec<Past> = h.pasts(keys.iter()).collect();
+            let want: Vec<Past> = keys.iter().map(searched).collect();
+            assert_eq!(walked, want, "{keys:?}");
+            let points: Vec<ContactPoint> = keys.iter().map(|&key| ContactPoint { key, point: Vec2::ZERO, normal: Vec2::Y, penetration: 0.0, friction: 0.5 }).collect();
+            let mut out = vec![imp(99.0); keys.len()];
+            h.fill_previous(&points, &mut out);
+            assert_eq!(out, want.iter().map(|p| p.previous.unwrap_or_default()).collect::<Vec<_>>());
+        }
+        assert_eq!(searched(&k(7, 2)), Past { age: 2, previous: Some(imp(12.0)), before_previous: Some(imp(7.0)) });
+    }
 
     #[test]
     fn ages_count_consecutive_steps() {

@@ -132,21 +132,21 @@ impl Instruments {
             inv_inertia: b.inv_inertia,
         }));
         p.contacts.clear();
-        let history = step.history;
-        for (c, r) in step.contacts.iter().zip(step.rows) {
+        let pasts = step.history.pasts(step.contacts.iter().map(|c| &c.key));
+        for ((c, r), past) in step.contacts.iter().zip(step.rows).zip(pasts) {
             let pair = |i: Option<Impulse>| i.map_or([0.0; 2], |i| [i.normal, i.tangent]);
             p.contacts.push(ProblemContact {
                 body_a: r.body_a,
                 body_b: r.body_b,
                 feature: c.key.feature,
-                age: history.age(&c.key),
+                age: past.age,
                 ra: r.ra.into(),
                 rb: r.rb.into(),
                 normal: r.normal.into(),
                 friction: r.friction,
                 penetration: c.penetration,
-                previous: pair(history.previous(&c.key)),
-                before_previous: pair(history.before_previous(&c.key)),
+                previous: pair(past.previous),
+                before_previous: pair(past.before_previous),
                 reference: [f32::NAN; 2],
                 height: r.height,
             });
