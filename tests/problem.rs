@@ -29,6 +29,24 @@ fn recorded_problems_resolve_to_the_recorded_sweeps() {
         let info = std::process::Command::new(bin("dc-gnn")).arg("info").arg(&path).output().unwrap();
         assert!(info.status.success(), "{}: {}", path.display(), text(&info));
     }
+    // `--data` repeated trains on every recording given (here the same one twice: twice the
+    // steps), and the model file says which.
+    let training_steps = |out: &std::process::Output| -> usize {
+        let text = text(out);
+        let line = text.lines().find(|l| l.contains("training steps")).unwrap_or_else(|| panic!("{text}"));
+        line.split_whitespace().nth(1).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{line}"))
+    };
+    let twice = std::process::Command::new(bin("dc-gnn-train"))
+        .args(["--data", &file.display().to_string(), "--data", &file.display().to_string()])
+        .args(["--validation", &file.display().to_string(), "--out", &dir.join("twice.dcg").display().to_string()])
+        .args(["--method", "backprop", "--epochs", "1", "--hidden", "8", "--rounds", "1"])
+        .output()
+        .unwrap();
+    assert!(twice.status.success(), "{}", text(&twice));
+    assert_eq!(training_steps(&twice), 2 * training_steps(&trained));
+    let info = std::process::Command::new(bin("dc-gnn")).arg("info").arg(dir.join("twice.dcg")).output().unwrap();
+    let shown = format!("{} + {}", file.display(), file.display());
+    assert!(text(&info).contains(&shown), "{}", text(&info));
 }
 
 /// Records `steps` steps of builtin on seed 3 with labelled problems (`extra`: more sim params).

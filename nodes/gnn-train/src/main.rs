@@ -42,9 +42,9 @@ use std::path::{Path, PathBuf};
         methods (no shipped model uses them; kept to reproduce the README's findings)."
 )]
 struct Args {
-    /// Training recordings (file or folder) with labelled problems.
-    #[arg(long)]
-    data: PathBuf,
+    /// Training recordings (file or folder) with labelled problems; repeat for several.
+    #[arg(long, required = true)]
+    data: Vec<PathBuf>,
     /// Validation recordings: the ridge strength is chosen by their re-solved sweeps.
     #[arg(long)]
     validation: PathBuf,
@@ -399,7 +399,10 @@ fn main() -> std::process::ExitCode {
 fn try_main() -> Result<()> {
     let Some(args) = runtime::parse_args::<Args>() else { return Ok(()) };
     runtime::init_logging();
-    let train = labelled_steps(&args.data)?;
+    let mut train = Vec::new();
+    for data in &args.data {
+        train.extend(labelled_steps(data)?);
+    }
     let validation = labelled_steps(&args.validation)?;
     let net = Net::new(args.net, args.seed);
     let readout = net.readout_width();
@@ -489,7 +492,7 @@ fn save_candidate(args: &Args, tag: &str, model: &Net, how: &str, sweeps: u64) {
 fn save(args: &Args, model: Net, how: &str, sweeps: u64, builtin: u64, validation_steps: usize) -> Result<()> {
     let provenance = format!(
         "dc-gnn-train: {how} of {}, hidden {}, {} rounds, seed {}; validation {validation_steps} steps of {}: {sweeps} sweeps re-solved = {:.3}x builtin",
-        args.data.display(),
+        args.data.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(" + "),
         args.net.hidden,
         args.net.rounds,
         args.seed,

@@ -91,9 +91,11 @@ pub fn features_with(
     masses_out: &mut Vec<[f32; 2]>,
 ) {
     velocities_after_builtin(bodies, contacts, v);
+    // Written in place (not appended value by value): this runs on the simulator's critical path.
     contact_out.clear();
+    contact_out.resize(contacts.len() * CONTACT_FEATURES, 0.0);
     masses_out.clear();
-    for c in contacts {
+    for (c, x) in contacts.iter().zip(contact_out.chunks_exact_mut(CONTACT_FEATURES)) {
         let (a, b) = (&bodies[c.body_a as usize], &bodies[c.body_b as usize]);
         let t = tangent(c.normal);
         let [kn, kt] = contact_masses(bodies, c);
@@ -105,11 +107,12 @@ pub fn features_with(
         let vn = dv[0] * c.normal[0] + dv[1] * c.normal[1];
         let vt = dv[0] * t[0] + dv[1] * t[1];
         let cone = c.friction * c.previous[0];
-        contact_out.extend_from_slice(&[
-            c.previous[0] * per(kn),
-            c.previous[1] * per(kt),
-            (c.previous[0] - c.before_previous[0]) * per(kn),
-            (c.previous[1] - c.before_previous[1]) * per(kt),
+        let (pn, pt) = (per(kn), per(kt));
+        x.copy_from_slice(&[
+            c.previous[0] * pn,
+            c.previous[1] * pt,
+            (c.previous[0] - c.before_previous[0]) * pn,
+            (c.previous[1] - c.before_previous[1]) * pt,
             log_age(c.age),
             (c.age == 0) as u32 as f32,
             c.friction,
@@ -125,9 +128,10 @@ pub fn features_with(
         masses_out.push([kn, kt]);
     }
     body_out.clear();
-    for (b, (vb, wb)) in bodies.iter().zip(v.iter()) {
+    body_out.resize(bodies.len() * BODY_FEATURES, 0.0);
+    for ((b, (vb, wb)), x) in bodies.iter().zip(v.iter()).zip(body_out.chunks_exact_mut(BODY_FEATURES)) {
         let speed = (vb[0] * vb[0] + vb[1] * vb[1]).sqrt();
-        body_out.extend_from_slice(&[(b.inv_mass == 0.0) as u32 as f32, (1.0 + b.inv_mass).ln(), speed, wb.abs()]);
+        x.copy_from_slice(&[(b.inv_mass == 0.0) as u32 as f32, (1.0 + b.inv_mass).ln(), speed, wb.abs()]);
     }
 }
 

@@ -211,7 +211,15 @@ impl Columns {
     /// block of its input, for many inputs at once.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn accumulate<K: Kernel>(&self, w: impl Width, first: usize, width: usize, x: &[f32], stride: usize, acc: &mut [f32]) {
+    fn accumulate<K: Kernel>(
+        &self,
+        w: impl Width,
+        first: usize,
+        width: usize,
+        x: &[f32],
+        stride: usize,
+        acc: &mut [f32],
+    ) {
         let n = w.get();
         debug_assert_eq!(n, self.outputs);
         K::accumulate(&self.columns[first * n..(first + width) * n], n, width, x, stride, acc);
@@ -402,7 +410,14 @@ impl Plan {
             decode: Columns::new(&Linear {
                 inputs: net.decode.inputs,
                 outputs: DECODE_LANES,
-                weight: net.decode.weight.iter().copied().chain(std::iter::repeat(0.0)).take(DECODE_LANES * net.decode.inputs).collect(),
+                weight: net
+                    .decode
+                    .weight
+                    .iter()
+                    .copied()
+                    .chain(std::iter::repeat(0.0))
+                    .take(DECODE_LANES * net.decode.inputs)
+                    .collect(),
                 bias: net.decode.bias.iter().copied().chain(std::iter::repeat(0.0)).take(DECODE_LANES).collect(),
             }),
         }
@@ -467,12 +482,24 @@ impl Plan {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn embed_avx2(&self, contact_features: &[f32], body_features: &[f32], pairs: &[(u32, u32)], s: &mut Scratch) {
+    unsafe fn embed_avx2(
+        &self,
+        contact_features: &[f32],
+        body_features: &[f32],
+        pairs: &[(u32, u32)],
+        s: &mut Scratch,
+    ) {
         self.embed_sized::<Avx2>(contact_features, body_features, pairs, s)
     }
 
     #[inline(always)]
-    fn embed_sized<K: Kernel>(&self, contact_features: &[f32], body_features: &[f32], pairs: &[(u32, u32)], s: &mut Scratch) {
+    fn embed_sized<K: Kernel>(
+        &self,
+        contact_features: &[f32],
+        body_features: &[f32],
+        pairs: &[(u32, u32)],
+        s: &mut Scratch,
+    ) {
         match self.config.hidden {
             8 => self.embed_with::<K>(Fixed::<8>, contact_features, body_features, pairs, s),
             16 => self.embed_with::<K>(Fixed::<16>, contact_features, body_features, pairs, s),
@@ -654,7 +681,8 @@ mod tests {
         let f64s = |x: &[f32]| x.iter().map(|v| *v as f64).collect::<Vec<f64>>();
         let mut hc: Vec<Vec<f64>> =
             xc.chunks_exact(CONTACT_FEATURES).map(|x| layer(&net.encode_contact, &f64s(x), true)).collect();
-        let mut hb: Vec<Vec<f64>> = xb.chunks_exact(BODY_FEATURES).map(|x| layer(&net.encode_body, &f64s(x), true)).collect();
+        let mut hb: Vec<Vec<f64>> =
+            xb.chunks_exact(BODY_FEATURES).map(|x| layer(&net.encode_body, &f64s(x), true)).collect();
         for _ in 0..net.config.rounds {
             for (i, hb) in hb.iter_mut().enumerate() {
                 let touching = pairs.iter().map(|&(a, b)| (a as usize == i) as usize + (b as usize == i) as usize);
@@ -665,8 +693,11 @@ mod tests {
                         *m += *v * times as f64;
                     }
                 }
-                let input: Vec<f64> =
-                    hb.iter().copied().chain(m.iter().map(|m| if count > 0 { m / count as f64 } else { 0.0 })).collect();
+                let input: Vec<f64> = hb
+                    .iter()
+                    .copied()
+                    .chain(m.iter().map(|m| if count > 0 { m / count as f64 } else { 0.0 }))
+                    .collect();
                 *hb = layer(&net.body, &input, true);
             }
             let g: Vec<f64> = (0..h).map(|k| hc.iter().map(|c| c[k]).sum::<f64>() / hc.len() as f64).collect();
@@ -712,7 +743,12 @@ mod tests {
             let mut got = Vec::new();
             net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut got);
             let scale = want.iter().flatten().fold(0f64, |m, v| m.max(v.abs()));
-            let worst = want.iter().flatten().zip(got.iter().flatten()).map(|(w, g)| (w - *g as f64).abs()).fold(0f64, f64::max);
+            let worst = want
+                .iter()
+                .flatten()
+                .zip(got.iter().flatten())
+                .map(|(w, g)| (w - *g as f64).abs())
+                .fold(0f64, f64::max);
             assert!(scale > 0.1, "a non-trivial output: {scale}");
             assert!(worst <= 1e-5 * scale, "hidden {hidden}: max difference {worst} vs output scale {scale}");
         }

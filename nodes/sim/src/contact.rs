@@ -212,7 +212,11 @@ mod tests {
         h.push(first.iter().copied(), &first.map(|c| imp(c.body_b as f32)), ImpulseHistory::no_trail());
         let second = [k(2, 1), k(3, 0), k(4, 0), k(7, 2), k(9, 0)];
         h.push(second.iter().copied(), &second.map(|c| imp(10.0 + c.feature as f32)), ImpulseHistory::no_trail());
-        let searched = |key: &ContactKey| Past { age: h.age(key), previous: h.previous(key), before_previous: h.before_previous(key) };
+        let searched = |key: &ContactKey| Past {
+            age: h.age(key),
+            previous: h.previous(key),
+            before_previous: h.before_previous(key),
+        };
         // Sorted (a step's contacts), with keys absent from either step, then out of order and repeated.
         for keys in [
             vec![k(1, 0), k(2, 0), k(2, 1), k(3, 0), k(4, 0), k(6, 0), k(7, 2), k(9, 0), k(10, 0)],
@@ -221,7 +225,10 @@ mod tests {
             let walked: Vec<Past> = h.pasts(keys.iter()).collect();
             let want: Vec<Past> = keys.iter().map(searched).collect();
             assert_eq!(walked, want, "{keys:?}");
-            let points: Vec<ContactPoint> = keys.iter().map(|&key| ContactPoint { key, point: Vec2::ZERO, normal: Vec2::Y, penetration: 0.0, friction: 0.5 }).collect();
+            let points: Vec<ContactPoint> = keys
+                .iter()
+                .map(|&key| ContactPoint { key, point: Vec2::ZERO, normal: Vec2::Y, penetration: 0.0, friction: 0.5 })
+                .collect();
             let mut out = vec![imp(99.0); keys.len()];
             h.fill_previous(&points, &mut out);
             assert_eq!(out, want.iter().map(|p| p.previous.unwrap_or_default()).collect::<Vec<_>>());
