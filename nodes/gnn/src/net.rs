@@ -206,32 +206,41 @@ impl Columns {
         Columns { outputs: l.outputs, columns, bias: l.bias.clone() }
     }
 
-    /// `acc[r] += W[:, first..first + width] x[r]` for every row `r` of `acc` (`w` values each),
-    /// row `r`'s input being `x[r * stride..][..width]`: the part of the layer that reads one
-    /// block of its input, for many inputs at once.
+    /// `acc[r] = start + W[:, first..first + width] x[r]` for every row `r` of `acc` (`w` values
+    /// each), row `r`'s input being `inputs`' row `r`, stored through a ReLU when `relu`: the
+    /// part of the layer that reads one block of its input, for many inputs at once.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn accumulate<K: Kernel>(
-        &self,
-        w: impl Width,
-        first: usize,
-        width: usize,
-        x: &[f32],
-        stride: usize,
-        acc: &mut [f32],
-    ) {
+    fn product<K: Kernel>(&self, w: impl Width, first: usize, inputs: Rows<'_>, start: Start<'_>, relu: bool, acc: &mut [f32]) {
         let n = w.get();
         debug_assert_eq!(n, self.outputs);
-        K::accumulate(&self.columns[first * n..(first + width) * n], n, width, x, stride, acc);
+        K::product(&self.columns[first * n..(first + inputs.width) * n], n, inputs, start, relu, acc);
     }
+}
 
-    /// `rows` copies of the bias in `out`.
-    fn bias_rows(&self, rows: usize, out: &mut Vec<f32>) {
-        out.clear();
-        for _ in 0..rows {
-            out.extend_from_slice(&self.bias);
-        }
+/// Input rows of a layer block: row `r` is `x[r * stride..][..width]`.
+#[derive(Clone, Copy)]
+struct Rows<'a> {
+    x: &'a [f32],
+    stride: usize,
+    width: usize,
+}
+
+impl<'a> Rows<'a> {
+    /// Rows of `width` values one after the other.
+    fn packed(x: &'a [f32], width: usize) -> Rows<'a> {
+        Rows { x, stride: width, width }
     }
+}
+
+/// What each output row starts from before the products are added.
+#[derive(Clone, Copy)]
+enum Start<'a> {
+    /// What the row holds (a second block of the same layer).
+    Held,
+    /// The same values for every row (a bias, a term shared by all rows).
+    Row(&'a [f32]),
+    Zero,
 }
 
 /// The width of the network's states: known when the code is compiled for the usual widths
@@ -260,12 +269,12 @@ impl Width for Dynamic {
     }
 }
 
-/// How `acc[r] += W x[r]` is computed for a block of rows: `columns` holds `width` columns of `n`
-/// values, row `r`'s input is `x[r * stride..][..width]` and its accumulators
+/// How `acc[r] = start + W x[r]` (then a ReLU if asked) is computed for many rows: `columns`
+/// holds `inputs.width` columns of `n` values, row `r`'s accumulators are
 /// `acc[r * n..(r + 1) * n]`. Every kernel makes the same roundings in the same order (per value:
-/// a product, then a sum, column after column), so all give the same bits.
+/// the start, then a product and a sum column after column), so all give the same bits.
 trait Kernel {
-    fn accumulate(columns: &[f32], n: usize, width: usize, x: &[f32], stride: usize, acc: &mut [f32]);
+    fn product(columns: &[f32], n: usize, inputs: Rows<'_>, start: Start<'_>, relu: bool, acc: &mut [f32]);
 }
 
 /// Plain loops (any processor).
@@ -273,12 +282,22 @@ struct Portable;
 
 impl Kernel for Portable {
     #[inline(always)]
-    fn accumulate(columns: &[f32], n: usize, width: usize, x: &[f32], stride: usize, acc: &mut [f32]) {
+    fn product(columns: &[f32], n: usize, inputs: Rows<'_>, start: Start<'_>, relu: bool, acc: &mut [f32]) {
+        let Rows { x, stride, width } = inputs;
         for (r, acc) in acc.chunks_exact_mut(n).enumerate() {
+            match start {
+                Start::Held => {}
+                Start::Row(row) => acc.copy_from_slice(&row[..n]),
+                Start::Zero => acc.fill(0.0),
+            }
             for (column, &xi) in columns.chunks_exact(n).zip(&x[r * stride..r * stride + width]) {
                 for (a, w) in acc.iter_mut().zip(column) {
                     *a += w * xi;
                 }
+            }
+            if relu {
+                // As AVX's `max(a, 0)`: 0 for NaN and for -0.
+                acc.iter_mut().for_each(|a| *a = if *a > 0.0 { *a } else { 0.0 });
             }
         }
     }
@@ -294,80 +313,85 @@ struct Avx2;
 #[cfg(target_arch = "x86_64")]
 impl Kernel for Avx2 {
     #[inline(always)]
-    fn accumulate(columns: &[f32], n: usize, width: usize, x: &[f32], stride: usize, acc: &mut [f32]) {
+    fn product(columns: &[f32], n: usize, inputs: Rows<'_>, start: Start<'_>, relu: bool, acc: &mut [f32]) {
+        let Rows { x, stride, width } = inputs;
         let rows = acc.len() / n;
         assert!(acc.len() == rows * n && columns.len() >= width * n);
         assert!(rows == 0 || x.len() >= (rows - 1) * stride + width);
-        let (c, x, a) = (columns.as_ptr(), x.as_ptr(), acc.as_mut_ptr());
-        // SAFETY: `Avx2` is only used by `Plan::embed_avx2`, called once AVX2 was detected; the
-        // asserts above keep every read and write inside the slices.
+        if let Start::Row(row) = start {
+            assert!(row.len() >= n);
+        }
+        let block = Block { columns: columns.as_ptr(), width, x: x.as_ptr(), stride, start, relu };
+        // SAFETY: `Avx2` is only used by `Plan::embed_avx2` and `Plan::decode_avx2`, called once
+        // AVX2 was detected; the asserts above keep every read and write inside the slices.
         unsafe {
             match n {
-                8 => rows_avx2::<1, 4>(c, width, x, stride, a, rows),
-                16 => rows_avx2::<2, 4>(c, width, x, stride, a, rows),
-                32 => rows_avx2::<4, 2>(c, width, x, stride, a, rows),
-                _ => Portable::accumulate(columns, n, width, x_slice(x, rows, stride, width), stride, acc),
+                8 => rows_avx2::<1, 4>(&block, acc.as_mut_ptr(), rows),
+                16 => rows_avx2::<2, 4>(&block, acc.as_mut_ptr(), rows),
+                32 => rows_avx2::<4, 2>(&block, acc.as_mut_ptr(), rows),
+                _ => Portable::product(columns, n, inputs, start, relu, acc),
             }
         }
     }
 }
 
-/// The input rows' slice back from its pointer (the fallback of [`Avx2`] for other widths).
+/// A product as [`Avx2`]'s blocks read it.
 #[cfg(target_arch = "x86_64")]
-unsafe fn x_slice<'a>(x: *const f32, rows: usize, stride: usize, width: usize) -> &'a [f32] {
-    std::slice::from_raw_parts(x, if rows == 0 { 0 } else { (rows - 1) * stride + width })
+struct Block<'a> {
+    columns: *const f32,
+    width: usize,
+    x: *const f32,
+    stride: usize,
+    start: Start<'a>,
+    relu: bool,
 }
 
 /// `rows` rows of `8 V` values, `R` rows at a time (then one at a time).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn rows_avx2<const V: usize, const R: usize>(
-    columns: *const f32,
-    width: usize,
-    x: *const f32,
-    stride: usize,
-    acc: *mut f32,
-    rows: usize,
-) {
+unsafe fn rows_avx2<const V: usize, const R: usize>(block: &Block<'_>, acc: *mut f32, rows: usize) {
     let n = 8 * V;
     let mut r = 0;
     while r + R <= rows {
-        block_avx2::<V, R>(columns, width, x.add(r * stride), stride, acc.add(r * n));
+        block_avx2::<V, R>(block, r, acc.add(r * n));
         r += R;
     }
     while r < rows {
-        block_avx2::<V, 1>(columns, width, x.add(r * stride), stride, acc.add(r * n));
+        block_avx2::<V, 1>(block, r, acc.add(r * n));
         r += 1;
     }
 }
 
-/// `R` rows of `8 V` values: `R V` accumulators in registers, each column loaded once.
+/// `R` rows of `8 V` values from row `first`: `R V` accumulators in registers, each column loaded
+/// once.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn block_avx2<const V: usize, const R: usize>(
-    columns: *const f32,
-    width: usize,
-    x: *const f32,
-    stride: usize,
-    acc: *mut f32,
-) {
-    use std::arch::x86_64::{__m256, _mm256_add_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_set1_ps, _mm256_storeu_ps};
+unsafe fn block_avx2<const V: usize, const R: usize>(block: &Block<'_>, first: usize, acc: *mut f32) {
+    use std::arch::x86_64::{
+        __m256, _mm256_add_ps, _mm256_loadu_ps, _mm256_max_ps, _mm256_mul_ps, _mm256_set1_ps, _mm256_setzero_ps,
+        _mm256_storeu_ps,
+    };
     let n = 8 * V;
-    let mut a: [[__m256; V]; R] = [[_mm256_set1_ps(0.0); V]; R];
+    let x = block.x.add(first * block.stride);
+    let mut a: [[__m256; V]; R] = [[_mm256_setzero_ps(); V]; R];
     for (r, row) in a.iter_mut().enumerate() {
         for (v, a) in row.iter_mut().enumerate() {
-            *a = _mm256_loadu_ps(acc.add(r * n + 8 * v));
+            *a = match block.start {
+                Start::Held => _mm256_loadu_ps(acc.add(r * n + 8 * v)),
+                Start::Row(start) => _mm256_loadu_ps(start.as_ptr().add(8 * v)),
+                Start::Zero => _mm256_setzero_ps(),
+            };
         }
     }
-    for k in 0..width {
-        let mut w: [__m256; V] = [_mm256_set1_ps(0.0); V];
+    for k in 0..block.width {
+        let mut w: [__m256; V] = [_mm256_setzero_ps(); V];
         for (v, w) in w.iter_mut().enumerate() {
-            *w = _mm256_loadu_ps(columns.add(k * n + 8 * v));
+            *w = _mm256_loadu_ps(block.columns.add(k * n + 8 * v));
         }
         for (r, row) in a.iter_mut().enumerate() {
-            let s = _mm256_set1_ps(*x.add(r * stride + k));
+            let s = _mm256_set1_ps(*x.add(r * block.stride + k));
             for (a, w) in row.iter_mut().zip(&w) {
                 *a = _mm256_add_ps(*a, _mm256_mul_ps(*w, s));
             }
@@ -375,7 +399,8 @@ unsafe fn block_avx2<const V: usize, const R: usize>(
     }
     for (r, row) in a.iter().enumerate() {
         for (v, a) in row.iter().enumerate() {
-            _mm256_storeu_ps(acc.add(r * n + 8 * v), *a);
+            let a = if block.relu { _mm256_max_ps(*a, _mm256_setzero_ps()) } else { *a };
+            _mm256_storeu_ps(acc.add(r * n + 8 * v), a);
         }
     }
 }
@@ -464,9 +489,10 @@ impl Plan {
     #[inline(always)]
     fn decode_with<K: Kernel>(&self, contact_features: &[f32], s: &mut Scratch) {
         let (h, lanes) = (self.config.hidden, Fixed::<DECODE_LANES>);
-        self.decode.bias_rows(s.hc.len() / h, &mut s.acc);
-        self.decode.accumulate::<K>(lanes, 0, h, &s.hc, h, &mut s.acc);
-        self.decode.accumulate::<K>(lanes, h, CONTACT_FEATURES, contact_features, CONTACT_FEATURES, &mut s.acc);
+        s.acc.resize(s.hc.len() / h * DECODE_LANES, 0.0);
+        let d = &self.decode;
+        d.product::<K>(lanes, 0, Rows::packed(&s.hc, h), Start::Row(&d.bias), false, &mut s.acc);
+        d.product::<K>(lanes, h, Rows::packed(contact_features, CONTACT_FEATURES), Start::Held, false, &mut s.acc);
     }
 
     /// Encodes and runs the message-passing rounds: the final contact states are in `s.hc`.
@@ -548,13 +574,11 @@ impl Plan {
         for &i in &s.touched {
             s.xb.extend_from_slice(&body_features[i as usize * BODY_FEATURES..(i as usize + 1) * BODY_FEATURES]);
         }
-        let relu = |v: &mut [f32]| v.iter_mut().for_each(|v| *v = v.max(0.0));
-        self.encode_contact.bias_rows(nc, &mut s.hc);
-        self.encode_contact.accumulate::<K>(w, 0, CONTACT_FEATURES, contact_features, CONTACT_FEATURES, &mut s.hc);
-        relu(&mut s.hc);
-        self.encode_body.bias_rows(nt, &mut s.hb);
-        self.encode_body.accumulate::<K>(w, 0, BODY_FEATURES, &s.xb, BODY_FEATURES, &mut s.hb);
-        relu(&mut s.hb);
+        let (ec, eb) = (&self.encode_contact, &self.encode_body);
+        s.hc.resize(nc * h, 0.0);
+        ec.product::<K>(w, 0, Rows::packed(contact_features, CONTACT_FEATURES), Start::Row(&ec.bias), true, &mut s.hc);
+        s.hb.resize(nt * h, 0.0);
+        eb.product::<K>(w, 0, Rows::packed(&s.xb, BODY_FEATURES), Start::Row(&eb.bias), true, &mut s.hb);
         s.mb.resize(nt * h, 0.0);
         s.global.resize(h, 0.0);
         for _ in 0..self.config.rounds {
@@ -571,10 +595,10 @@ impl Plan {
                 let inv = 1.0 / count;
                 mb.iter_mut().for_each(|m| *m *= inv);
             }
-            self.body.bias_rows(nt, &mut s.acc);
-            self.body.accumulate::<K>(w, 0, h, &s.hb, h, &mut s.acc);
-            self.body.accumulate::<K>(w, h, h, &s.mb, h, &mut s.acc);
-            relu(&mut s.acc);
+            let body = &self.body;
+            s.acc.resize(nt * h, 0.0);
+            body.product::<K>(w, 0, Rows::packed(&s.hb, h), Start::Row(&body.bias), false, &mut s.acc);
+            body.product::<K>(w, h, Rows::packed(&s.mb, h), Start::Held, true, &mut s.acc);
             std::mem::swap(&mut s.hb, &mut s.acc);
             // The pile-wide mean, then each contact from itself, its bodies and the mean. The
             // contact layer is linear in its four input blocks: the body and mean blocks are
@@ -587,18 +611,15 @@ impl Plan {
             }
             let inv = 1.0 / nc as f32;
             s.global.iter_mut().for_each(|g| *g *= inv);
-            self.contact.bias_rows(1, &mut s.from_global);
-            self.contact.accumulate::<K>(w, 3 * h, h, &s.global, h, &mut s.from_global);
+            let contact = &self.contact;
+            s.from_global.resize(h, 0.0);
+            contact.product::<K>(w, 3 * h, Rows::packed(&s.global, h), Start::Row(&contact.bias), false, &mut s.from_global);
             for (from, first) in [(&mut s.from_a, h), (&mut s.from_b, 2 * h)] {
-                from.clear();
                 from.resize(nt * h, 0.0);
-                self.contact.accumulate::<K>(w, first, h, &s.hb, h, from);
+                contact.product::<K>(w, first, Rows::packed(&s.hb, h), Start::Zero, false, from);
             }
-            s.acc.clear();
-            for _ in 0..nc {
-                s.acc.extend_from_slice(&s.from_global);
-            }
-            self.contact.accumulate::<K>(w, 0, h, &s.hc, h, &mut s.acc);
+            s.acc.resize(nc * h, 0.0);
+            contact.product::<K>(w, 0, Rows::packed(&s.hc, h), Start::Row(&s.from_global), false, &mut s.acc);
             for ((&(a, b), hc), u) in s.local.iter().zip(s.hc.chunks_exact_mut(h)).zip(s.acc.chunks_exact(h)) {
                 let (fa, fb) = (&s.from_a[a * h..(a + 1) * h], &s.from_b[b * h..(b + 1) * h]);
                 for (((v, u), x), y) in hc.iter_mut().zip(u).zip(fa).zip(fb) {
