@@ -144,7 +144,7 @@ impl GnnNet {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use gnn::net::Scratch;
+    use gnn::net::{Plan, Scratch};
 
     #[test]
     fn burn_and_the_f32_network_agree() {
@@ -161,7 +161,7 @@ mod tests {
         let xb: Vec<f32> = (0..60 * BODY_FEATURES).map(|_| unit()).collect();
         let pairs: Vec<(u32, u32)> = (0..150u32).map(|i| (i % 7, 7 + (i * 13) % 53)).collect();
         let mut want = Vec::new();
-        net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut want);
+        Plan::new(&net).predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut want);
         let twin = GnnNet::from_net(&net, &device);
         let got: Vec<f32> =
             twin.forward(&GraphInput::new(&xc, &xb, &pairs, &device)).into_data().try_into_vec::<f32>().unwrap();

@@ -149,20 +149,6 @@ impl Net {
         self.decode.check("decode", h + CONTACT_FEATURES, 2)
     }
 
-    /// The output per contact (velocity units): `contact_features` holds [`CONTACT_FEATURES`]
-    /// per contact, `body_features` [`BODY_FEATURES`] per body, `pairs` each contact's bodies.
-    /// Lays the weights out for inference on every call: [`Plan`] keeps them for repeated use.
-    pub fn predict(
-        &self,
-        contact_features: &[f32],
-        body_features: &[f32],
-        pairs: &[(u32, u32)],
-        s: &mut Scratch,
-        out: &mut Vec<[f32; 2]>,
-    ) {
-        Plan::new(self).predict(contact_features, body_features, pairs, s, out)
-    }
-
     /// The decoder's input per contact (`readout_width` each): what a readout is fitted on.
     pub fn readout_inputs(
         &self,
@@ -211,7 +197,15 @@ impl Columns {
     /// part of the layer that reads one block of its input, for many inputs at once.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn product<K: Kernel>(&self, w: impl Width, first: usize, inputs: Rows<'_>, start: Start<'_>, relu: bool, acc: &mut [f32]) {
+    fn product<K: Kernel>(
+        &self,
+        w: impl Width,
+        first: usize,
+        inputs: Rows<'_>,
+        start: Start<'_>,
+        relu: bool,
+        acc: &mut [f32],
+    ) {
         let n = w.get();
         debug_assert_eq!(n, self.outputs);
         K::product(&self.columns[first * n..(first + inputs.width) * n], n, inputs, start, relu, acc);
@@ -448,7 +442,9 @@ impl Plan {
         }
     }
 
-    /// [`Net::predict`].
+    /// The network's output per contact (velocity units): `contact_features` holds
+    /// [`CONTACT_FEATURES`] per contact, `body_features` [`BODY_FEATURES`] per body, `pairs` each
+    /// contact's bodies.
     pub fn predict(
         &self,
         contact_features: &[f32],
@@ -613,7 +609,14 @@ impl Plan {
             s.global.iter_mut().for_each(|g| *g *= inv);
             let contact = &self.contact;
             s.from_global.resize(h, 0.0);
-            contact.product::<K>(w, 3 * h, Rows::packed(&s.global, h), Start::Row(&contact.bias), false, &mut s.from_global);
+            contact.product::<K>(
+                w,
+                3 * h,
+                Rows::packed(&s.global, h),
+                Start::Row(&contact.bias),
+                false,
+                &mut s.from_global,
+            );
             for (from, first) in [(&mut s.from_a, h), (&mut s.from_b, 2 * h)] {
                 from.resize(nt * h, 0.0);
                 contact.product::<K>(w, first, Rows::packed(&s.hb, h), Start::Zero, false, from);
@@ -648,7 +651,7 @@ mod tests {
         net.validate().unwrap();
         let (xc, xb, pairs) = inputs(200, 101);
         let mut out = Vec::new();
-        net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut out);
+        Plan::new(&net).predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut out);
         assert_eq!(out.len(), 200);
         assert!(out.iter().all(|o| *o == [0.0, 0.0]));
     }
@@ -663,10 +666,10 @@ mod tests {
         let pairs = [(0, 1), (1, 2), (3, 4)];
         let (mut before, mut after) = (Vec::new(), Vec::new());
         let mut s = Scratch::default();
-        net.predict(&xc, &xb, &pairs, &mut s, &mut before);
+        Plan::new(&net).predict(&xc, &xb, &pairs, &mut s, &mut before);
         // Every contact hears the others through the pile-wide mean; a neighbour hears more.
         xc[0] += 5.0;
-        net.predict(&xc, &xb, &pairs, &mut s, &mut after);
+        Plan::new(&net).predict(&xc, &xb, &pairs, &mut s, &mut after);
         let d = |i: usize| (before[i][0] - after[i][0]).abs() + (before[i][1] - after[i][1]).abs();
         assert!(d(1) > 0.0, "the neighbour sees the change");
         assert!(d(1) > d(2), "the neighbour sees it more than a contact apart: {} vs {}", d(1), d(2));
@@ -762,7 +765,7 @@ mod tests {
             pairs.iter_mut().for_each(|p| *p = (p.0 % 60, p.1 % 60));
             let want = by_definition(&net, &xc, &xb, &pairs);
             let mut got = Vec::new();
-            net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut got);
+            Plan::new(&net).predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut got);
             let scale = want.iter().flatten().fold(0f64, |m, v| m.max(v.abs()));
             let worst = want
                 .iter()
@@ -799,11 +802,11 @@ mod tests {
         let net = random_net(16, 2, 9);
         let (xc, mut xb, pairs) = inputs(40, 30);
         let mut before = Vec::new();
-        net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut before);
+        Plan::new(&net).predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut before);
         // Ten more bodies nobody touches, with wild features.
         xb.extend((0..10 * BODY_FEATURES).map(|i| 1e3 * i as f32));
         let mut after = Vec::new();
-        net.predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut after);
+        Plan::new(&net).predict(&xc, &xb, &pairs, &mut Scratch::default(), &mut after);
         assert_eq!(before, after);
     }
 }
