@@ -420,6 +420,8 @@ pub struct RunSummary {
     pub accuracy: Accuracy,
     /// Mean critical path per step (warm start + solve), microseconds.
     pub critical_us: f64,
+    /// Its median over the steps with contacts (steady against a busy machine's outliers).
+    pub critical_median_us: f64,
     pub fallbacks: usize,
     /// Per phase ([`phase_labels`]).
     pub phases: Vec<PhaseAccuracy>,
@@ -461,6 +463,13 @@ impl RunSummary {
             mean_sweeps: steps.iter().map(|s| s.sweeps as f64).sum::<f64>() / all,
             accuracy: Accuracy::of(steps.iter(), PHASE_STARTS[PHASE_STARTS.len() - 1]),
             critical_us: steps.iter().map(|s| (s.warm_start_us + s.solve_us) as f64).sum::<f64>() / all,
+            critical_median_us: charts::stats::median(
+                &steps
+                    .iter()
+                    .filter(|s| s.contacts > 0)
+                    .map(|s| (s.warm_start_us + s.solve_us) as f64)
+                    .collect::<Vec<_>>(),
+            ),
             fallbacks: steps.iter().filter(|s| s.fallback).count(),
             phases,
             split: run.split,
@@ -484,12 +493,13 @@ pub fn curve(summaries: &[RunSummary], f: impl Fn(&RunSummary) -> f64) -> Vec<(f
 pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
     let rms = curve(summaries, |s| s.accuracy.natural_rms);
     let time = curve(summaries, |s| s.critical_us);
+    let median_time = curve(summaries, |s| s.critical_median_us);
     let mut out = String::from(
-        "## Builtin's curve: accuracy after the budget\n\n| budget | mean sweeps | RMS natural residual | max natural residual | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | critical path (us/step) |\n|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "## Builtin's curve: accuracy after the budget\n\n\"critical path\": warm start + solve, the mean over the steps and the median over the steps with contacts.\n\n| budget | mean sweeps | RMS natural residual | max natural residual | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | critical path (us/step) | critical path, median (us) |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for s in summaries.iter().filter(|s| s.model == "builtin" && s.budget > 0) {
         out += &format!(
-            "| {} | {:.2} | {} | {} | {} | {} | {} | {:.1} |\n",
+            "| {} | {:.2} | {} | {} | {} | {} | {} | {:.1} | {:.1} |\n",
             s.budget,
             s.mean_sweeps,
             num(s.accuracy.natural_rms),
@@ -497,24 +507,26 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
             num(s.accuracy.penetration_max),
             num(s.accuracy.penetration_mean),
             num(s.accuracy.late_kinetic_energy),
-            s.critical_us
+            s.critical_us,
+            s.critical_median_us
         );
     }
     if let Some(r) = summaries.first() {
         out += &format!(
-            "| reference ({:.1} sweeps) | | {} | {} | {} | {} | {} | {:.1} |\n",
+            "| reference ({:.1} sweeps) | | {} | {} | {} | {} | {} | {:.1} | {:.1} |\n",
             r.mean_sweeps,
             num(r.accuracy.natural_rms),
             num(r.accuracy.natural_max),
             num(r.accuracy.penetration_max),
             num(r.accuracy.penetration_mean),
             num(r.accuracy.late_kinetic_energy),
-            r.critical_us
+            r.critical_us,
+            r.critical_median_us
         );
     }
     for &k in budgets {
         out += &format!(
-            "\n## At {k} sweeps, placed on builtin's curve\n\n\"worth\": the budget at which builtin's RMS natural residual equals the model's at {k} (log-log interpolation); \"builtin's time there\": builtin's critical path at that budget; \"blend F\": the fraction of builtin's error an oracle blend must remove to leave the same RMS natural residual at {k} (interpolated between the blends run).\n\n| model | RMS natural residual | worth (sweeps) | critical path (us/step) | builtin's time there (us/step) | blend F | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | fallbacks |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+            "\n## At {k} sweeps, placed on builtin's curve\n\n\"worth\": the budget at which builtin's RMS natural residual equals the model's at {k} (log-log interpolation); \"builtin's time there\": builtin's critical path at that budget (mean, and median over the steps with contacts); \"blend F\": the fraction of builtin's error an oracle blend must remove to leave the same RMS natural residual at {k} (interpolated between the blends run).\n\n| model | RMS natural residual | worth (sweeps) | critical path (us/step) | builtin's time there (us/step) | critical path, median (us) | builtin's median there (us) | blend F | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | fallbacks |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
         );
         let blends: Vec<(f64, f64)> = summaries
             .iter()
@@ -526,15 +538,16 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
             .collect();
         for s in summaries.iter().filter(|s| s.budget == k) {
             let w = worth(&rms, s.accuracy.natural_rms);
-            let there = match w {
-                Worth::Sweeps(n) => format!("{:.1}", along(&time, n)),
-                _ => "-".into(),
+            let (there, median_there) = match w {
+                Worth::Sweeps(n) => (format!("{:.1}", along(&time, n)), format!("{:.1}", along(&median_time, n))),
+                _ => ("-".into(), "-".into()),
             };
             out += &format!(
-                "| {} | {} | {w} | {:.1} | {there} | {} | {} | {} | {} | {} |\n",
+                "| {} | {} | {w} | {:.1} | {there} | {:.1} | {median_there} | {} | {} | {} | {} | {} |\n",
                 s.model,
                 num(s.accuracy.natural_rms),
                 s.critical_us,
+                s.critical_median_us,
                 blend_fraction(&blends, s.accuracy.natural_rms),
                 num(s.accuracy.penetration_max),
                 num(s.accuracy.penetration_mean),
@@ -714,6 +727,19 @@ mod tests {
         assert!(summaries.iter().any(|s| s.label == "none@4"));
         let table = markdown(&summaries, &spec.budgets);
         assert!(table.contains("## At 4 sweeps") && table.contains("| none |"), "{table}");
+        // The median critical path is one of the steps with contacts' (an odd count) or between two.
+        let run = runs.iter().find(|r| r.label == "builtin@4").unwrap();
+        let times: Vec<f64> =
+            run.steps.iter().filter(|s| s.contacts > 0).map(|s| (s.warm_start_us + s.solve_us) as f64).collect();
+        let (lo, hi) = times.iter().fold((f64::MAX, 0f64), |(lo, hi), t| (lo.min(*t), hi.max(*t)));
+        assert!(
+            !times.is_empty() && (lo..=hi).contains(&at4.critical_median_us),
+            "{} not in {lo}..{hi}",
+            at4.critical_median_us
+        );
+        let row = table.lines().find(|l| l.starts_with("| builtin | ")).unwrap();
+        assert_eq!(row.split('|').count(), 14, "{row}");
+        assert!(row.contains(&format!("| {:.1} |", at4.critical_median_us)), "{row}");
     }
 
     #[test]
