@@ -50,6 +50,10 @@ pub struct BudgetSpec {
     /// Also split each judged run's warm-start error into its smooth and rough parts
     /// ([`ErrorSplit`]): one more pass per run, with the step's exact solution.
     pub error_split: bool,
+    /// How many times each seed's runs (all but the reference) are timed, interleaved: every
+    /// step keeps the median of its repeats' warm-start and solve times. The runs are
+    /// deterministic, so the repeats take the same steps; only their timings differ.
+    pub timing_repeats: u32,
 }
 
 impl BudgetSpec {
@@ -373,8 +377,15 @@ pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) ->
     }
     for &seed in seeds {
         runs[0].steps.extend(run_seed(spec, seed, &builtin, spec.reference())?);
-        for (run, (m, k)) in runs[1..].iter_mut().zip(&plan) {
-            run.steps.extend(run_seed(spec, seed, m, spec.at_budget(*k))?);
+        // Every run once, then every run again: a slow spell of the machine falls on all of them.
+        let mut repeats: Vec<Vec<Vec<StepStats>>> = vec![Vec::new(); plan.len()];
+        for _ in 0..spec.timing_repeats.max(1) {
+            for (timed, (m, k)) in repeats.iter_mut().zip(&plan) {
+                timed.push(run_seed(spec, seed, m, spec.at_budget(*k))?);
+            }
+        }
+        for ((run, (m, k)), timed) in runs[1..].iter_mut().zip(&plan).zip(repeats) {
+            run.steps.extend(median_timings(&run.label, timed)?);
             if spec.error_split && spec.budgets.contains(k) {
                 let s = split_seed(spec, seed, m, spec.at_budget(*k))?;
                 run.split.add(&s);
@@ -383,6 +394,40 @@ pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) ->
         progress(seed);
     }
     Ok(runs)
+}
+
+/// The first repeat's steps, each with the median warm-start and solve time of all repeats;
+/// repeats that took different steps (a model that is not deterministic) are an error.
+pub fn median_timings(label: &str, mut repeats: Vec<Vec<StepStats>>) -> Result<Vec<StepStats>, SimError> {
+    let Some(first) = repeats.first() else { return Ok(Vec::new()) };
+    let same = |a: &StepStats, b: &StepStats| {
+        (a.step, a.contacts, a.sweeps, a.natural_rms.to_bits())
+            == (b.step, b.contacts, b.sweeps, b.natural_rms.to_bits())
+    };
+    if let Some(other) =
+        repeats.iter().find(|r| r.len() != first.len() || r.iter().zip(first).any(|(a, b)| !same(a, b)))
+    {
+        let step = other.iter().zip(first).position(|(a, b)| !same(a, b)).unwrap_or(other.len().min(first.len()));
+        return Err(SimError::BadModel(format!(
+            "{label}: timing repeats took different steps (from step {step} on): the run is not deterministic"
+        )));
+    }
+    let n = first.len();
+    let median = |values: Vec<f32>| charts::stats::median(&values.iter().map(|&v| v as f64).collect::<Vec<_>>()) as f32;
+    let (warm, solve): (Vec<f32>, Vec<f32>) = (0..n)
+        .map(|i| {
+            (
+                median(repeats.iter().map(|r| r[i].warm_start_us).collect()),
+                median(repeats.iter().map(|r| r[i].solve_us).collect()),
+            )
+        })
+        .unzip();
+    let mut steps = repeats.swap_remove(0);
+    for ((s, w), v) in steps.iter_mut().zip(warm).zip(solve) {
+        s.warm_start_us = w;
+        s.solve_us = v;
+    }
+    Ok(steps)
 }
 
 /// The phases' labels: `0-99`, `100-149`, `150-end`.
@@ -688,6 +733,7 @@ mod tests {
             files: ModelFiles::default(),
             reference_tolerance: 1e-6,
             error_split: false,
+            timing_repeats: 1,
         }
     }
 
@@ -753,6 +799,45 @@ mod tests {
     }
 
     #[test]
+    fn timing_repeats_keep_each_steps_median_time_and_the_same_steps() {
+        let step = |i: u32, warm: f32, solve: f32| StepStats {
+            step: i,
+            contacts: 3,
+            sweeps: 8,
+            natural_rms: 0.01 * i as f32,
+            warm_start_us: warm,
+            solve_us: solve,
+            ..StepStats::default()
+        };
+        let repeats = vec![
+            vec![step(0, 1.0, 10.0), step(1, 5.0, 30.0)],
+            vec![step(0, 9.0, 12.0), step(1, 2.0, 20.0)],
+            vec![step(0, 3.0, 11.0), step(1, 4.0, 90.0)],
+        ];
+        let merged = median_timings("gnn@8", repeats.clone()).unwrap();
+        assert_eq!(
+            merged.iter().map(|s| (s.warm_start_us, s.solve_us)).collect::<Vec<_>>(),
+            [(3.0, 11.0), (4.0, 30.0)]
+        );
+        assert_eq!(merged[1].natural_rms, repeats[0][1].natural_rms);
+        // A repeat that took another step is refused, naming the run and the step.
+        let mut diverged = repeats;
+        diverged[2][1].sweeps = 7;
+        let err = median_timings("gnn@8", diverged).unwrap_err().to_string();
+        assert!(err.contains("gnn@8") && err.contains("step 1"), "{err}");
+        // Through the study: repeated timing changes no accuracy figure.
+        let once = spec("pgs", vec![4], 40);
+        let thrice = BudgetSpec { timing_repeats: 3, ..once.clone() };
+        let (a, b) = (study(&once, &[7], |_| {}).unwrap(), study(&thrice, &[7], |_| {}).unwrap());
+        for (a, b) in summaries(&a).iter().zip(&summaries(&b)) {
+            assert_eq!(
+                (&a.label, a.accuracy.natural_rms, a.mean_sweeps),
+                (&b.label, b.accuracy.natural_rms, b.mean_sweeps)
+            );
+        }
+    }
+
+    #[test]
     fn the_curve_reaches_sixteen_times_each_budget() {
         let spec = BudgetSpec {
             scene: SceneConfig::default(),
@@ -763,6 +848,7 @@ mod tests {
             files: ModelFiles::default(),
             reference_tolerance: 1e-6,
             error_split: false,
+            timing_repeats: 1,
         };
         assert_eq!(spec.curve_budgets(), vec![1, 2, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128]);
         assert_eq!(phase_labels(), ["0-99", "100-149", "150-end"]);

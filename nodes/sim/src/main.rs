@@ -211,6 +211,11 @@ struct Args {
     /// same steps (one more pass per run).
     #[arg(long, requires = "budget_study")]
     error_split: bool,
+    /// With --budget-study: time each seed's runs this many times, interleaved, and keep each
+    /// step's median warm-start and solve time (the runs repeat the same steps; their timings
+    /// move with the machine's load).
+    #[arg(long, default_value_t = 1, requires = "budget_study", value_parser = clap::value_parser!(u32).range(1..=15))]
+    timing_repeats: u32,
     /// Run the benchmark and print it instead of running the node.
     #[arg(long)]
     bench: bool,
@@ -470,6 +475,7 @@ fn budget_spec(args: &Args, first_seed: u64) -> Result<sim::budget::BudgetSpec> 
         files: sim::ModelFiles { gnn: args.gnn_model.clone() },
         reference_tolerance: args.reference_tolerance,
         error_split: args.error_split,
+        timing_repeats: args.timing_repeats,
     })
 }
 
