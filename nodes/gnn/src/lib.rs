@@ -160,7 +160,6 @@ impl ModelFile {
 /// Per-contact warm starts from a network, with its reusable buffers.
 #[derive(Debug)]
 pub struct Predictor {
-    net: Net,
     plan: Plan,
     scratch: Scratch,
     contact_features: Vec<f32>,
@@ -175,7 +174,6 @@ impl Predictor {
     pub fn new(net: Net) -> Predictor {
         Predictor {
             plan: Plan::new(&net),
-            net,
             scratch: Scratch::default(),
             contact_features: Vec::new(),
             body_features: Vec::new(),
@@ -184,10 +182,6 @@ impl Predictor {
             pairs: Vec::new(),
             out: Vec::new(),
         }
-    }
-
-    pub fn net(&self) -> &Net {
-        &self.net
     }
 
     /// Writes `(normal, tangent)` warm starts, one per contact: builtin's (`previous`) plus the

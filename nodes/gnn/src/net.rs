@@ -163,7 +163,7 @@ impl Net {
             return;
         }
         let h = self.config.hidden;
-        Plan::new(self).embed(contact_features, body_features, pairs, s);
+        Plan::new(self).forward(contact_features, body_features, pairs, s, false);
         for (hc, x) in s.hc.chunks_exact(h).zip(contact_features.chunks_exact(CONTACT_FEATURES)) {
             out.extend_from_slice(hc);
             out.extend_from_slice(x);
@@ -176,7 +176,6 @@ impl Net {
 /// horizontal sums of row-by-row dot products.
 #[derive(Debug, Clone)]
 struct Columns {
-    outputs: usize,
     columns: Vec<f32>,
     bias: Vec<f32>,
 }
@@ -189,7 +188,7 @@ impl Columns {
                 columns[i * l.outputs + o] = *w;
             }
         }
-        Columns { outputs: l.outputs, columns, bias: l.bias.clone() }
+        Columns { columns, bias: l.bias.clone() }
     }
 
     /// `acc[r] = start + W[:, first..first + width] x[r]` for every row `r` of `acc` (`w` values
@@ -207,7 +206,7 @@ impl Columns {
         acc: &mut [f32],
     ) {
         let n = w.get();
-        debug_assert_eq!(n, self.outputs);
+        debug_assert_eq!(n, self.bias.len());
         K::product(&self.columns[first * n..(first + inputs.width) * n], n, inputs, start, relu, acc);
     }
 }
@@ -316,7 +315,7 @@ impl Kernel for Avx2 {
             assert!(row.len() >= n);
         }
         let block = Block { columns: columns.as_ptr(), width, x: x.as_ptr(), stride, start, relu };
-        // SAFETY: `Avx2` is only used by `Plan::embed_avx2` and `Plan::decode_avx2`, called once
+        // SAFETY: `Avx2` is only used by `Plan::forward_avx2`, called once
         // AVX2 was detected; the asserts above keep every read and write inside the slices.
         unsafe {
             match n {
@@ -458,75 +457,64 @@ impl Plan {
         if pairs.is_empty() {
             return;
         }
-        self.embed(contact_features, body_features, pairs, s);
-        self.decode(contact_features, s);
+        self.forward(contact_features, body_features, pairs, s, true);
         for (o, y) in out.iter_mut().zip(s.acc.chunks_exact(DECODE_LANES)) {
             *o = [y[0], y[1]];
         }
     }
 
-    /// The decoder over [h_c, x_c] for every contact, into `s.acc` ([`DECODE_LANES`] a contact).
-    fn decode(&self, contact_features: &[f32], s: &mut Scratch) {
-        #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor has AVX2 (checked just above).
-            unsafe { self.decode_avx2(contact_features, s) };
-            return;
-        }
-        self.decode_with::<Portable>(contact_features, s)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn decode_avx2(&self, contact_features: &[f32], s: &mut Scratch) {
-        self.decode_with::<Avx2>(contact_features, s)
-    }
-
-    #[inline(always)]
-    fn decode_with<K: Kernel>(&self, contact_features: &[f32], s: &mut Scratch) {
-        let (h, lanes) = (self.config.hidden, Fixed::<DECODE_LANES>);
-        s.acc.resize(s.hc.len() / h * DECODE_LANES, 0.0);
-        let d = &self.decode;
-        d.product::<K>(lanes, 0, Rows::packed(&s.hc, h), Start::Row(&d.bias), false, &mut s.acc);
-        d.product::<K>(lanes, h, Rows::packed(contact_features, CONTACT_FEATURES), Start::Held, false, &mut s.acc);
-    }
-
-    /// Encodes and runs the message-passing rounds: the final contact states are in `s.hc`.
-    fn embed(&self, contact_features: &[f32], body_features: &[f32], pairs: &[(u32, u32)], s: &mut Scratch) {
-        #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx2") {
-            // SAFETY: the processor has AVX2 (checked just above).
-            unsafe { self.embed_avx2(contact_features, body_features, pairs, s) };
-            return;
-        }
-        self.embed_sized::<Portable>(contact_features, body_features, pairs, s)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn embed_avx2(
+    /// Encodes and runs the message-passing rounds (the final contact states in `s.hc`), then,
+    /// with `decode`, the decoder over [h_c, x_c] (into `s.acc`, [`DECODE_LANES`] a contact).
+    fn forward(
         &self,
         contact_features: &[f32],
         body_features: &[f32],
         pairs: &[(u32, u32)],
         s: &mut Scratch,
+        decode: bool,
     ) {
-        self.embed_sized::<Avx2>(contact_features, body_features, pairs, s)
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the processor has AVX2 (checked just above).
+            unsafe { self.forward_avx2(contact_features, body_features, pairs, s, decode) };
+            return;
+        }
+        self.forward_with::<Portable>(contact_features, body_features, pairs, s, decode)
     }
 
-    #[inline(always)]
-    fn embed_sized<K: Kernel>(
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn forward_avx2(
         &self,
         contact_features: &[f32],
         body_features: &[f32],
         pairs: &[(u32, u32)],
         s: &mut Scratch,
+        decode: bool,
+    ) {
+        self.forward_with::<Avx2>(contact_features, body_features, pairs, s, decode)
+    }
+
+    #[inline(always)]
+    fn forward_with<K: Kernel>(
+        &self,
+        contact_features: &[f32],
+        body_features: &[f32],
+        pairs: &[(u32, u32)],
+        s: &mut Scratch,
+        decode: bool,
     ) {
         match self.config.hidden {
             8 => self.embed_with::<K>(Fixed::<8>, contact_features, body_features, pairs, s),
             16 => self.embed_with::<K>(Fixed::<16>, contact_features, body_features, pairs, s),
             32 => self.embed_with::<K>(Fixed::<32>, contact_features, body_features, pairs, s),
             h => self.embed_with::<K>(Dynamic(h), contact_features, body_features, pairs, s),
+        }
+        if decode {
+            let (h, lanes, d) = (self.config.hidden, Fixed::<DECODE_LANES>, &self.decode);
+            s.acc.resize(s.hc.len() / h * DECODE_LANES, 0.0);
+            d.product::<K>(lanes, 0, Rows::packed(&s.hc, h), Start::Row(&d.bias), false, &mut s.acc);
+            d.product::<K>(lanes, h, Rows::packed(contact_features, CONTACT_FEATURES), Start::Held, false, &mut s.acc);
         }
     }
 
@@ -784,14 +772,14 @@ mod tests {
         for hidden in [8, 16, 32, 12] {
             let plan = Plan::new(&random_net(hidden, 3, 5));
             let mut s = Scratch::default();
-            plan.embed_sized::<Portable>(&xc, &xb, &pairs, &mut s);
+            plan.forward_with::<Portable>(&xc, &xb, &pairs, &mut s, false);
             let portable = s.hc.clone();
             // The dispatching path (AVX2 where the processor has it), through a scratch that
             // served a larger problem first.
             let (big_c, big_b, big_p) = inputs(300, 120);
             let mut out = Vec::new();
             plan.predict(&big_c, &big_b, &big_p, &mut s, &mut out);
-            plan.embed(&xc, &xb, &pairs, &mut s);
+            plan.forward(&xc, &xb, &pairs, &mut s, false);
             assert_eq!(portable.len(), s.hc.len());
             assert!(portable.iter().zip(&s.hc).all(|(a, b)| a.to_bits() == b.to_bits()), "hidden {hidden}");
         }

@@ -139,7 +139,7 @@ pub struct Subscriber<H: FrameHeader, T: FrameItem> {
     decode_errors: u64,
 }
 
-/// The end of a wait that is polled instead of slept (see [`Subscriber::recv_timeout`]).
+/// A receive shorter than this is polled instead of slept (see [`Subscriber::recv_timeout`]).
 const EXACT_WAIT: Duration = Duration::from_millis(5);
 
 /// How often a blocked receive looks at the shutdown signal.
@@ -196,6 +196,11 @@ impl<H: FrameHeader, T: FrameItem> Subscriber<H, T> {
     /// node shuts down meanwhile.
     pub fn recv_timeout(&mut self, timeout: Duration) -> Result<Option<Received<H, T>>> {
         let deadline = Instant::now() + timeout;
+        // The event wait's timeout is a socket timeout, counted in the kernel's ticks (1-4 ms):
+        // a receive shorter than a few ticks (a deadline of a few hundred microseconds) is
+        // polled, so that it ends on time (a late frame is then late, not waited for). Longer
+        // receives sleep: a tick more is nothing to them, and idle nodes must not spin.
+        let exact = timeout < EXACT_WAIT;
         loop {
             if let Some(r) = self.try_recv()? {
                 return Ok(Some(r));
@@ -204,15 +209,10 @@ impl<H: FrameHeader, T: FrameItem> Subscriber<H, T> {
             if now >= deadline || self.shutdown.is_set() {
                 return Ok(None);
             }
-            let to_deadline = deadline - now;
-            let left = to_deadline.min(SHUTDOWN_POLL);
+            let left = (deadline - now).min(SHUTDOWN_POLL);
             match &self.inner {
-                // The event wait's timeout is a socket timeout, counted in the kernel's ticks
-                // (1-4 ms): the last stretch before the deadline is polled, so that a deadline
-                // of a few hundred microseconds ends on time (a late frame is then late, not
-                // waited for).
-                SubInner::Iox(_) if to_deadline < EXACT_WAIT => std::thread::yield_now(),
-                SubInner::Iox(s) => s.wait(left.min(to_deadline - EXACT_WAIT))?,
+                SubInner::Iox(_) if exact => std::thread::yield_now(),
+                SubInner::Iox(s) => s.wait(left)?,
                 // Two sources and no common wait: short naps (this is the bridge case only).
                 SubInner::Both(..) => std::thread::sleep(left.min(Duration::from_millis(1))),
                 SubInner::Detached => std::thread::sleep(left),

@@ -158,7 +158,7 @@ pub struct ErrorSplit {
 }
 
 impl ErrorSplit {
-    /// Adds another seed's sums.
+    /// Adds another step's or seed's sums.
     pub fn add(&mut self, other: &ErrorSplit) {
         self.model_smooth += other.model_smooth;
         self.model_rough += other.model_rough;
@@ -289,14 +289,15 @@ impl crate::warm::WarmStartModel for Splitting {
             None => (0.0, 0.0),
         };
         self.builtin = builtin;
-        let mut split = self.split.borrow_mut();
-        split.model_left += ml;
-        split.builtin_left += bl;
-        split.model_smooth += ms;
-        split.model_rough += mr;
-        split.builtin_smooth += bs;
-        split.builtin_rough += br;
-        split.n += input.contacts.len() as u64;
+        self.split.borrow_mut().add(&ErrorSplit {
+            model_smooth: ms,
+            model_rough: mr,
+            builtin_smooth: bs,
+            builtin_rough: br,
+            model_left: ml,
+            builtin_left: bl,
+            n: input.contacts.len() as u64,
+        });
         Ok(())
     }
     fn after_step(&mut self, done: &crate::warm::SolvedStep<'_>) {

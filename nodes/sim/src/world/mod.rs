@@ -451,7 +451,8 @@ impl World {
         timings: StepTimings,
     ) {
         let final_impulses = self.solver.impulses();
-        let persisting = self.contacts.iter().filter(|c| self.history.previous(&c.key).is_some()).count();
+        let persisting =
+            self.history.pasts(self.contacts.iter().map(|c| &c.key)).filter(|p| p.previous.is_some()).count();
         let (mut n_mse, mut n_max, mut t_mse, mut t_max) = (0.0f64, 0.0f32, 0.0f64, 0.0f32);
         for (w, f) in self.warm.iter().zip(final_impulses) {
             let dn = w.normal - f.normal;
