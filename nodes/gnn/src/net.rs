@@ -163,7 +163,7 @@ impl Net {
             return;
         }
         let h = self.config.hidden;
-        Plan::new(self).forward(contact_features, body_features, pairs, s, false);
+        Plan::new(self).forward(Graph { contact_features, body_features, pairs }, s, false);
         for (hc, x) in s.hc.chunks_exact(h).zip(contact_features.chunks_exact(CONTACT_FEATURES)) {
             out.extend_from_slice(hc);
             out.extend_from_slice(x);
@@ -209,6 +209,15 @@ impl Columns {
         debug_assert_eq!(n, self.bias.len());
         K::product(&self.columns[first * n..(first + inputs.width) * n], n, inputs, start, relu, acc);
     }
+}
+
+/// A step's problem as the network reads it: [`CONTACT_FEATURES`] per contact,
+/// [`BODY_FEATURES`] per body, each contact's two bodies.
+#[derive(Clone, Copy)]
+struct Graph<'a> {
+    contact_features: &'a [f32],
+    body_features: &'a [f32],
+    pairs: &'a [(u32, u32)],
 }
 
 /// Input rows of a layer block: row `r` is `x[r * stride..][..width]`.
@@ -457,7 +466,7 @@ impl Plan {
         if pairs.is_empty() {
             return;
         }
-        self.forward(contact_features, body_features, pairs, s, true);
+        self.forward(Graph { contact_features, body_features, pairs }, s, true);
         for (o, y) in out.iter_mut().zip(s.acc.chunks_exact(DECODE_LANES)) {
             *o = [y[0], y[1]];
         }
@@ -465,68 +474,48 @@ impl Plan {
 
     /// Encodes and runs the message-passing rounds (the final contact states in `s.hc`), then,
     /// with `decode`, the decoder over [h_c, x_c] (into `s.acc`, [`DECODE_LANES`] a contact).
-    fn forward(
-        &self,
-        contact_features: &[f32],
-        body_features: &[f32],
-        pairs: &[(u32, u32)],
-        s: &mut Scratch,
-        decode: bool,
-    ) {
+    fn forward(&self, g: Graph<'_>, s: &mut Scratch, decode: bool) {
         #[cfg(target_arch = "x86_64")]
         if std::is_x86_feature_detected!("avx2") {
             // SAFETY: the processor has AVX2 (checked just above).
-            unsafe { self.forward_avx2(contact_features, body_features, pairs, s, decode) };
+            unsafe { self.forward_avx2(g, s, decode) };
             return;
         }
-        self.forward_with::<Portable>(contact_features, body_features, pairs, s, decode)
+        self.forward_with::<Portable>(g, s, decode)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn forward_avx2(
-        &self,
-        contact_features: &[f32],
-        body_features: &[f32],
-        pairs: &[(u32, u32)],
-        s: &mut Scratch,
-        decode: bool,
-    ) {
-        self.forward_with::<Avx2>(contact_features, body_features, pairs, s, decode)
+    unsafe fn forward_avx2(&self, g: Graph<'_>, s: &mut Scratch, decode: bool) {
+        self.forward_with::<Avx2>(g, s, decode)
     }
 
     #[inline(always)]
-    fn forward_with<K: Kernel>(
-        &self,
-        contact_features: &[f32],
-        body_features: &[f32],
-        pairs: &[(u32, u32)],
-        s: &mut Scratch,
-        decode: bool,
-    ) {
+    fn forward_with<K: Kernel>(&self, g: Graph<'_>, s: &mut Scratch, decode: bool) {
         match self.config.hidden {
-            8 => self.embed_with::<K>(Fixed::<8>, contact_features, body_features, pairs, s),
-            16 => self.embed_with::<K>(Fixed::<16>, contact_features, body_features, pairs, s),
-            32 => self.embed_with::<K>(Fixed::<32>, contact_features, body_features, pairs, s),
-            h => self.embed_with::<K>(Dynamic(h), contact_features, body_features, pairs, s),
+            8 => self.embed_with::<K>(Fixed::<8>, g, s),
+            16 => self.embed_with::<K>(Fixed::<16>, g, s),
+            32 => self.embed_with::<K>(Fixed::<32>, g, s),
+            h => self.embed_with::<K>(Dynamic(h), g, s),
         }
         if decode {
             let (h, lanes, d) = (self.config.hidden, Fixed::<DECODE_LANES>, &self.decode);
             s.acc.resize(s.hc.len() / h * DECODE_LANES, 0.0);
             d.product::<K>(lanes, 0, Rows::packed(&s.hc, h), Start::Row(&d.bias), false, &mut s.acc);
-            d.product::<K>(lanes, h, Rows::packed(contact_features, CONTACT_FEATURES), Start::Held, false, &mut s.acc);
+            d.product::<K>(
+                lanes,
+                h,
+                Rows::packed(g.contact_features, CONTACT_FEATURES),
+                Start::Held,
+                false,
+                &mut s.acc,
+            );
         }
     }
 
     #[inline(always)]
-    fn embed_with<K: Kernel>(
-        &self,
-        w: impl Width,
-        contact_features: &[f32],
-        body_features: &[f32],
-        pairs: &[(u32, u32)],
-        s: &mut Scratch,
-    ) {
+    fn embed_with<K: Kernel>(&self, w: impl Width, g: Graph<'_>, s: &mut Scratch) {
+        let Graph { contact_features, body_features, pairs } = g;
         let h = w.get();
         let nc = pairs.len();
         // The bodies that have contacts (the others never reach a contact), numbered in the
@@ -772,14 +761,15 @@ mod tests {
         for hidden in [8, 16, 32, 12] {
             let plan = Plan::new(&random_net(hidden, 3, 5));
             let mut s = Scratch::default();
-            plan.forward_with::<Portable>(&xc, &xb, &pairs, &mut s, false);
+            let graph = Graph { contact_features: &xc, body_features: &xb, pairs: &pairs };
+            plan.forward_with::<Portable>(graph, &mut s, false);
             let portable = s.hc.clone();
             // The dispatching path (AVX2 where the processor has it), through a scratch that
             // served a larger problem first.
             let (big_c, big_b, big_p) = inputs(300, 120);
             let mut out = Vec::new();
             plan.predict(&big_c, &big_b, &big_p, &mut s, &mut out);
-            plan.forward(&xc, &xb, &pairs, &mut s, false);
+            plan.forward(graph, &mut s, false);
             assert_eq!(portable.len(), s.hc.len());
             assert!(portable.iter().zip(&s.hc).all(|(a, b)| a.to_bits() == b.to_bits()), "hidden {hidden}");
         }
