@@ -139,7 +139,7 @@ pub fn mse_loss(model: &GnnNet, step: &StepData, device: &Device) -> Tensor<1> {
     (dn.clone() * dn + dt.clone() * dt).mean().mul_scalar(step.weight)
 }
 
-/// The solver-in-the-loop loss of one step (see [`crate::unroll`]): the network's output is read,
+/// The solver-in-the-loop loss of one step (see [`gnn::unroll`]): the network's output is read,
 /// the residual after `sweeps` PGS sweeps from its warm start and that residual's gradient are
 /// computed by hand, and the returned surrogate `sum(output * gradient)` carries that gradient
 /// into the network on `backward`. Returns the surrogate and the true residual.
@@ -163,7 +163,7 @@ pub fn unrolled_loss(
         .zip(&masses)
         .map(|((c, y), k)| [c.previous[0] as f64 + y[0] as f64 * k[0], c.previous[1] as f64 + y[1] as f64 * k[1]])
         .collect();
-    let mut unrolled = crate::unroll::Unrolled::new(&problem.bodies, &problem.contacts);
+    let mut unrolled = gnn::unroll::Unrolled::new(&problem.bodies, &problem.contacts);
     unrolled.power = weights.power;
     unrolled.approach_weight = weights.approach;
     let (residual, grad) = unrolled.loss_and_gradient(&warm, sweeps);
@@ -184,7 +184,7 @@ fn unrolled_sweeps(sweeps: usize, builtin: u32) -> usize {
     }
 }
 
-/// How the unrolled loss weighs the last sweep's changes ([`crate::unroll::Unrolled`]'s
+/// How the unrolled loss weighs the last sweep's changes ([`gnn::unroll::Unrolled`]'s
 /// `power` and `approach_weight`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LossWeights {

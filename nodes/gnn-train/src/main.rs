@@ -20,13 +20,12 @@
 //!
 //! The shipped model (`models/gnn.dcg`) is trained end to end (`--method backprop --loss
 //! residual`). The closed-form readout fit (`--method readout`, still the default so that earlier
-//! commands mean what they meant) and the solver-in-the-loop loss (`--loss unrolled`, `unroll.rs`)
+//! commands mean what they meant) and the solver-in-the-loop loss (`--loss unrolled`, `gnn::unroll`)
 //! are research methods that no shipped model uses; they stay here because they share the data
 //! loading, the validation re-solve and the training loop, and `--help` says which is which.
 
 mod backprop;
 mod twin;
-mod unroll;
 
 use anyhow::{bail, Context, Result};
 use gnn::net::{Linear, Net, NetConfig, Scratch};
@@ -221,7 +220,7 @@ impl Residual {
     ) {
         let d = readout + 1;
         let n = problem.contacts.len();
-        let operator = unroll::Unrolled::new(&problem.bodies, &problem.contacts);
+        let operator = gnn::unroll::Unrolled::new(&problem.bodies, &problem.contacts);
         // Column (out, i): the velocities caused by the impulses that parameter puts on every contact.
         self.columns.resize(2 * d, Vec::new());
         for out in 0..2 {
@@ -509,6 +508,36 @@ mod tests {
     use super::*;
     use msgs::{ProblemBody, ProblemContact, ProblemHeader};
 
+    /// The unrolled sweeps (`gnn::unroll`, which the crate keeps free of the simulator) are the
+    /// simulator's: its solver's converged impulses leave nothing for one more sweep to change.
+    #[test]
+    fn the_simulators_solution_leaves_no_unrolled_residual() {
+        let body = |v: [f32; 2], m: f32| ProblemBody { v, w: 0.1, inv_mass: m, inv_inertia: 4.0 * m };
+        let bodies =
+            vec![ProblemBody::default(), body([0.0, -0.1], 1.0), body([0.05, -0.1], 0.7), body([0.0, -0.2], 2.0)];
+        let contact = |a: u32, b: u32, angle: f32| ProblemContact {
+            body_a: a,
+            body_b: b,
+            normal: [angle.cos(), angle.sin()],
+            ra: [0.1, 0.2],
+            rb: [-0.2 * angle.cos(), -0.2 * angle.sin()],
+            friction: 0.4,
+            ..Default::default()
+        };
+        let contacts = vec![contact(0, 1, 1.5), contact(0, 2, 1.6), contact(1, 3, 1.3), contact(1, 2, 0.1)];
+        let params = sim::SolveParams { tolerance: 1e-9, max_sweeps: 100_000, ..Default::default() };
+        let (_, solved) =
+            sim::problem::solve(&bodies, &contacts, &vec![sim::Impulse::default(); contacts.len()], &params);
+        let warm: Vec<[f64; 2]> = solved.iter().map(|s| [s.normal as f64, s.tangent as f64]).collect();
+        assert!(warm.iter().any(|w| w[0] > 1e-3), "the pile pushes: {warm:?}");
+        let (loss, _) = gnn::unroll::Unrolled::new(&bodies, &contacts).loss_and_gradient(&warm, 0);
+        assert!(loss < 1e-12, "{loss}");
+        // From no impulse at all, the same sweep has a lot to change.
+        let (from_zero, _) =
+            gnn::unroll::Unrolled::new(&bodies, &contacts).loss_and_gradient(&vec![[0.0; 2]; contacts.len()], 0);
+        assert!(from_zero > 1e-6, "{from_zero}");
+    }
+
     #[test]
     fn least_squares_recovers_known_weights() {
         // y = 2 z0 - z1 + 0.5 (bias), second output = z1; exact rows, tiny ridge.
@@ -548,7 +577,7 @@ mod tests {
         };
         let p = [[0.3, -0.1], [1.0, 0.2], [0.0, 0.5], [-0.4, 0.1]];
         let q = [[0.1, 0.1], [-0.2, 0.3], [0.7, 0.0], [0.2, -0.6]];
-        let operator = unroll::Unrolled::new(&problem.bodies, &problem.contacts);
+        let operator = gnn::unroll::Unrolled::new(&problem.bodies, &problem.contacts);
         let (gp, gq) = (operator.delassus(&p), operator.delassus(&q));
         let dot = |a: &[[f64; 2]], b: &[[f64; 2]]| a.iter().zip(b).map(|(x, y)| x[0] * y[0] + x[1] * y[1]).sum::<f64>();
         assert!((dot(&p, &gq) - dot(&q, &gp)).abs() < 1e-12);

@@ -1,5 +1,6 @@
 //! The contact-graph network warm start (issue #13): features of a step's contact problem
 //! ([`features`]), the f32 message-passing network ([`net`]), and the model file ([`ModelFile`]).
+//! [`unroll`] is the solver in the loop a warm start for a sweep budget is trained against.
 //! [`Predictor`] turns a problem into per-contact warm starts: builtin's impulse plus the
 //! network's correction times the contact's effective masses.
 //!
@@ -8,6 +9,7 @@
 
 pub mod features;
 pub mod net;
+pub mod unroll;
 
 use msgs::{ProblemBody, ProblemContact};
 use net::{Net, Plan, Scratch};

@@ -7,12 +7,13 @@
 //! other), and a simulation's first step never takes "previous" data from another simulation.
 
 use crate::{Result, UnetError};
-use msgs::{Body, Contact, StepHeader};
+use msgs::{Body, Contact, ProblemBody, ProblemContact, StepHeader};
 use recorder::Steps;
 use serde::{Deserialize, Serialize};
 use sph::{Bounds, GridGeometry, KernelKind, Mode, Search, SplitMix64, Transfer, TransferConfig};
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// How grids are made: the parameters `dc-sph` must be started with for a model to fit its input.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -205,9 +206,48 @@ pub struct Sample {
     /// The target step's contacts as the simulator reads a grid at them: the loss taken at
     /// contact points (`--loss points`).
     pub points: Vec<PointTarget>,
+    /// The same contacts with the reference solution as the target (`--loss reference`); `None`
+    /// when the recording has no labelled problem for the target step.
+    pub reference_points: Option<Vec<PointTarget>>,
+    /// The target step's velocity problem, with where the simulator reads the grid for each of
+    /// its rows (`--loss unrolled`); `None` when the recording has no problem for that step.
+    pub problem: Option<Arc<StepProblem>>,
     /// The sweeps the recorded solver spent on the target step (1 when the recording has no
     /// statistics): steps that cost sweeps weigh more in the points loss.
     pub sweeps: f32,
+}
+
+/// The target step's velocity problem as the simulator poses it, and each contact row's grid
+/// sample: what `unet-delta`'s warm start is solved from (the loss after unrolled sweeps).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepProblem {
+    pub bodies: Vec<ProblemBody>,
+    pub contacts: Vec<ProblemContact>,
+    /// Per row of `contacts`: the grid nodes and weights of the simulator's bilinear sample at
+    /// the contact point (`None`: no sample there, builtin's impulse stays).
+    pub stencils: Vec<Option<[(u32, f32); 4]>>,
+}
+
+impl StepProblem {
+    /// `next`'s problem, its rows located by `next`'s contact points (the same contact is the same
+    /// bodies and feature).
+    pub fn locate(
+        geometry: &GridGeometry,
+        next: &[Contact],
+        bodies: Vec<ProblemBody>,
+        contacts: Vec<ProblemContact>,
+    ) -> StepProblem {
+        let at: HashMap<_, _> = next.iter().map(|c| (contact_key(c), (c.x, c.y))).collect();
+        let stencils = contacts
+            .iter()
+            .map(|c| {
+                let (x, y) = *at.get(&(c.body_a, c.body_b, c.feature))?;
+                let stencil = geometry.bilinear_stencil(x, y)?;
+                Some(stencil.map(|(n, w)| (n as u32, w)))
+            })
+            .collect();
+        StepProblem { bodies, contacts, stencils }
+    }
 }
 
 /// One contact of the target step, for the loss at contact points.
@@ -225,27 +265,58 @@ pub struct PointTarget {
 }
 
 /// Contacts of `next` as point targets against the impulses of `previous` (the same contact is
-/// the same bodies and feature).
+/// the same bodies and feature): the targets are `next`'s own (recorded) impulses.
 pub fn point_targets(geometry: &GridGeometry, previous: &[Contact], next: &[Contact]) -> Vec<PointTarget> {
-    let key = |c: &Contact| (c.body_a, c.body_b, c.feature);
-    let before: std::collections::HashMap<_, _> = previous.iter().map(|c| (key(c), c)).collect();
+    targets_at(geometry, previous, next, |c| Some([c.normal_impulse, c.tangent_impulse]))
+}
+
+/// [`point_targets`] whose targets are the reference solution of `next`'s problem
+/// (`problem/contacts` labelled by `dc-sim --label-tolerance`) instead of the impulses the run
+/// ended with: what a warm start for a sweep budget should approach, where the recorded impulse
+/// is itself the unconverged result of the budget. `None` when a contact of `next` has no
+/// labelled row in `problem`.
+pub fn reference_point_targets(
+    geometry: &GridGeometry,
+    previous: &[Contact],
+    next: &[Contact],
+    problem: &[ProblemContact],
+) -> Option<Vec<PointTarget>> {
+    let reference: HashMap<_, _> = problem.iter().map(|c| ((c.body_a, c.body_b, c.feature), c.reference)).collect();
+    let mut unlabelled = false;
+    let targets = targets_at(geometry, previous, next, |c| {
+        let r = reference.get(&contact_key(c)).copied().filter(|r| r.iter().all(|v| v.is_finite()));
+        unlabelled |= r.is_none();
+        r
+    });
+    (!unlabelled).then_some(targets)
+}
+
+fn contact_key(c: &Contact) -> (u32, u32, u32) {
+    (c.body_a, c.body_b, c.feature)
+}
+
+/// The point targets of `next`'s contacts with a grid sample, `target` giving each one's impulse:
+/// the change from `previous` on a persisting contact, the impulse itself on a new one.
+fn targets_at(
+    geometry: &GridGeometry,
+    previous: &[Contact],
+    next: &[Contact],
+    mut target: impl FnMut(&Contact) -> Option<[f32; 2]>,
+) -> Vec<PointTarget> {
+    let before: HashMap<_, _> = previous.iter().map(|c| (contact_key(c), c)).collect();
     next.iter()
         .filter_map(|c| {
             let stencil = geometry.bilinear_stencil(c.x, c.y)?;
             let [a, b, cc, d] = stencil.map(|(n, w)| (n as u32, w));
-            Some(match before.get(&key(c)) {
+            let [normal, tangent] = target(c)?;
+            Some(match before.get(&contact_key(c)) {
                 Some(p) => PointTarget {
                     stencil: [a, b, cc, d],
                     persisting: true,
-                    normal: c.normal_impulse - p.normal_impulse,
-                    tangent: c.tangent_impulse - p.tangent_impulse,
+                    normal: normal - p.normal_impulse,
+                    tangent: tangent - p.tangent_impulse,
                 },
-                None => PointTarget {
-                    stencil: [a, b, cc, d],
-                    persisting: false,
-                    normal: c.normal_impulse,
-                    tangent: c.tangent_impulse,
-                },
+                None => PointTarget { stencil: [a, b, cc, d], persisting: false, normal, tangent },
             })
         })
         .collect()
@@ -258,10 +329,16 @@ pub struct SampleStream {
     config: TransferConfig,
     split: Split,
     part: Part,
-    transfer: Option<(SimKey, Transfer)>,
-    previous: Option<(StepHeader, Vec<Body>, Vec<Contact>)>,
+    /// The transfers of the simulations seen last, newest last (a recording of several
+    /// simulators interleaves their steps; each simulation has its own box).
+    transfers: Vec<(SimKey, Transfer)>,
+    /// Per simulation, its last step: what its next step pairs with.
+    previous: HashMap<SimKey, (StepHeader, Vec<Body>, Vec<Contact>)>,
     path: PathBuf,
 }
+
+/// Simulations whose transfers are kept (more interleave only when more simulators ran at once).
+const KEPT_TRANSFERS: usize = 8;
 
 /// A recorded step's sweeps, 1 when unknown.
 fn sweeps_of(stats: Option<&msgs::SolveStats>) -> f32 {
@@ -286,8 +363,8 @@ impl SampleStream {
             spec: spec.clone(),
             split: split.clone(),
             part,
-            transfer: None,
-            previous: None,
+            transfers: Vec::new(),
+            previous: HashMap::new(),
             path: path.to_path_buf(),
         })
     }
@@ -296,16 +373,26 @@ impl SampleStream {
         &mut self,
         prev: &(StepHeader, Vec<Body>, Vec<Contact>),
         next_contacts: &[Contact],
+        next_problem: Option<(Vec<ProblemBody>, Vec<ProblemContact>)>,
         next_sweeps: f32,
     ) -> Result<Sample> {
         let (key, bodies, contacts) = prev;
         let sim = (key.run_id, key.simulation);
-        if self.transfer.as_ref().map(|(k, _)| *k) != Some(sim) {
-            let geometry = self.spec.geometry(bodies)?;
-            self.transfer =
-                Some((sim, Transfer::new(self.config, geometry).map_err(|e| UnetError::Config(e.to_string()))?));
+        match self.transfers.iter().position(|(k, _)| *k == sim) {
+            Some(i) => {
+                let kept = self.transfers.remove(i);
+                self.transfers.push(kept);
+            }
+            None => {
+                let geometry = self.spec.geometry(bodies)?;
+                let transfer = Transfer::new(self.config, geometry).map_err(|e| UnetError::Config(e.to_string()))?;
+                if self.transfers.len() == KEPT_TRANSFERS {
+                    self.transfers.remove(0);
+                }
+                self.transfers.push((sim, transfer));
+            }
         }
-        let (_, transfer) = self.transfer.as_mut().expect("set above");
+        let (_, transfer) = self.transfers.last_mut().expect("pushed above");
         let context = |e: sph::SphError| {
             UnetError::Data(format!("{}: simulation {} step {}: {e}", self.path.display(), key.simulation, key.step))
         };
@@ -320,6 +407,10 @@ impl SampleStream {
             height: g.height,
             width: g.width,
             points: point_targets(g, contacts, next_contacts),
+            reference_points: next_problem
+                .as_ref()
+                .and_then(|(_, p)| reference_point_targets(g, contacts, next_contacts, p)),
+            problem: next_problem.map(|(b, c)| Arc::new(StepProblem::locate(g, next_contacts, b, c))),
             sweeps: next_sweeps,
         })
     }
@@ -339,14 +430,14 @@ impl Iterator for SampleStream {
                 continue;
             }
             let sweeps = sweeps_of(step.stats.as_ref());
+            let problem = step.problem.map(|(bodies, contacts)| (bodies.items, contacts.items));
             let current = (key, step.bodies.items, step.contacts.items);
-            // Only a direct predecessor of the same run and simulation pairs with this step.
-            let pair = self
-                .previous
-                .take()
-                .filter(|(p, _, _)| p.run_id == key.run_id && p.simulation == key.simulation && p.step + 1 == key.step);
-            let out = pair.map(|p| self.make(&p, &current.2, sweeps));
-            self.previous = Some(current);
+            // Only the direct predecessor in the same run and simulation pairs with this step
+            // (simulators running at once interleave their steps in a recording).
+            let sim = (key.run_id, key.simulation);
+            let pair = self.previous.remove(&sim).filter(|(p, _, _)| p.step + 1 == key.step);
+            let out = pair.map(|p| self.make(&p, &current.2, problem, sweeps));
+            self.previous.insert(sim, current);
             if let Some(sample) = out {
                 return Some(sample);
             }

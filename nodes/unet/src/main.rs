@@ -142,9 +142,19 @@ struct TrainArgs {
     contact_weight: f32,
     /// grid: MSE over every grid node (the thesis's); points: at the next step's contact points
     /// as `unet-delta` reads them (the change on persisting contacts), weighted by the step's
-    /// sweeps.
+    /// sweeps; reference: as points, against the step's reference solution (recordings with
+    /// labelled problems); unrolled: the residual left after --unroll-sweeps PGS sweeps of the
+    /// next step's problem from the warm start `unet-delta` reads (recordings with
+    /// `--publish-problem`: a warm start for a sweep budget).
     #[arg(long, default_value = "grid")]
     loss: LossKind,
+    /// With `--loss unrolled`: the sweep budget trained for.
+    #[arg(long, default_value_t = 8)]
+    unroll_sweeps: usize,
+    /// With `--loss unrolled`: weight of a normal row still adding impulse after the sweeps (too
+    /// little push: it accumulates as penetration) against 1 for the rest (the gnn-budget recipe's 4).
+    #[arg(long, default_value_t = 4.0)]
+    approach_weight: f64,
     /// Share of simulations held out for validation / test.
     #[arg(long, default_value_t = 0.1)]
     validation: f64,
@@ -182,6 +192,8 @@ impl TrainArgs {
             schedule: self.schedule.clone(),
             contact_weight: self.contact_weight,
             loss: self.loss,
+            unroll_sweeps: self.unroll_sweeps,
+            approach_weight: self.approach_weight,
             validation_fraction: self.validation,
             test_fraction: self.test,
             seed: self.seed,

@@ -39,6 +39,26 @@ fn record_simulations(path: &Path, run_id: u64, seeds: &[u64], steps: u32) {
 /// recorded). Returns what it recorded per (simulation, step), kept here rather than read back, so
 /// that tests compare samples with the simulation itself.
 fn record_settled_simulations(path: &Path, run_id: u64, seeds: &[u64], settle: u32, steps: u32) -> Recorded {
+    record_steps(path, run_id, seeds, settle, steps, Recording::default())
+}
+
+/// [`record_settled_simulations`] with each recorded step's velocity problem labelled with its
+/// reference solution (as `dc-sim --publish-problem --label-tolerance 1e-6` records it).
+fn record_labelled_simulations(path: &Path, run_id: u64, seeds: &[u64], settle: u32, steps: u32) -> Recorded {
+    record_steps(path, run_id, seeds, settle, steps, Recording { labelled: true, ..Recording::default() })
+}
+
+/// How [`record_steps`] records.
+#[derive(Clone, Copy, Default)]
+struct Recording {
+    /// Each step's velocity problem, labelled with its reference solution.
+    labelled: bool,
+    /// The simulations' steps interleaved (A's step k, B's step k, A's step k + 1, ...), as two
+    /// simulators running at once are recorded; otherwise one simulation after the other.
+    interleaved: bool,
+}
+
+fn record_steps(path: &Path, run_id: u64, seeds: &[u64], settle: u32, steps: u32, how: Recording) -> Recorded {
     use sim::{ModelKind, SceneConfig, WarmStarter, World, WorldParams};
     let mut w = RecordingWriter::create(path).unwrap();
     let mut t = 1_000_000_000u64;
@@ -50,24 +70,43 @@ fn record_settled_simulations(path: &Path, run_id: u64, seeds: &[u64], settle: u
     put(&mut w, "control", msgs::encode(&ControlMsg::simple(run, ControlKind::RunStart, seeds.len() as u32)).unwrap());
     let (mut bodies, mut contacts) = (Vec::new(), Vec::new());
     let mut recorded = Recorded::new();
-    for &seed in seeds {
-        let config = SceneConfig { n: 20, seed, side: Some(15.0), ..SceneConfig::default() };
-        let mut world = World::new(&config, WorldParams::default()).unwrap();
-        world.set_ids(run_id, seed as u32);
-        let mut warm = WarmStarter::new(ModelKind::Builtin.build(seed).unwrap(), ModelKind::None.build(seed).unwrap());
-        warm.begin_simulation(seed as u32, seed);
-        for _ in 0..settle {
-            world.step(&mut warm);
+    let mut worlds: Vec<(u64, World, WarmStarter)> = seeds
+        .iter()
+        .map(|&seed| {
+            let config = SceneConfig { n: 20, seed, side: Some(15.0), ..SceneConfig::default() };
+            let mut world = World::new(&config, WorldParams::default()).unwrap();
+            world.set_ids(run_id, seed as u32);
+            let mut warm =
+                WarmStarter::new(ModelKind::Builtin.build(seed).unwrap(), ModelKind::None.build(seed).unwrap());
+            warm.begin_simulation(seed as u32, seed);
+            for _ in 0..settle {
+                world.step(&mut warm);
+            }
+            if how.labelled {
+                world.capture_problems(Some(sim::SolveParams { tolerance: 1e-6, ..world.params().oracle }));
+            }
+            (seed, world, warm)
+        })
+        .collect();
+    let order: Vec<(usize, u32)> = if how.interleaved {
+        (settle..settle + steps).flat_map(|step| (0..seeds.len()).map(move |i| (i, step))).collect()
+    } else {
+        (0..seeds.len()).flat_map(|i| (settle..settle + steps).map(move |step| (i, step))).collect()
+    };
+    for (i, step) in order {
+        let (seed, world, warm) = &mut worlds[i];
+        world.step(warm);
+        world.body_msgs(&mut bodies);
+        world.contact_msgs(&mut contacts);
+        let h = StepHeader { run_id, simulation: *seed as u32, step };
+        if let Some(p) = world.problem() {
+            assert_eq!(p.header.step, h, "the problem is the recorded step's");
+            put(&mut w, "problem/bodies", msgs::encode(&msgs::Frame::new(h, p.bodies.clone())).unwrap());
+            put(&mut w, "problem/contacts", msgs::encode(&msgs::Frame::new(p.header, p.contacts.clone())).unwrap());
         }
-        for step in settle..settle + steps {
-            world.step(&mut warm);
-            world.body_msgs(&mut bodies);
-            world.contact_msgs(&mut contacts);
-            let h = StepHeader { run_id, simulation: seed as u32, step };
-            put(&mut w, "bodies", msgs::encode(&msgs::Frame::new(h, bodies.clone())).unwrap());
-            put(&mut w, "contacts", msgs::encode(&msgs::Frame::new(h, contacts.clone())).unwrap());
-            recorded.insert((seed as u32, step), (bodies.clone(), contacts.clone()));
-        }
+        put(&mut w, "bodies", msgs::encode(&msgs::Frame::new(h, bodies.clone())).unwrap());
+        put(&mut w, "contacts", msgs::encode(&msgs::Frame::new(h, contacts.clone())).unwrap());
+        recorded.insert((*seed as u32, step), (bodies.clone(), contacts.clone()));
     }
     w.finish().unwrap();
     recorded
@@ -410,6 +449,8 @@ fn normalisation_round_trips_and_residual_channels_share_the_target_statistics()
         height: 1,
         width: 2,
         points: Vec::new(),
+        reference_points: None,
+        problem: None,
         sweeps: 1.0,
     };
     let (norm, count) = Normalization::compute((0..4).map(|k| Ok(sample(k))), 3, 2, Some([1, 2])).unwrap();
@@ -480,6 +521,27 @@ fn samples_pair_consecutive_steps_of_one_simulation_and_the_split_is_by_simulati
     assert_eq!(first.key.step, SETTLE);
 }
 
+#[test]
+fn interleaved_simulations_pair_every_step_with_its_own_predecessor() {
+    // Two simulators recorded at once interleave their steps: each step still pairs with its own
+    // simulation's previous step (a stream that paired only neighbours in the file lost them all).
+    let dir = scratch("interleaved");
+    let file = dir.join("sims.mcap");
+    let how = Recording { interleaved: true, ..Recording::default() };
+    let recorded = record_steps(&file, 6, &[1000, 1001, 1002], SETTLE, 5, how);
+    let split = Split::by_simulation(&list_simulations(&file).unwrap(), 0.0, 0.0, 1);
+    let spec = small_spec();
+    let samples: Vec<unet::Sample> =
+        SampleStream::open(&file, &spec, &split, Part::Train).unwrap().map(|s| s.unwrap()).collect();
+    assert_eq!(samples.len(), 3 * 4, "every step but each simulation's last is an input");
+    for s in &samples {
+        let (bodies, contacts) = &recorded[&(s.key.simulation, s.key.step)];
+        let mut t = sph::Transfer::new(spec.transfer_config().unwrap(), spec.geometry(bodies).unwrap()).unwrap();
+        let own = t.contacts_grid(s.key, contacts).unwrap().0.items;
+        assert_close(&s.input[5 * 64 * 64..], &own, &format!("{:?}: the input's impulses are its own step's", s.key));
+    }
+}
+
 fn train_options(data: &Path, out: &Path) -> TrainOptions {
     TrainOptions {
         data: data.to_path_buf(),
@@ -492,6 +554,8 @@ fn train_options(data: &Path, out: &Path) -> TrainOptions {
         schedule: Schedule::Constant { lr: 1e-3 },
         contact_weight: 0.0,
         loss: LossKind::Grid,
+        unroll_sweeps: 8,
+        approach_weight: 4.0,
         validation_fraction: 0.25,
         test_fraction: 0.0,
         seed: 3,
@@ -620,6 +684,78 @@ fn the_points_loss_fits_the_change_at_contact_points() {
     opts.net.residual = None;
     let e = unet::train::train(&opts, &d).unwrap_err();
     assert!(matches!(e, UnetError::Config(_)) && e.to_string().contains("residual"), "{e}");
+}
+
+#[test]
+fn reference_targets_are_the_change_to_the_reference_solution() {
+    let geometry = sph::GridGeometry { origin: [0.0, 0.0], spacing: 0.5, width: 16, height: 16 };
+    let contact = |feature: u32, normal: f32| msgs::Contact {
+        body_a: 1,
+        body_b: 9,
+        feature,
+        x: 2.0,
+        y: 1.2,
+        normal_impulse: normal,
+        ..Default::default()
+    };
+    let row = |feature: u32, reference: [f32; 2]| msgs::ProblemContact {
+        body_a: 1,
+        body_b: 9,
+        feature,
+        reference,
+        ..Default::default()
+    };
+    let before = [contact(0, 2.0)];
+    // The run ended step k + 1 with 3.0 on the persisting contact; the reference solution is 4.5.
+    let after = [contact(0, 3.0), contact(1, 1.5)];
+    let problem = [row(1, [0.75, -0.25]), row(0, [4.5, 0.5])];
+    let points = unet::data::reference_point_targets(&geometry, &before, &after, &problem).unwrap();
+    assert!(points[0].persisting && (points[0].normal, points[0].tangent) == (2.5, 0.5), "{points:?}");
+    assert!(!points[1].persisting && (points[1].normal, points[1].tangent) == (0.75, -0.25), "{points:?}");
+    assert_eq!(points[0].stencil, unet::data::point_targets(&geometry, &before, &after)[0].stencil);
+    // A contact without a labelled row (unlabelled: NaN, or absent): no reference targets for the step.
+    assert!(unet::data::reference_point_targets(&geometry, &before, &after, &problem[..1]).is_none());
+    let unlabelled = [row(1, [0.75, -0.25]), row(0, [f32::NAN, f32::NAN])];
+    assert!(unet::data::reference_point_targets(&geometry, &before, &after, &unlabelled).is_none());
+}
+
+#[test]
+fn the_reference_loss_fits_the_reference_solution_and_needs_labelled_problems() {
+    let dir = scratch("reference-loss");
+    let (labelled, plain) = (dir.join("labelled.mcap"), dir.join("plain.mcap"));
+    record_labelled_simulations(&labelled, 12, &[1000, 1001, 1002, 1003], SETTLE, 8);
+    record_settled_simulations(&plain, 13, &[1000, 1001], SETTLE, 4);
+    let everything = |file: &Path| {
+        let split = Split::by_simulation(&list_simulations(file).unwrap(), 0.0, 0.0, 1);
+        SampleStream::open(file, &small_spec(), &split, Part::Train).unwrap().map(|s| s.unwrap()).collect::<Vec<_>>()
+    };
+    let samples = everything(&labelled);
+    assert_eq!(samples.len(), 4 * 7);
+    let mut differ = 0;
+    for s in &samples {
+        let reference = s.reference_points.as_ref().expect("every step of a labelled recording has its reference");
+        assert_eq!(reference.len(), s.points.len(), "step {:?}", s.key);
+        for (r, p) in reference.iter().zip(&s.points) {
+            assert_eq!((r.stencil, r.persisting), (p.stencil, p.persisting));
+            differ += usize::from((r.normal - p.normal).abs() > 1e-5);
+        }
+    }
+    // The run solved to 1e-4, the reference to 1e-6: the targets are not the recorded impulses.
+    assert!(differ > 0);
+    assert!(everything(&plain).iter().all(|s| s.reference_points.is_none()));
+
+    let d = device();
+    let mut opts = train_options(&labelled, &dir.join("model.dcu"));
+    opts.loss = LossKind::Reference;
+    opts.epochs = 12;
+    opts.max_batches = 0;
+    opts.schedule = Schedule::Constant { lr: 1e-2 };
+    let losses = unet::train::train(&opts, &d).unwrap().training.train_loss;
+    assert!(losses.iter().all(|l| l.is_finite()) && losses[11] < 0.7 * losses[0], "{losses:?}");
+    // A recording without labels cannot give the reference: a clear error naming the step.
+    opts.data = plain;
+    let e = unet::train::train(&opts, &d).unwrap_err();
+    assert!(matches!(e, UnetError::Data(_)) && e.to_string().contains("no labelled problem"), "{e}");
 }
 
 #[test]
