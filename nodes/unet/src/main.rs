@@ -305,7 +305,7 @@ fn print_summary(path: &std::path::Path, meta: &unet::ModelMeta) {
         t.validation_loss.iter().map(|l| format!("{l:.4}")).collect::<Vec<_>>()
     );
     if let Some(p) = t.validation_loss_previous {
-        println!("  validation loss of the previous step's impulses (the `grid` model): {p:.4}");
+        println!("  validation loss of the previous step's impulses (`grid`; builtin with --loss unrolled): {p:.4}");
     }
 }
 

@@ -76,8 +76,8 @@ pub struct TrainingSummary {
     pub train_loss: Vec<f64>,
     /// Validation loss per epoch.
     pub validation_loss: Vec<f64>,
-    /// Validation loss of the untrained model's answer "the previous impulses" (residual models),
-    /// the bar to beat.
+    /// Validation loss of the untrained model's answer "the previous impulses" (residual models;
+    /// with `--loss unrolled`, builtin's warm start: 0 on new contacts), the bar to beat.
     pub validation_loss_previous: Option<f64>,
     pub split: Split,
     pub seconds: f64,

@@ -397,15 +397,7 @@ impl Objective {
             };
         }
         let steps = batch.problems.len() as f64;
-        let mut total = 0.0;
-        let mut grads = Vec::with_capacity(batch.problems.len());
-        for ((p, w), warm) in batch.problems.iter().zip(&batch.weights).zip(&warm) {
-            let mut unrolled = gnn::unroll::Unrolled::new(&p.bodies, &p.contacts);
-            unrolled.approach_weight = self.approach_weight;
-            let (r, g) = unrolled.loss_and_gradient(warm, self.unroll_sweeps);
-            total += w * r;
-            grads.push(g);
-        }
+        let (total, grads) = self.residuals(batch, &warm);
         let g: Vec<f32> = batch
             .rows
             .iter()
@@ -414,6 +406,32 @@ impl Objective {
         let g = Tensor::<1>::from_data(TensorData::new(g, [n]), &read.device());
         let surrogate = (read * g).sum();
         surrogate.clone() - surrogate.detach() + (total / steps) as f32
+    }
+
+    /// The weighted sum over the batch's steps of the residual after the sweeps from `warm`
+    /// (per step, per contact row), and each step's gradient.
+    fn residuals(&self, batch: &UnrolledBatch, warm: &[Vec<[f64; 2]>]) -> (f64, Vec<Vec<[f64; 2]>>) {
+        let mut total = 0.0;
+        let mut grads = Vec::with_capacity(batch.problems.len());
+        for ((p, w), warm) in batch.problems.iter().zip(&batch.weights).zip(warm) {
+            let mut unrolled = gnn::unroll::Unrolled::new(&p.bodies, &p.contacts);
+            unrolled.approach_weight = self.approach_weight;
+            let (r, g) = unrolled.loss_and_gradient(warm, self.unroll_sweeps);
+            total += w * r;
+            grads.push(g);
+        }
+        (total, grads)
+    }
+
+    /// The unrolled loss of builtin's warm start (the previous impulses, 0 on new contacts): the
+    /// bar `unet-delta` must beat.
+    fn builtin_unrolled_loss(&self, batch: &UnrolledBatch) -> f64 {
+        let warm: Vec<Vec<[f64; 2]>> = batch
+            .problems
+            .iter()
+            .map(|p| p.contacts.iter().map(|c| [c.previous[0] as f64, c.previous[1] as f64]).collect())
+            .collect();
+        self.residuals(batch, &warm).0 / batch.problems.len().max(1) as f64
     }
 }
 
@@ -502,7 +520,10 @@ fn evaluate(
         let b = make_batch(&samples, meta, objective, device)?;
         let l: f32 = objective.loss(model.forward(b.input.clone()), &b).into_scalar();
         sum += l as f64 * b.len as f64;
-        if let Some(prev) = previous_impulses(&b.input, meta.config.residual) {
+        if let Some(unrolled) = &b.unrolled {
+            // The bar for a warm start at a budget is builtin's own.
+            sum_prev += objective.builtin_unrolled_loss(unrolled) * b.len as f64;
+        } else if let Some(prev) = previous_impulses(&b.input, meta.config.residual) {
             let lp: f32 = objective.loss(prev, &b).into_scalar();
             sum_prev += lp as f64 * b.len as f64;
         }
@@ -658,7 +679,7 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
         meta.training.validation_loss_previous = prev;
         meta.training.validation_samples = n;
         if let Some(p) = prev {
-            tracing::info!(validation_loss = p, "answering the previous step's impulses (the bar to beat)");
+            tracing::info!(validation_loss = p, "answering the previous step's impulses (the bar to beat; builtin's with --loss unrolled)");
         }
     }
     std::fs::create_dir_all(&dir).map_err(|e| UnetError::Io(dir.display().to_string(), e))?;
