@@ -679,7 +679,10 @@ pub fn train(opts: &TrainOptions, device: &Device) -> Result<ModelMeta> {
         meta.training.validation_loss_previous = prev;
         meta.training.validation_samples = n;
         if let Some(p) = prev {
-            tracing::info!(validation_loss = p, "answering the previous step's impulses (the bar to beat; builtin's with --loss unrolled)");
+            tracing::info!(
+                validation_loss = p,
+                "answering the previous step's impulses (the bar to beat; builtin's with --loss unrolled)"
+            );
         }
     }
     std::fs::create_dir_all(&dir).map_err(|e| UnetError::Io(dir.display().to_string(), e))?;
