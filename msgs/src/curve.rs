@@ -60,7 +60,8 @@ pub fn worth(curve: &[(f64, f64)], value: f64) -> Worth {
         return Worth::Below(first.0);
     }
     if points.len() == 1 {
-        return Worth::Sweeps(first.0);
+        // One budget measured: equal is worth it, better is beyond it (not "worth" it).
+        return if value < first.1 { Worth::Above(first.0) } else { Worth::Sweeps(first.0) };
     }
     for w in points.windows(2) {
         let ((k0, e0), (k1, e1)) = (w[0], w[1]);
@@ -172,6 +173,11 @@ mod tests {
         let flat = [(1.0, 0.5), (2.0, 0.25), (4.0, 0.25), (8.0, 0.0)];
         assert_eq!(worth(&flat, 0.25), Worth::Sweeps(2.0));
         assert_eq!(worth(&flat, 0.1), Worth::Above(4.0));
+        // A curve of one budget (`dc eval --budget 8`): only equal is worth it.
+        let one = [(8.0, 0.0109)];
+        assert_eq!(worth(&one, 0.0109), Worth::Sweeps(8.0));
+        assert_eq!(worth(&one, 0.0097).to_string(), "> 8");
+        assert_eq!(worth(&one, 0.0125).to_string(), "< 8");
         assert_eq!(along(&[(1.0, 10.0), (4.0, 30.0)], 2.0), 20.0);
         assert_eq!(along(&[(1.0, 10.0), (4.0, 30.0)], 8.0), 30.0);
     }
