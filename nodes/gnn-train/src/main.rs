@@ -512,19 +512,26 @@ mod tests {
     /// simulator's: its solver's converged impulses leave nothing for one more sweep to change.
     #[test]
     fn the_simulators_solution_leaves_no_unrolled_residual() {
-        let body = |v: [f32; 2], m: f32| ProblemBody { v, w: 0.1, inv_mass: m, inv_inertia: 4.0 * m };
-        let bodies =
-            vec![ProblemBody::default(), body([0.0, -0.1], 1.0), body([0.05, -0.1], 0.7), body([0.0, -0.2], 2.0)];
-        let contact = |a: u32, b: u32, angle: f32| ProblemContact {
-            body_a: a,
-            body_b: b,
-            normal: [angle.cos(), angle.sin()],
-            ra: [0.1, 0.2],
-            rb: [-0.2 * angle.cos(), -0.2 * angle.sin()],
-            friction: 0.4,
-            ..Default::default()
-        };
-        let contacts = vec![contact(0, 1, 1.5), contact(0, 2, 1.6), contact(1, 3, 1.3), contact(1, 2, 0.1)];
+        // A column of three balls on the floor (body 0), each pushed down, the top one sliding.
+        let bodies: Vec<ProblemBody> = std::iter::once(ProblemBody::default())
+            .chain((1..4).map(|i| ProblemBody {
+                v: [0.02 * i as f32, -0.1 * i as f32],
+                w: 0.0,
+                inv_mass: 1.0 / i as f32,
+                inv_inertia: 2.0,
+            }))
+            .collect();
+        let contacts: Vec<ProblemContact> = (0..3u32)
+            .map(|i| ProblemContact {
+                body_a: i,
+                body_b: i + 1,
+                normal: [0.0, 1.0],
+                ra: [0.0, if i == 0 { 0.0 } else { 0.5 }],
+                rb: [0.0, -0.5],
+                friction: 0.3,
+                ..Default::default()
+            })
+            .collect();
         let params = sim::SolveParams { tolerance: 1e-9, max_sweeps: 100_000, ..Default::default() };
         let (_, solved) =
             sim::problem::solve(&bodies, &contacts, &vec![sim::Impulse::default(); contacts.len()], &params);

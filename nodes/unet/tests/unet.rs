@@ -662,17 +662,24 @@ fn point_targets_are_the_change_on_persisting_contacts_and_the_impulse_on_new_on
     assert!((read - (3.0 * 3.3 - 1.2)).abs() < 1e-4, "{read}");
 }
 
+/// Options that fit a small recording's steps with `loss`: 12 whole epochs at a high rate.
+fn fitting_options(data: &Path, out: &Path, loss: LossKind) -> TrainOptions {
+    TrainOptions {
+        loss,
+        epochs: 12,
+        max_batches: 0,
+        schedule: Schedule::Constant { lr: 1e-2 },
+        ..train_options(data, out)
+    }
+}
+
 #[test]
 fn the_points_loss_fits_the_change_at_contact_points() {
     let dir = scratch("points-loss");
     let data = dir.join("data.mcap");
     record_settled_simulations(&data, 11, &[1000, 1001, 1002, 1003], SETTLE, 8);
     let d = device();
-    let mut opts = train_options(&data, &dir.join("model.dcu"));
-    opts.loss = LossKind::Points;
-    opts.epochs = 12;
-    opts.max_batches = 0;
-    opts.schedule = Schedule::Constant { lr: 1e-2 };
+    let mut opts = fitting_options(&data, &dir.join("model.dcu"), LossKind::Points);
     let meta = unet::train::train(&opts, &d).unwrap();
     let losses = &meta.training.train_loss;
     let baseline = meta.training.validation_loss_previous.expect("a residual model has the previous-impulses bar");
@@ -745,11 +752,7 @@ fn the_reference_loss_fits_the_reference_solution_and_needs_labelled_problems() 
     assert!(everything(&plain).iter().all(|s| s.reference_points.is_none()));
 
     let d = device();
-    let mut opts = train_options(&labelled, &dir.join("model.dcu"));
-    opts.loss = LossKind::Reference;
-    opts.epochs = 12;
-    opts.max_batches = 0;
-    opts.schedule = Schedule::Constant { lr: 1e-2 };
+    let mut opts = fitting_options(&labelled, &dir.join("model.dcu"), LossKind::Reference);
     let losses = unet::train::train(&opts, &d).unwrap().training.train_loss;
     assert!(losses.iter().all(|l| l.is_finite()) && losses[11] < 0.7 * losses[0], "{losses:?}");
     // A recording without labels cannot give the reference: a clear error naming the step.
