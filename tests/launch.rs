@@ -416,7 +416,8 @@ fn eval_runs_eight_simulators_at_once() {
 fn eval_at_budgets_runs_every_model_at_each_and_tabulates_their_accuracy() {
     let dir = scratch_dir("eval-budget");
     let out_dir = dir.join("report");
-    let args = "eval --models builtin,none --seeds 0..2 --steps 60 --n 30 --budget 2,8 --out";
+    // grid is served by the SPH node: the error split measures served models too.
+    let args = "eval --models builtin,none,grid --seeds 0..2 --steps 60 --n 30 --budget 2,8 --error-split --out";
     let out = Command::new(bin("dc"))
         .args(args.split(' ').chain([out_dir.to_str().unwrap(), "--", "--solver", "pgs"]))
         .output()
@@ -428,9 +429,15 @@ fn eval_at_budgets_runs_every_model_at_each_and_tabulates_their_accuracy() {
         let column =
             |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name} in {header:?}"));
         let (sweeps, natural, contacts) = (column("sweeps"), column("natural_max"), column("contacts"));
+        let (split_contacts, split_budget) = (column("split_contacts"), column("split_budget"));
         let rows: Vec<Vec<String>> =
             steps.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect();
-        assert_eq!(rows.len(), 2 * 2 * 60, "two models, two seeds, 60 steps");
+        assert_eq!(rows.len(), 3 * 2 * 60, "three models, two seeds, 60 steps");
+        // Every step with contacts split over all of them, at the budget.
+        for r in &rows {
+            assert_eq!(r[split_contacts], r[contacts], "{r:?}");
+            assert_eq!(r[split_budget], if r[contacts] == "0" { "0".to_string() } else { k.to_string() }, "{r:?}");
+        }
         // Exactly k sweeps, fewer only where the natural residual already met the tolerance.
         for r in &rows {
             let s: u32 = r[sweeps].parse().unwrap();
@@ -446,6 +453,28 @@ fn eval_at_budgets_runs_every_model_at_each_and_tabulates_their_accuracy() {
     assert!(
         table.lines().any(|l| l.starts_with("| builtin | 8 |") && l.split('|').nth(4).unwrap().trim() == "8.0"),
         "{table}"
+    );
+    // Which part of builtin's error each removes: builtin none; from a zero start the budget's
+    // sweeps leave more than from builtin's.
+    let split = table.split("Which part of builtin's warm-start error").nth(1).unwrap_or_else(|| panic!("{table}"));
+    let row = |model: &str, k: u32| {
+        let prefix = format!("| {model} | {k} | ");
+        let line = split.lines().find(|l| l.starts_with(&prefix)).unwrap_or_else(|| panic!("{prefix}: {split}"));
+        line.split('|').map(|c| c.trim().to_string()).filter(|c| !c.is_empty()).collect::<Vec<_>>()
+    };
+    let figure = |cell: &str| cell.parse::<f64>().unwrap_or_else(|_| panic!("{cell}: {split}"));
+    for k in [2, 8] {
+        let builtin = row("builtin", k);
+        assert_eq!((builtin[2].as_str(), builtin[3].as_str()), ("0%", "0%"), "{split}");
+        assert_eq!(builtin[4], builtin[5], "{split}");
+        let none = row("none", k);
+        assert!(figure(&none[4]) > figure(&none[5]), "{split}");
+        assert_eq!(row("grid", k).len(), 6, "{split}");
+    }
+    let report = std::fs::read_to_string(out_dir.join("budget-8/summary.md")).unwrap();
+    assert!(
+        report.contains("## Which part of builtin's error each model removes") && report.contains("| grid |"),
+        "{report}"
     );
 }
 

@@ -164,6 +164,12 @@ struct EvalArgs {
     /// Same states are not measured (every model makes K sweeps).
     #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u32).range(1..=msgs::curve::MAX_BUDGET as i64))]
     budget: Vec<u32>,
+    /// Also split every step's warm-start error against the step's exact solution, beside
+    /// builtin's on the same step (`dc-sim --error-split`, three more solves a step outside its
+    /// time): the report's "which part of builtin's error each model removes", for every model,
+    /// served ones too; with --budget also in OUT/budgets.md.
+    #[arg(long)]
+    error_split: bool,
     /// Print every node's log (otherwise: a progress bar on a terminal, one line per finished
     /// model, and the nodes' warnings and errors; `RUST_LOG` set means the same as -v).
     #[arg(short, long)]
@@ -564,6 +570,9 @@ fn simulator_args(args: &EvalArgs, models: &[&str], solver: Option<&str>, budget
     if args.same_states && budget.is_none() {
         sim_args.push("--shadow-builtin".into());
     }
+    if args.error_split {
+        sim_args.push("--error-split".into());
+    }
     sim_args.extend(args.sim_args.iter().cloned());
     if let Some(solver) = solver {
         sim_args.push(format!("--solver={solver}"));
@@ -836,11 +845,15 @@ mod tests {
         for args in &at8 {
             assert!(args.contains(&"--budget=8".to_string()) && args.contains(&"--solver=pgs".to_string()), "{args:?}");
             assert!(!args.contains(&"--shadow-builtin".to_string()), "{args:?}");
+            assert!(!args.contains(&"--error-split".to_string()), "only when asked: {args:?}");
         }
         assert!(sims(None)
             .iter()
             .all(|a| a.contains(&"--shadow-builtin".to_string()) && !a.iter().any(|x| x.starts_with("--budget"))));
         assert!(Cli::try_parse_from(["dc", "eval", "--budget", "0"]).is_err());
+        let cli = Cli::try_parse_from(["dc", "eval", "--budget", "8", "--error-split"]).unwrap();
+        let Command::Eval(eval) = cli.command else { panic!("not eval") };
+        assert!(simulator_args(&eval, &["unet-delta"], None, Some(8)).contains(&"--error-split".to_string()));
     }
 
     #[test]

@@ -15,6 +15,13 @@ pub struct SummaryRow {
     pub natural_rms: f64,
     pub penetration_max: f64,
     pub late_kinetic_energy: f64,
+    /// The warm-start error split (`dc eval --error-split`): the share of builtin's smooth and
+    /// rough error the model's start removes, and the RMS error the budget's sweeps leave from
+    /// the model's start and from builtin's (NaN where not measured).
+    pub smooth_removed: f64,
+    pub rough_removed: f64,
+    pub left_rms: f64,
+    pub builtin_left_rms: f64,
 }
 
 /// A `summary.csv` that cannot be read.
@@ -32,8 +39,17 @@ pub enum SummaryError {
 
 const COLUMNS: [&str; 5] = ["model", "total_sweeps", "total_solve_ms", "cap_hits", "same_states_ratio_to_builtin"];
 
-/// Columns read when present (reports written before them lack them).
-const ACCURACY_COLUMNS: [&str; 3] = ["mean_natural_rms", "mean_penetration_max", "late_kinetic_energy"];
+/// Columns read when present (reports written before them lack them; the split's are empty
+/// where not measured).
+const ACCURACY_COLUMNS: [&str; 7] = [
+    "mean_natural_rms",
+    "mean_penetration_max",
+    "late_kinetic_energy",
+    "split_smooth_removed",
+    "split_rough_removed",
+    "split_left_rms",
+    "split_builtin_left_rms",
+];
 
 /// Reads the rows of a `summary.csv`.
 pub fn read_summary(text: &str) -> Result<Vec<SummaryRow>, SummaryError> {
@@ -79,6 +95,10 @@ pub fn read_summary(text: &str) -> Result<Vec<SummaryRow>, SummaryError> {
             natural_rms: accuracy(0)?,
             penetration_max: accuracy(1)?,
             late_kinetic_energy: accuracy(2)?,
+            smooth_removed: accuracy(3)?,
+            rough_removed: accuracy(4)?,
+            left_rms: accuracy(5)?,
+            builtin_left_rms: accuracy(6)?,
         });
     }
     Ok(rows)
@@ -137,7 +157,7 @@ pub fn budget_markdown(summaries: &[(u32, Vec<SummaryRow>)]) -> String {
         }
     }
     let num = msgs::curve::figure;
-    for model in models {
+    for &model in &models {
         for (k, rows) in summaries {
             let Some(r) = rows.iter().find(|r| r.model == model) else { continue };
             out += &format!(
@@ -148,6 +168,28 @@ pub fn budget_markdown(summaries: &[(u32, Vec<SummaryRow>)]) -> String {
                 num(r.late_kinetic_energy),
                 r.total_solve_ms,
                 r.total_sweeps,
+            );
+        }
+    }
+    let split: Vec<(u32, &SummaryRow)> = models
+        .iter()
+        .flat_map(|&model| {
+            summaries.iter().filter_map(move |(k, rows)| rows.iter().find(|r| r.model == model).map(|r| (*k, r)))
+        })
+        .filter(|(_, r)| r.left_rms.is_finite())
+        .collect();
+    if !split.is_empty() {
+        out += "\nWhich part of builtin's warm-start error each model removes (`--error-split`): the share of builtin's smooth (pile-wide) and rough (local) error RMS the model's start does not have (negative: further from the exact solution), and the RMS error the budget's sweeps leave from the model's start and from builtin's on the same steps (the part slow for the solver).\n\n| model | budget | smooth removed | rough removed | left after the budget | builtin's left |\n|---|---:|---:|---:|---:|---:|\n";
+        // Rounded before printing, so that a share just below zero reads 0%, not -0%.
+        let percent = |share: f64| format!("{:.0}%", (100.0 * share).round() + 0.0);
+        for (k, r) in split {
+            out += &format!(
+                "| {} | {k} | {} | {} | {} | {} |\n",
+                r.model,
+                percent(r.smooth_removed),
+                percent(r.rough_removed),
+                num(r.left_rms),
+                num(r.builtin_left_rms),
             );
         }
     }
@@ -197,6 +239,19 @@ mod tests {
         // A report from before the accuracy columns reads as not measured.
         let old = read_summary(SUMMARY).unwrap();
         assert!(old[0].natural_rms.is_nan() && old[0].late_kinetic_energy.is_nan());
+        assert!(!table.contains("Which part"), "no split measured: no split table\n{table}");
+    }
+
+    #[test]
+    fn the_budget_table_says_which_part_of_the_error_a_model_removes_where_measured() {
+        let text = "model,total_sweeps,cap_hits,same_states_ratio_to_builtin,total_solve_ms,mean_natural_rms,split_smooth_removed,split_rough_removed,split_left_rms,split_builtin_left_rms\nbuiltin,800,0,,5.0,0.25,-0.001,0,0.6,0.6\nunet-delta,800,0,,90.0,0.2,-0.15,-0.3,0.49,0.63\nnone,800,0,,4.0,0.5,,,,\n";
+        let rows = read_summary(text).unwrap();
+        assert!(rows[2].left_rms.is_nan() && rows[2].smooth_removed.is_nan(), "empty cells: not measured");
+        let table = budget_markdown(&[(8, rows)]);
+        assert!(table.contains("| unet-delta | 8 | -15% | -30% | 0.4900 | 0.6300 |"), "{table}");
+        assert!(table.contains("| builtin | 8 | 0% | 0% | 0.6000 | 0.6000 |"), "{table}");
+        assert!(!table.lines().any(|l| l.starts_with("| none | 8 | -") || l.contains("| none | 8 | NaN")), "{table}");
+        assert_eq!(table.lines().filter(|l| l.starts_with("| none |")).count(), 1, "only the accuracy row: {table}");
     }
 
     #[test]

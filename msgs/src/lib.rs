@@ -26,7 +26,7 @@ pub use codec::{
 pub use control::{ControlDetails, DetailsError, NodeNotice, RunParams, RunSummary, SceneInfo};
 pub use names::id_text;
 pub use problem::{ProblemBodies, ProblemBody, ProblemContact, ProblemContacts, ProblemHeader};
-pub use stats::{Accuracy, StepStats};
+pub use stats::{Accuracy, ErrorSplit, StepStats};
 pub use topics::{FrameKind, HasStep};
 
 use bytemuck::{Pod, Zeroable};
@@ -314,6 +314,24 @@ pub struct SolveStatsHeader {
     pub pile_height: f32,
     #[serde(default)]
     pub pile_spread: f32,
+    /// The warm-start error split (`dc-sim --error-split`; field meanings in [`StepStats`]); 0 in
+    /// recordings made before it existed and where not measured.
+    #[serde(default)]
+    pub split_contacts: u32,
+    #[serde(default)]
+    pub split_budget: u32,
+    #[serde(default)]
+    pub split_model_smooth: f32,
+    #[serde(default)]
+    pub split_model_rough: f32,
+    #[serde(default)]
+    pub split_builtin_smooth: f32,
+    #[serde(default)]
+    pub split_builtin_rough: f32,
+    #[serde(default)]
+    pub split_model_left: f32,
+    #[serde(default)]
+    pub split_builtin_left: f32,
 }
 
 /// Most residuals a [`SolveStatsHeader`] frame carries (one per sweep; longer solves keep the first ones).

@@ -76,6 +76,27 @@ pub struct StepStats {
     pub pile_height: f32,
     #[serde(default)]
     pub pile_spread: f32,
+    /// The warm start's error against the step's exact solution, split (`dc-sim --error-split`,
+    /// [`ErrorSplit`]): the contacts summed over (0: not measured), the sweep budget the `left`
+    /// sums were measured with, and sums of squares over the step's contacts (impulse units,
+    /// normal and tangent together) of the model's and builtin's smooth and rough error parts
+    /// and of what the budget's sweeps leave from each start.
+    #[serde(default)]
+    pub split_contacts: u32,
+    #[serde(default)]
+    pub split_budget: u32,
+    #[serde(default)]
+    pub split_model_smooth: f32,
+    #[serde(default)]
+    pub split_model_rough: f32,
+    #[serde(default)]
+    pub split_builtin_smooth: f32,
+    #[serde(default)]
+    pub split_builtin_rough: f32,
+    #[serde(default)]
+    pub split_model_left: f32,
+    #[serde(default)]
+    pub split_builtin_left: f32,
 }
 
 impl StepStats {
@@ -111,6 +132,14 @@ impl StepStats {
             penetration_mean: h.penetration_mean,
             pile_height: h.pile_height,
             pile_spread: h.pile_spread,
+            split_contacts: h.split_contacts,
+            split_budget: h.split_budget,
+            split_model_smooth: h.split_model_smooth,
+            split_model_rough: h.split_model_rough,
+            split_builtin_smooth: h.split_builtin_smooth,
+            split_builtin_rough: h.split_builtin_rough,
+            split_model_left: h.split_model_left,
+            split_builtin_left: h.split_builtin_left,
         }
     }
 
@@ -144,11 +173,114 @@ impl StepStats {
             penetration_mean: self.penetration_mean,
             pile_height: self.pile_height,
             pile_spread: self.pile_spread,
+            split_contacts: self.split_contacts,
+            split_budget: self.split_budget,
+            split_model_smooth: self.split_model_smooth,
+            split_model_rough: self.split_model_rough,
+            split_builtin_smooth: self.split_builtin_smooth,
+            split_builtin_rough: self.split_builtin_rough,
+            split_model_left: self.split_model_left,
+            split_builtin_left: self.split_builtin_left,
         }
     }
 
     pub fn step_header(&self) -> StepHeader {
         StepHeader { run_id: self.run_id, simulation: self.simulation, step: self.step }
+    }
+
+    /// The step's warm-start error split, where it was measured (a step without contacts has
+    /// nothing to split).
+    pub fn split(&self) -> Option<ErrorSplit> {
+        (self.split_contacts > 0).then(|| ErrorSplit {
+            model_smooth: self.split_model_smooth as f64,
+            model_rough: self.split_model_rough as f64,
+            builtin_smooth: self.split_builtin_smooth as f64,
+            builtin_rough: self.split_builtin_rough as f64,
+            model_left: self.split_model_left as f64,
+            builtin_left: self.split_builtin_left as f64,
+            n: self.split_contacts as u64,
+        })
+    }
+
+    /// Stores a step's split (`None`: not measured) measured with `budget` sweeps.
+    pub fn set_split(&mut self, split: Option<&ErrorSplit>, budget: u32) {
+        let s = split.copied().unwrap_or_default();
+        self.split_contacts = s.n as u32;
+        self.split_budget = if s.n > 0 { budget } else { 0 };
+        self.split_model_smooth = s.model_smooth as f32;
+        self.split_model_rough = s.model_rough as f32;
+        self.split_builtin_smooth = s.builtin_smooth as f32;
+        self.split_builtin_rough = s.builtin_rough as f32;
+        self.split_model_left = s.model_left as f32;
+        self.split_builtin_left = s.builtin_left as f32;
+    }
+}
+
+/// Which part of builtin's error a model's warm start removes, on the model's own steps: the
+/// model's and builtin's warm-start error against the step's exact solution, each split as the
+/// `smooth-error` / `rough-error` references split it (the part a few passes of averaging over
+/// the contact graph keeps — pile-wide — and the rest — local), and what the budget's sweeps leave
+/// of each (the part slow for the solver), as sums of squares over the contacts (impulse units,
+/// normal and tangent together). Sums add over steps and seeds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct ErrorSplit {
+    pub model_smooth: f64,
+    pub model_rough: f64,
+    pub builtin_smooth: f64,
+    pub builtin_rough: f64,
+    /// What the budget's sweeps leave of each start's error: the error after K sweeps from the
+    /// model's start and from builtin's, on the same step.
+    pub model_left: f64,
+    pub builtin_left: f64,
+    /// Contacts summed over.
+    pub n: u64,
+}
+
+impl ErrorSplit {
+    /// Adds another step's or seed's sums.
+    pub fn add(&mut self, other: &ErrorSplit) {
+        self.model_smooth += other.model_smooth;
+        self.model_rough += other.model_rough;
+        self.builtin_smooth += other.builtin_smooth;
+        self.builtin_rough += other.builtin_rough;
+        self.model_left += other.model_left;
+        self.builtin_left += other.builtin_left;
+        self.n += other.n;
+    }
+
+    /// The sum of the splits measured among `steps` (None when none was).
+    pub fn over<'a>(steps: impl IntoIterator<Item = &'a StepStats>) -> Option<ErrorSplit> {
+        steps.into_iter().filter_map(StepStats::split).fold(None, |acc, s| {
+            let mut total = acc.unwrap_or_default();
+            total.add(&s);
+            Some(total)
+        })
+    }
+
+    fn rms(&self, sum: f64) -> f64 {
+        (sum / self.n.max(1) as f64).sqrt()
+    }
+
+    /// RMS of the model's smooth and rough error parts.
+    pub fn model_rms(&self) -> (f64, f64) {
+        (self.rms(self.model_smooth), self.rms(self.model_rough))
+    }
+
+    /// RMS of builtin's smooth and rough error parts on the same steps.
+    pub fn builtin_rms(&self) -> (f64, f64) {
+        (self.rms(self.builtin_smooth), self.rms(self.builtin_rough))
+    }
+
+    /// RMS of the error the budget's sweeps leave from the model's start and from builtin's.
+    pub fn left_rms(&self) -> (f64, f64) {
+        (self.rms(self.model_left), self.rms(self.builtin_left))
+    }
+
+    /// The fractions of builtin's smooth and rough error (RMS) the model removes.
+    pub fn removed(&self) -> (f64, f64) {
+        let ((ms, mr), (bs, br)) = (self.model_rms(), self.builtin_rms());
+        let frac = |m: f64, b: f64| if b > 0.0 { 1.0 - m / b } else { 0.0 };
+        (frac(ms, bs), frac(mr, br))
     }
 }
 
@@ -219,9 +351,41 @@ mod tests {
             max_speed: 3.0,
             builtin_sweeps: 870,
             builtin_measured: true,
+            split_contacts: 300,
+            split_budget: 8,
+            split_model_smooth: 0.25,
+            split_builtin_left: 1.5,
             ..StepStats::default()
         };
         assert_eq!(StepStats::from_header(&s.to_header()), s);
+    }
+
+    #[test]
+    fn a_split_is_stored_and_summed_over_the_steps_that_measured_it() {
+        let split = ErrorSplit {
+            model_smooth: 1.0,
+            model_rough: 4.0,
+            builtin_smooth: 4.0,
+            builtin_rough: 4.0,
+            model_left: 0.5,
+            builtin_left: 2.0,
+            n: 4,
+        };
+        let mut measured = StepStats { contacts: 4, ..StepStats::default() };
+        measured.set_split(Some(&split), 8);
+        assert_eq!((measured.split(), measured.split_budget), (Some(split), 8));
+        let unmeasured = StepStats { contacts: 9, ..StepStats::default() };
+        assert_eq!(unmeasured.split(), None);
+        assert_eq!(ErrorSplit::over([&unmeasured]), None);
+        let total = ErrorSplit::over([&measured, &unmeasured, &measured]).unwrap();
+        assert_eq!(total.n, 8);
+        // RMS over the 8 contacts: sqrt(2/8) smooth, sqrt(8/8) rough; builtin's sqrt(8/8) both.
+        assert_eq!(total.model_rms(), (0.5, 1.0));
+        assert_eq!(total.removed(), (0.5, 0.0));
+        assert_eq!(total.left_rms(), (0.125f64.sqrt(), 0.5f64.sqrt()));
+        // An unmeasured step stores nothing.
+        measured.set_split(None, 8);
+        assert_eq!((measured.split(), measured.split_budget), (None, 0));
     }
 
     #[test]

@@ -133,6 +133,7 @@ fn try_main() -> Result<()> {
         problems: false,
         label: None,
         shadow_builtin: false,
+        error_split: false,
     };
     let summary = sim::run::run(&spec, &mut warm, &mut sink)?;
     sink.writer.finish()?;

@@ -7,7 +7,7 @@ use crate::phases::{
     DEFAULT_PHASE_BOUNDARIES,
 };
 use charts::{median, quantile};
-use msgs::{Accuracy, SolveStatsHeader, StepStats};
+use msgs::{Accuracy, ErrorSplit, SolveStatsHeader, StepStats};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -108,6 +108,9 @@ pub struct ModelSummary {
     pub median_warm_error_tangent_mse: f64,
     /// How accurate the steps were (what a fixed sweep budget trades).
     pub accuracy: Accuracy,
+    /// Which part of builtin's warm-start error the model's removes, summed over its steps
+    /// (`dc-sim --error-split`; None where not measured).
+    pub split: Option<ErrorSplit>,
 }
 
 /// A model's sweeps against builtin's warm start on the same step problems: what the warm start
@@ -263,6 +266,7 @@ impl Aggregate {
                         self.records(model).map(|r| &r.stats),
                         self.phase_boundaries.iter().copied().max().unwrap_or(0),
                     ),
+                    split: ErrorSplit::over(self.records(model).map(|r| &r.stats)),
                 }
             })
             .collect();
@@ -523,8 +527,28 @@ mod tests {
             penetration_mean: 0.0,
             pile_height: 0.0,
             pile_spread: 0.0,
+            ..StepStats::default()
         };
         StepRecord { stats, residuals: (0..sweeps).map(|i| 1.0 / (i + 1) as f32).collect() }
+    }
+
+    #[test]
+    fn a_models_error_split_is_summed_over_its_measured_steps() {
+        let mut agg = Aggregate::new();
+        let split = ErrorSplit { model_smooth: 2.0, builtin_smooth: 8.0, model_left: 1.0, n: 4, ..Default::default() };
+        for step in 0..3 {
+            let mut r = record("gnn", 0, step, 4, 8);
+            // The first step was not measured (a run without --error-split reads the same).
+            r.stats.set_split((step > 0).then_some(&split), 8);
+            agg.add(r);
+            agg.add(record("builtin", 0, step, 4, 8));
+        }
+        let summaries = agg.summaries();
+        let of = |m: &str| summaries.iter().find(|s| s.model == m).unwrap().split;
+        assert_eq!(of("builtin"), None);
+        let gnn = of("gnn").unwrap();
+        assert_eq!((gnn.n, gnn.model_smooth, gnn.builtin_smooth, gnn.model_left), (8, 4.0, 16.0, 2.0));
+        assert_eq!(gnn.removed().0, 0.5);
     }
 
     #[test]

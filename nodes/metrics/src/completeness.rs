@@ -129,6 +129,12 @@ impl Completeness {
             ("penetration_max", h.penetration_max),
             ("penetration_mean", h.penetration_mean),
             ("pile_spread", h.pile_spread),
+            ("split_model_smooth", h.split_model_smooth),
+            ("split_model_rough", h.split_model_rough),
+            ("split_builtin_smooth", h.split_builtin_smooth),
+            ("split_builtin_rough", h.split_builtin_rough),
+            ("split_model_left", h.split_model_left),
+            ("split_builtin_left", h.split_builtin_left),
         ];
         if !h.pile_height.is_finite() {
             return Some(format!("pile_height = {}", h.pile_height));
@@ -141,6 +147,9 @@ impl Completeness {
         }
         if h.persisting_contacts > h.contacts {
             return Some(format!("{} persisting of {} contacts", h.persisting_contacts, h.contacts));
+        }
+        if h.split_contacts > h.contacts {
+            return Some(format!("an error split over {} of {} contacts", h.split_contacts, h.contacts));
         }
         let sim = self.sims.get(&id);
         if let Some(steps) = sim.and_then(|s| s.steps_announced) {
@@ -334,6 +343,8 @@ mod tests {
         };
         assert!(bad(&|h| h.sweeps = u32::MAX).contains("above the run's cap 1000"));
         assert!(bad(&|h| h.solve_us = f32::NAN).contains("solve_us = NaN"));
+        assert!(bad(&|h| h.split_model_left = -1.0).contains("split_model_left = -1"));
+        assert!(bad(&|h| h.split_contacts = 11).contains("an error split over 11 of 10 contacts"));
         assert!(bad(&|h| h.warm_error_normal_mse = -1.0).contains("warm_error_normal_mse"));
         assert!(bad(&|h| h.converged = 7).contains("0 or 1"));
         assert!(bad(&|h| h.persisting_contacts = 11).contains("persisting"));

@@ -21,6 +21,7 @@ use crate::warm::{ModelFiles, ModelKind, ModelSpec, Served, WarmStarter};
 use crate::world::{World, WorldParams};
 use msgs::curve::figure as num;
 pub use msgs::curve::{along, worth, Worth};
+pub use msgs::ErrorSplit;
 use msgs::{Accuracy, StepStats};
 
 /// The first steps of the phases after the first (the report's phases: steps 0-99 falling,
@@ -138,191 +139,13 @@ pub struct BudgetRun {
     pub split: ErrorSplit,
 }
 
-/// Which part of builtin's error a model's warm start removes, on the model's own steps: the
-/// model's and builtin's warm-start error against the step's exact solution, each split as the
-/// `smooth-error` / `rough-error` references split it (the part a few passes of averaging over
-/// the contact graph keeps — pile-wide — and the rest — local), as sums of squares over the
-/// contacts (impulse units, normal and tangent together).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct ErrorSplit {
-    pub model_smooth: f64,
-    pub model_rough: f64,
-    pub builtin_smooth: f64,
-    pub builtin_rough: f64,
-    /// What the budget's sweeps leave of each start's error (the part slow for the solver): the
-    /// error after K sweeps from the model's start and from builtin's, on the same step.
-    pub model_left: f64,
-    pub builtin_left: f64,
-    /// Contacts summed over.
-    pub n: u64,
-}
-
-impl ErrorSplit {
-    /// Adds another step's or seed's sums.
-    pub fn add(&mut self, other: &ErrorSplit) {
-        self.model_smooth += other.model_smooth;
-        self.model_rough += other.model_rough;
-        self.builtin_smooth += other.builtin_smooth;
-        self.builtin_rough += other.builtin_rough;
-        self.model_left += other.model_left;
-        self.builtin_left += other.builtin_left;
-        self.n += other.n;
-    }
-
-    fn rms(&self, sum: f64) -> f64 {
-        (sum / self.n.max(1) as f64).sqrt()
-    }
-
-    /// RMS of the model's smooth and rough error parts.
-    pub fn model_rms(&self) -> (f64, f64) {
-        (self.rms(self.model_smooth), self.rms(self.model_rough))
-    }
-
-    /// RMS of builtin's smooth and rough error parts on the same steps.
-    pub fn builtin_rms(&self) -> (f64, f64) {
-        (self.rms(self.builtin_smooth), self.rms(self.builtin_rough))
-    }
-
-    /// RMS of the error the budget's sweeps leave from the model's start and from builtin's.
-    pub fn left_rms(&self) -> (f64, f64) {
-        (self.rms(self.model_left), self.rms(self.builtin_left))
-    }
-
-    /// The fractions of builtin's smooth and rough error (RMS) the model removes.
-    pub fn removed(&self) -> (f64, f64) {
-        let ((ms, mr), (bs, br)) = (self.model_rms(), self.builtin_rms());
-        let frac = |m: f64, b: f64| if b > 0.0 { 1.0 - m / b } else { 0.0 };
-        (frac(ms, bs), frac(mr, br))
-    }
-}
-
-/// A model whose every warm start is also measured against the step's exact solution and split
-/// ([`ErrorSplit`]); it answers what the model answers.
-struct Splitting {
-    inner: Box<dyn crate::warm::WarmStartModel>,
-    split: std::rc::Rc<std::cell::RefCell<ErrorSplit>>,
-    /// The budget's solve, run on scratch velocities from each start.
-    solve: SolveParams,
-    solver: crate::solver::ContactSolver,
-    scratch: Vec<crate::solver::SolverBody>,
-    fixed: Vec<bool>,
-    builtin: Vec<crate::solver::Impulse>,
-    error: Vec<crate::solver::Impulse>,
-    smooth: Vec<crate::solver::Impulse>,
-}
-
-impl Splitting {
-    /// The sum of squares of the error `solve`'s sweeps leave from `warm`.
-    fn left_after_budget(
-        &mut self,
-        step: crate::warm::StepRows<'_>,
-        warm: &[crate::solver::Impulse],
-        exact: &[crate::solver::Impulse],
-    ) -> f64 {
-        self.scratch.clear();
-        self.scratch.extend_from_slice(step.bodies);
-        self.solver.solve(step.rows, &mut self.scratch, warm, &self.solve);
-        self.solver
-            .impulses()
-            .iter()
-            .zip(exact)
-            .map(|(l, e)| ((l.normal - e.normal) as f64).powi(2) + ((l.tangent - e.tangent) as f64).powi(2))
-            .sum()
-    }
-
-    /// `(smooth, rough)` sums of squares of `warm - exact` into `self.smooth`'s scratch.
-    fn parts(
-        &mut self,
-        contacts: &[crate::contact::ContactPoint],
-        warm: &[crate::solver::Impulse],
-        exact: &[crate::solver::Impulse],
-    ) -> (f64, f64) {
-        use crate::warm::references::ablations::{smooth_over_contacts, SMOOTHING_PASSES};
-        self.error.clear();
-        self.error.extend(
-            warm.iter()
-                .zip(exact)
-                .map(|(w, e)| crate::solver::Impulse { normal: w.normal - e.normal, tangent: w.tangent - e.tangent }),
-        );
-        smooth_over_contacts(contacts, &self.fixed, &self.error, SMOOTHING_PASSES, &mut self.smooth);
-        let sq = |i: &crate::solver::Impulse| (i.normal as f64).powi(2) + (i.tangent as f64).powi(2);
-        let smooth: f64 = self.smooth.iter().map(sq).sum();
-        let rough: f64 = self
-            .error
-            .iter()
-            .zip(&self.smooth)
-            .map(|(e, s)| sq(&crate::solver::Impulse { normal: e.normal - s.normal, tangent: e.tangent - s.tangent }))
-            .sum();
-        (smooth, rough)
-    }
-}
-
-impl crate::warm::WarmStartModel for Splitting {
-    fn name(&self) -> &str {
-        self.inner.name()
-    }
-    fn begin_simulation(&mut self, simulation: u32, seed: u64) {
-        self.inner.begin_simulation(simulation, seed);
-    }
-    fn needs(&self) -> crate::warm::Needs {
-        self.inner.needs().union(crate::warm::Needs::EXACT).union(crate::warm::Needs::ROWS)
-    }
-    fn warm_start(
-        &mut self,
-        input: &crate::warm::WarmStartInput<'_>,
-        out: &mut [crate::solver::Impulse],
-    ) -> Result<(), crate::warm::Unavailable> {
-        self.inner.warm_start(input, out)?;
-        let exact = crate::warm::model::exact_solution(input)?;
-        self.fixed.clear();
-        if let Some(step) = input.rows {
-            self.fixed.extend(step.bodies.iter().map(|b| b.inv_mass == 0.0));
-        }
-        self.builtin.clear();
-        self.builtin.resize(input.contacts.len(), Default::default());
-        input.history.fill_previous(input.contacts, &mut self.builtin);
-        let builtin = std::mem::take(&mut self.builtin);
-        let (ms, mr) = self.parts(input.contacts, out, exact);
-        let (bs, br) = self.parts(input.contacts, &builtin, exact);
-        let (ml, bl) = match input.rows {
-            Some(step) => (self.left_after_budget(step, out, exact), self.left_after_budget(step, &builtin, exact)),
-            None => (0.0, 0.0),
-        };
-        self.builtin = builtin;
-        self.split.borrow_mut().add(&ErrorSplit {
-            model_smooth: ms,
-            model_rough: mr,
-            builtin_smooth: bs,
-            builtin_rough: br,
-            model_left: ml,
-            builtin_left: bl,
-            n: input.contacts.len() as u64,
-        });
-        Ok(())
-    }
-    fn after_step(&mut self, done: &crate::warm::SolvedStep<'_>) {
-        self.inner.after_step(done);
-    }
-}
-
-/// [`run_seed`] again with every warm start measured and split: the run's [`ErrorSplit`] on
-/// this seed (the same trajectory: measuring changes no warm start).
+/// [`run_seed`] again with every warm start split by the world's instrument
+/// ([`World::error_split`]): the run's [`ErrorSplit`] on this seed (the same trajectory:
+/// measuring changes no warm start).
 pub fn split_seed(spec: &BudgetSpec, seed: u64, model: &ModelSpec, solve: SolveParams) -> Result<ErrorSplit, SimError> {
-    let split = std::rc::Rc::new(std::cell::RefCell::new(ErrorSplit::default()));
-    let wrapped = Splitting {
-        inner: model.build_with(seed, Served::default(), &spec.files)?,
-        split: split.clone(),
-        solve,
-        solver: crate::solver::ContactSolver::new(),
-        scratch: Vec::new(),
-        fixed: Vec::new(),
-        builtin: Vec::new(),
-        error: Vec::new(),
-        smooth: Vec::new(),
-    };
-    drive(spec, seed, Box::new(wrapped), solve)?;
-    let out = *split.borrow();
-    Ok(out)
+    let mut total = ErrorSplit::default();
+    drive(spec, seed, model.build_with(seed, Served::default(), &spec.files)?, solve, Some(&mut total))?;
+    Ok(total)
 }
 
 /// Runs `model` with `solve` on `seed`: every step's statistics.
@@ -332,23 +155,34 @@ pub fn run_seed(
     model: &ModelSpec,
     solve: SolveParams,
 ) -> Result<Vec<StepStats>, SimError> {
-    drive(spec, seed, model.build_with(seed, Served::default(), &spec.files)?, solve)
+    drive(spec, seed, model.build_with(seed, Served::default(), &spec.files)?, solve, None)
 }
 
-/// Runs the seed's world with `model` (builtin its fallback) and `solve`: every step's statistics.
+/// Runs the seed's world with `model` (builtin its fallback) and `solve`: every step's
+/// statistics. With `split` the world also splits each step's warm-start error, summed into it.
 fn drive(
     spec: &BudgetSpec,
     seed: u64,
     model: Box<dyn crate::warm::WarmStartModel>,
     solve: SolveParams,
+    mut split: Option<&mut ErrorSplit>,
 ) -> Result<Vec<StepStats>, SimError> {
     let params = WorldParams { solve, ..spec.params };
     let mut world = World::new(&SceneConfig { seed, ..spec.scene.clone() }, params)?;
     // Simulation ids are u32 (checked by the caller's seed list).
     world.set_ids(0, seed as u32);
+    world.error_split(split.is_some());
     let mut warm = WarmStarter::new(model, ModelKind::Builtin.build(seed)?);
     warm.begin_simulation(seed as u32, seed);
-    Ok((0..spec.steps).map(|_| world.step(&mut warm).clone()).collect())
+    Ok((0..spec.steps)
+        .map(|_| {
+            let stats = world.step(&mut warm).clone();
+            if let (Some(total), Some(s)) = (split.as_deref_mut(), world.last_split()) {
+                total.add(s);
+            }
+            stats
+        })
+        .collect())
 }
 
 /// The whole study: per seed the reference, builtin at every budget of its curve, and every

@@ -206,10 +206,12 @@ struct Args {
     /// With --budget-study: the reference run's tolerance (natural residual).
     #[arg(long, default_value_t = 1e-6, value_parser = positive_f32)]
     reference_tolerance: f32,
-    /// With --budget-study: also split each judged model's warm-start error (against the step's
-    /// exact solution) into its smooth, pile-wide part and the rest, beside builtin's on the
-    /// same steps (one more pass per run).
-    #[arg(long, requires = "budget_study")]
+    /// Also split each step's warm-start error (against the step's exact solution) into its
+    /// smooth, pile-wide part and the rest, beside builtin's on the same step, and measure what
+    /// the run's sweeps leave of each (the statistics' `split_*` fields; the report's "which part
+    /// of builtin's error each model removes"). Three more solves per step on scratch
+    /// velocities, outside the step's time. With --budget-study: one more pass per judged run.
+    #[arg(long)]
     error_split: bool,
     /// With --budget-study: time each seed's runs this many times, interleaved, and keep each
     /// step's median warm-start and solve time (the runs repeat the same steps; their timings
@@ -249,6 +251,7 @@ impl Args {
             // Labels are the oracle's solve to their own tolerance.
             label: self.label_tolerance.map(|tolerance| SolveParams { tolerance, ..params.oracle }),
             shadow_builtin: self.shadow_builtin,
+            error_split: self.error_split,
         }
     }
 

@@ -27,6 +27,9 @@ pub struct RunSpec {
     /// what builtin would cost on the states this model leads to, logged per simulation beside
     /// the model's own sweeps. Separates a warm start's own effect from the trajectory's.
     pub shadow_builtin: bool,
+    /// Also split every step's warm-start error against the step's exact solution, beside
+    /// builtin's on the same step (`--error-split`): the statistics' `split_*` fields.
+    pub error_split: bool,
 }
 
 /// Most steps of one simulation: 10^4 s simulated at the default 100 Hz. Nothing in the
@@ -128,6 +131,7 @@ pub fn run(spec: &RunSpec, warm: &mut WarmStarter, sink: &mut dyn RunSink) -> Re
             world.capture_problems(spec.label);
         }
         world.shadow_builtin(spec.shadow_builtin);
+        world.error_split(spec.error_split);
         warm.begin_simulation(simulation, seed);
         let sim_header = StepHeader { run_id, simulation, step: 0 };
         let scene = SceneInfo {
@@ -223,6 +227,7 @@ mod tests {
             problems: false,
             label: None,
             shadow_builtin: false,
+            error_split: false,
         }
     }
 

@@ -238,6 +238,54 @@ fn builtin_alongside_measures_the_same_problems_without_touching_the_run() {
     assert!(builtin_run.iter().all(|&(own, shadow)| shadow == Some(own)), "{builtin_run:?}");
 }
 
+/// One ball-box simulation (seed 0, 150 steps) with `spec` at a budget of 8 PGS sweeps, the
+/// warm-start error split when `split`: every step's statistics and the final body positions.
+fn with_split(spec: &str, split: bool) -> (Vec<msgs::StepStats>, Vec<[f32; 2]>) {
+    let spec: ModelSpec = spec.parse().unwrap();
+    let mut warm = WarmStarter::new(spec.build(0).unwrap(), ModelKind::Builtin.build(0).unwrap());
+    warm.begin_simulation(0, 0);
+    let mut params = WorldParams::default();
+    params.solve = sim::solver::SolveParams { max_sweeps: 8, ..params.solve }.with_setting("pgs".parse().unwrap());
+    let mut world = World::new(&SceneConfig::default(), params).unwrap();
+    world.error_split(split);
+    let steps = (0..150)
+        .map(|_| {
+            let s = world.step(&mut warm).clone();
+            // The statistics carry the world's f64 sums as f32.
+            let carried = world.last_split().map(|w| (w.n as u32, w.model_smooth as f32, w.builtin_left as f32));
+            assert_eq!(carried, s.split().map(|_| (s.split_contacts, s.split_model_smooth, s.split_builtin_left)));
+            s
+        })
+        .collect();
+    (steps, world.bodies().iter().map(|b| [b.x.x, b.x.y]).collect())
+}
+
+#[test]
+fn the_error_split_measures_every_step_with_contacts_without_touching_the_run() {
+    let (plain, plain_bodies) = with_split("none", false);
+    let (split, split_bodies) = with_split("none", true);
+    assert_eq!(plain_bodies, split_bodies, "measuring changed the run");
+    for (p, s) in plain.iter().zip(&split) {
+        assert_eq!((p.sweeps, p.natural_rms.to_bits()), (s.sweeps, s.natural_rms.to_bits()));
+        assert_eq!(p.split(), None);
+        // Every step with contacts is split, over all its contacts, at the run's budget.
+        assert_eq!(s.split_contacts, s.contacts);
+        assert_eq!(s.split_budget, if s.contacts > 0 { 8 } else { 0 });
+    }
+    let none = msgs::ErrorSplit::over(&split).unwrap();
+    assert_eq!(none.n, split.iter().map(|s| s.contacts as u64).sum::<u64>());
+    // A zero start is further from the solution than builtin's, in both parts, and 8 sweeps
+    // leave more of it; each start's error is larger than what 8 sweeps leave of it.
+    let ((ms, mr), (bs, br), (ml, bl)) = (none.model_rms(), none.builtin_rms(), none.left_rms());
+    assert!(ms > bs && mr > br && ml > bl, "{none:?}");
+    assert!(ml < ms.hypot(mr) && bl < bs.hypot(br), "{none:?}");
+    // On a builtin run the model's start is builtin's: the same parts, nothing removed.
+    let (builtin, _) = with_split("builtin", true);
+    let b = msgs::ErrorSplit::over(&builtin).unwrap();
+    assert_eq!((b.model_rms(), b.model_left), (b.builtin_rms(), b.builtin_left));
+    assert_eq!(b.removed(), (0.0, 0.0));
+}
+
 #[test]
 fn the_subspace_correction_runs_in_the_world_and_stays_near_builtin() {
     // subspace:K corrects builtin inside the span of the previous solve's last sweeps: on a real

@@ -102,6 +102,16 @@ struct SummaryRow<'a> {
     mean_penetration_max: Num,
     mean_penetration_mean: Num,
     late_kinetic_energy: Num,
+    /// The error split (`--error-split`), RMS over the contacts; empty where not measured.
+    split_contacts: Option<u64>,
+    split_smooth_rms: Option<Num>,
+    split_rough_rms: Option<Num>,
+    split_builtin_smooth_rms: Option<Num>,
+    split_builtin_rough_rms: Option<Num>,
+    split_smooth_removed: Option<Num>,
+    split_rough_removed: Option<Num>,
+    split_left_rms: Option<Num>,
+    split_builtin_left_rms: Option<Num>,
 }
 
 impl<'a> From<&'a ModelSummary> for SummaryRow<'a> {
@@ -136,6 +146,15 @@ impl<'a> From<&'a ModelSummary> for SummaryRow<'a> {
             mean_penetration_max: Num(m.accuracy.penetration_max),
             mean_penetration_mean: Num(m.accuracy.penetration_mean),
             late_kinetic_energy: Num(m.accuracy.late_kinetic_energy),
+            split_contacts: m.split.map(|s| s.n),
+            split_smooth_rms: m.split.map(|s| Num(s.model_rms().0)),
+            split_rough_rms: m.split.map(|s| Num(s.model_rms().1)),
+            split_builtin_smooth_rms: m.split.map(|s| Num(s.builtin_rms().0)),
+            split_builtin_rough_rms: m.split.map(|s| Num(s.builtin_rms().1)),
+            split_smooth_removed: m.split.map(|s| Num(s.removed().0)),
+            split_rough_removed: m.split.map(|s| Num(s.removed().1)),
+            split_left_rms: m.split.map(|s| Num(s.left_rms().0)),
+            split_builtin_left_rms: m.split.map(|s| Num(s.left_rms().1)),
         }
     }
 }
@@ -322,6 +341,6 @@ mod tests {
                 && text.ends_with(",blend_placed_on_same_states\n")
         );
         assert_eq!(text.lines().count(), 1);
-        assert_eq!(header::<SummaryRow>().unwrap().len(), 29);
+        assert_eq!(header::<SummaryRow>().unwrap().len(), 38);
     }
 }

@@ -2,7 +2,7 @@
 
 use super::error::{io, ReportError};
 use super::plots::{Plot, Plots};
-use super::tables::{escape, Tables, ACCURACY_NOTE, PHASES_NOTE, SUMMARY_NOTE};
+use super::tables::{escape, Tables, ACCURACY_NOTE, PHASES_NOTE, SPLIT_NOTE, SUMMARY_NOTE};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -57,6 +57,11 @@ pub fn write(
             html.push_str("</ul>");
         }
         images(&mut html, "h3", &plots.accuracy);
+    }
+    if let Some(split) = &tables.split {
+        html.push_str("<h2>Which part of builtin's error each model removes</h2>");
+        html.push_str(&split.to_html());
+        let _ = write!(html, "<p>{}</p>", escape(&SPLIT_NOTE.replace(['*', '`'], "")));
     }
     images(&mut html, "h2", &plots.per_step);
     html.push_str("<p>Data: <a href=steps.csv>steps.csv</a> (every step), <a href=summary.csv>summary.csv</a>, <a href=phases.csv>phases.csv</a>, <a href=sweeps_histogram.csv>sweeps_histogram.csv</a>, <a href=accuracy.csv>accuracy.csv</a>.</p>");

@@ -1,7 +1,9 @@
 //! `summary.md`: the report's tables in markdown (also what `dc-metrics` prints).
 
 use super::error::{io, ReportError};
-use super::tables::{AccuracyTable, PhaseTable, SummaryTable, Tables, ACCURACY_NOTE, PHASES_NOTE, SUMMARY_NOTE};
+use super::tables::{
+    AccuracyTable, PhaseTable, SplitTable, SummaryTable, Tables, ACCURACY_NOTE, PHASES_NOTE, SPLIT_NOTE, SUMMARY_NOTE,
+};
 use crate::aggregate::ModelSummary;
 use crate::phases::{AccuracyRow, PhaseRow};
 use std::fmt::Write as _;
@@ -42,6 +44,11 @@ fn accuracy_section(table: &AccuracyTable, rows: &[AccuracyRow]) -> String {
     md
 }
 
+/// The markdown of the error-split table with a heading and what its columns mean.
+pub fn split_section(table: &SplitTable) -> String {
+    format!("## Which part of builtin's error each model removes\n\n{}\n{SPLIT_NOTE}\n", table.to_markdown())
+}
+
 /// `summary.md`: the title, the summary table, the per-phase and accuracy tables (none when no
 /// statistics arrived), and what is missing.
 pub fn write(dir: &Path, title: &str, tables: &Tables, missing: &[String]) -> Result<PathBuf, ReportError> {
@@ -49,6 +56,9 @@ pub fn write(dir: &Path, title: &str, tables: &Tables, missing: &[String]) -> Re
     let mut md = format!("# {title}\n\n{}\n{SUMMARY_NOTE}\n", tables.summary.to_markdown());
     if let Some(d) = &tables.details {
         let _ = write!(md, "\n{}\n{}", phases_section(&d.phases), accuracy_section(&d.accuracy, d.accuracy_rows));
+    }
+    if let Some(split) = &tables.split {
+        let _ = write!(md, "\n{}", split_section(split));
     }
     if !missing.is_empty() {
         md.push_str("\n## Missing data\n\n");

@@ -174,10 +174,45 @@ impl AccuracyTable {
     }
 }
 
+/// A summary's error split (only rows that have one are tabulated).
+fn split_of(m: &ModelSummary) -> msgs::ErrorSplit {
+    m.split.unwrap_or_default()
+}
+
+const SPLIT: [Column<ModelSummary>; 10] = [
+    ("model", |m| m.model.clone()),
+    ("contacts", |m| split_of(m).n.to_string()),
+    ("smooth RMS", |m| fmt_small(split_of(m).model_rms().0)),
+    ("rough RMS", |m| fmt_small(split_of(m).model_rms().1)),
+    ("builtin's smooth RMS", |m| fmt_small(split_of(m).builtin_rms().0)),
+    ("builtin's rough RMS", |m| fmt_small(split_of(m).builtin_rms().1)),
+    ("smooth removed", |m| fmt_percent(split_of(m).removed().0)),
+    ("rough removed", |m| fmt_percent(split_of(m).removed().1)),
+    ("left after the sweeps", |m| fmt_small(split_of(m).left_rms().0)),
+    ("builtin's left", |m| fmt_small(split_of(m).left_rms().1)),
+];
+
+/// Which part of builtin's warm-start error each model removes, one row per model that measured
+/// it (`dc-sim --error-split`).
+pub type SplitTable = Table<ModelSummary, { SPLIT.len() }>;
+
+impl SplitTable {
+    /// The cells of the `summaries` that measured a split, in their order; None when none did.
+    pub fn new(summaries: &[ModelSummary]) -> Option<SplitTable> {
+        let measured: Vec<ModelSummary> = summaries.iter().filter(|m| m.split.is_some()).cloned().collect();
+        (!measured.is_empty()).then(|| Table::build(&SPLIT, 1, &measured))
+    }
+}
+
+/// What the error-split table's columns mean.
+pub const SPLIT_NOTE: &str = "Measured with `dc-sim --error-split` (`dc eval --error-split`): on each of the model's steps, its warm start's error against the step's exact solution and builtin's warm start's error on the same step, each split into the part 4 passes of averaging over the contact graph keep (*smooth*: pile-wide) and the rest (*rough*: local); *removed*: the share of builtin's RMS the model's start does not have (negative: further from the solution than builtin); *left after the sweeps*: the error the run's sweep cap (its budget) leaves from the model's start, beside what it leaves from builtin's on the same step (the part slow for the solver). RMS over the contacts, impulse units, normal and tangent together.";
+
 /// The report's tables formatted once, for both `summary.md` and `report.html`.
 pub(super) struct Tables<'a> {
     /// A row per model.
     pub summary: SummaryTable,
+    /// A row per model that measured its error split; None when none did.
+    pub split: Option<SplitTable>,
     /// The per-phase and accuracy sections: none when no statistics arrived.
     pub details: Option<Details<'a>>,
 }
@@ -197,6 +232,7 @@ impl<'a> Tables<'a> {
     pub fn new(summaries: &[ModelSummary], phases: &[PhaseRow], accuracy: &'a [AccuracyRow], empty: bool) -> Self {
         Tables {
             summary: SummaryTable::new(summaries),
+            split: SplitTable::new(summaries),
             details: (!empty).then(|| Details {
                 phases: PhaseTable::new(phases),
                 accuracy: AccuracyTable::new(accuracy),
@@ -297,7 +333,31 @@ mod tests {
             median_warm_error_normal_mse: 0.012345,
             median_warm_error_tangent_mse: 0.1,
             accuracy: Default::default(),
+            split: None,
         }
+    }
+
+    #[test]
+    fn the_split_table_has_a_row_per_model_that_measured_it() {
+        assert!(SplitTable::new(&[summary("builtin", None)]).is_none(), "nothing measured: no table");
+        let split = msgs::ErrorSplit {
+            model_smooth: 1.0,
+            model_rough: 16.0,
+            builtin_smooth: 4.0,
+            builtin_rough: 4.0,
+            model_left: 0.25,
+            builtin_left: 1.0,
+            n: 4,
+        };
+        let gnn = ModelSummary { split: Some(split), ..summary("gnn", None) };
+        let table = SplitTable::new(&[summary("builtin", None), gnn]).unwrap();
+        let md = table.to_markdown();
+        let lines: Vec<&str> = md.lines().collect();
+        assert_eq!(lines[0], format!("| {} |", headers(&SPLIT).join(" | ")));
+        // RMS over 4 contacts: smooth 0.5 against builtin's 1 (50% removed), rough 2 against 1
+        // (-100%: further from the solution), left 0.25 against 0.5.
+        assert_eq!(lines[2], "| gnn | 4 | 0.5000 | 2.0000 | 1.0000 | 1.0000 | 50.0% | -100.0% | 0.2500 | 0.5000 |");
+        assert_eq!(lines.len(), 3);
     }
 
     #[test]

@@ -8,14 +8,17 @@
 //!   with a reference solution;
 //! - the solver menu: the same step solved from builtin's warm start by each of several solver
 //!   settings, sweeps and time each (`dc-sim --compare-solvers`: solvers side by side on the
-//!   same states).
+//!   same states);
+//! - the error split: the warm start's error against the step's exact solution and builtin's,
+//!   each split into its pile-wide and local part, and what the run's sweeps leave of each
+//!   (`dc-sim --error-split`, [`ErrorSplit`]).
 //!
 //! All of them solve on scratch copies of the solver bodies with their own solver.
 
 use crate::contact::{ContactPoint, ImpulseHistory};
 use crate::problem::Problem;
 use crate::solver::{ContactRow, ContactSolver, Impulse, SolveParams, SolveReport, SolverBody};
-use msgs::{ProblemBody, ProblemContact, StepHeader};
+use msgs::{ErrorSplit, ProblemBody, ProblemContact, StepHeader};
 
 /// The step as the instruments read it: its contacts, rows, bodies after external forces and the
 /// contacts' history.
@@ -45,6 +48,57 @@ pub(crate) struct Instruments {
     /// Solver settings each step is also solved with, from builtin's warm start.
     pub menu: Vec<SolveParams>,
     menu_solves: Vec<MenuSolve>,
+    /// Whether to split each step's warm-start error ([`Instruments::split_error`]).
+    pub error_split: bool,
+    split: Option<ErrorSplit>,
+    split_scratch: SplitScratch,
+}
+
+/// The error split's buffers, reused from step to step.
+#[derive(Default)]
+struct SplitScratch {
+    exact: Vec<Impulse>,
+    fixed: Vec<bool>,
+    error: Vec<Impulse>,
+    smooth: Vec<Impulse>,
+}
+
+impl SplitScratch {
+    /// `(smooth, rough)` sums of squares of `start - exact` (`exact` is this scratch's), split
+    /// as the `smooth-error` / `rough-error` references split builtin's error.
+    fn parts(&mut self, contacts: &[ContactPoint], start: &[Impulse]) -> (f64, f64) {
+        use crate::warm::references::ablations::{smooth_over_contacts, SMOOTHING_PASSES};
+        self.error.clear();
+        self.error.extend(
+            start
+                .iter()
+                .zip(&self.exact)
+                .map(|(w, e)| Impulse { normal: w.normal - e.normal, tangent: w.tangent - e.tangent }),
+        );
+        smooth_over_contacts(contacts, &self.fixed, &self.error, SMOOTHING_PASSES, &mut self.smooth);
+        let smooth: f64 = self.smooth.iter().map(squared).sum();
+        let rough: f64 = self
+            .error
+            .iter()
+            .zip(&self.smooth)
+            .map(|(e, s)| squared(&Impulse { normal: e.normal - s.normal, tangent: e.tangent - s.tangent }))
+            .sum();
+        (smooth, rough)
+    }
+
+    /// The sum of squares of `impulses - exact`.
+    fn distance(&self, impulses: &[Impulse]) -> f64 {
+        impulses
+            .iter()
+            .zip(&self.exact)
+            .map(|(l, e)| squared(&Impulse { normal: l.normal - e.normal, tangent: l.tangent - e.tangent }))
+            .sum()
+    }
+}
+
+/// An impulse's squared length (normal and tangent together).
+fn squared(i: &Impulse) -> f64 {
+    (i.normal as f64).powi(2) + (i.tangent as f64).powi(2)
 }
 
 /// One solver setting's solve of a step, from builtin's warm start on scratch velocities.
@@ -108,6 +162,60 @@ impl Instruments {
             let (sweeps, converged, natural_max) = (report.sweeps, report.converged, report.natural.max);
             self.menu_solves.push(MenuSolve { sweeps, converged, us, natural_max });
         }
+    }
+
+    /// Splits the step's warm start `warm` ([`ErrorSplit`]): its error against the step's exact
+    /// solution (the oracle's solve from builtin's warm start) and builtin's start's error, each
+    /// into the part a few passes of averaging over the contact graph keep (pile-wide) and the
+    /// rest; and what `solve`'s sweeps leave from each start (the part slow for the solver).
+    /// Every solve runs on scratch velocities; a step without contacts has no split.
+    pub(crate) fn split_error(
+        &mut self,
+        step: StepView<'_>,
+        warm: &[Impulse],
+        solve: &SolveParams,
+        oracle: &SolveParams,
+    ) {
+        if step.contacts.is_empty() {
+            self.split = None;
+            return;
+        }
+        // builtin's start lands in `self.start`, the exact solution in the solver.
+        self.solve_from_builtin(step, oracle);
+        let sc = &mut self.split_scratch;
+        sc.exact.clear();
+        sc.exact.extend_from_slice(self.solver.impulses());
+        sc.fixed.clear();
+        sc.fixed.extend(step.bodies.iter().map(|b| b.inv_mass == 0.0));
+        let (model_smooth, model_rough) = sc.parts(step.contacts, warm);
+        let (builtin_smooth, builtin_rough) = sc.parts(step.contacts, &self.start);
+        let left = |start: &[Impulse], solver: &mut ContactSolver, scratch: &mut Vec<SolverBody>| {
+            scratch.clear();
+            scratch.extend_from_slice(step.bodies);
+            solver.solve(step.rows, scratch, start, solve);
+            sc.distance(solver.impulses())
+        };
+        let model_left = left(warm, &mut self.solver, &mut self.scratch_bodies);
+        let builtin_left = left(&self.start, &mut self.solver, &mut self.scratch_bodies);
+        self.split = Some(ErrorSplit {
+            model_smooth,
+            model_rough,
+            builtin_smooth,
+            builtin_rough,
+            model_left,
+            builtin_left,
+            n: step.contacts.len() as u64,
+        });
+    }
+
+    /// The last step's error split, if measured.
+    pub(crate) fn split(&self) -> Option<&ErrorSplit> {
+        self.split.as_ref()
+    }
+
+    /// Forgets the last step's split (the instrument is off).
+    pub(crate) fn clear_split(&mut self) {
+        self.split = None;
     }
 
     /// The last step's menu solves, one per setting of the menu.

@@ -121,6 +121,18 @@ impl World {
         self.instruments.shadow_builtin = on;
     }
 
+    /// From the next step on, also split each step's warm-start error against the step's exact
+    /// solution, beside builtin's on the same step (not part of the step's time): the step
+    /// statistics' `split_*` fields, [`World::last_split`].
+    pub fn error_split(&mut self, on: bool) {
+        self.instruments.error_split = on;
+    }
+
+    /// The last step's warm-start error split, when splitting (none for a step without contacts).
+    pub fn last_split(&self) -> Option<&msgs::ErrorSplit> {
+        self.instruments.split()
+    }
+
     /// From the next step on, solve with `setting` (the rest of the stopping rule unchanged): a
     /// per-step choice of solver.
     pub fn set_solver(&mut self, setting: crate::solver::SolverSetting) {
@@ -286,6 +298,11 @@ impl World {
             .then(|| self.instruments.builtin_sweeps(step_view!(self), &self.params.solve));
         if !self.instruments.menu.is_empty() {
             self.instruments.solve_menu(step_view!(self));
+        }
+        if self.instruments.error_split {
+            self.instruments.split_error(step_view!(self), &self.warm, &self.params.solve, &self.params.oracle);
+        } else {
+            self.instruments.clear_split();
         }
         let shadow_time = t_shadow.elapsed();
 
@@ -504,7 +521,9 @@ impl World {
             penetration_mean,
             pile_height,
             pile_spread,
+            ..StepStats::default()
         };
+        self.stats.set_split(self.instruments.split(), self.params.solve.max_sweeps);
         // Measured after the step's timer stopped: bookkeeping, not simulation.
         (self.stats.kinetic_energy, self.stats.max_speed) = self.motion();
     }
