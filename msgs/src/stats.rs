@@ -191,7 +191,7 @@ impl StepStats {
     /// The step's warm-start error split, where it was measured (a step without contacts has
     /// nothing to split).
     pub fn split(&self) -> Option<ErrorSplit> {
-        (self.split_contacts > 0).then(|| ErrorSplit {
+        (self.split_contacts > 0).then_some(ErrorSplit {
             model_smooth: self.split_model_smooth as f64,
             model_rough: self.split_model_rough as f64,
             builtin_smooth: self.split_builtin_smooth as f64,
