@@ -204,11 +204,16 @@ type PairedSweeps = Vec<(u32, Option<u32>)>;
 
 /// One ball-box simulation (seed 0, 150 steps) with `spec`, builtin measured alongside when
 /// `shadow`: per step sweeps, and the final body positions.
-fn with_shadow(spec: &str, shadow: bool) -> (PairedSweeps, Vec<[f32; 2]>) {
+/// `spec` (builtin its fallback) begun on seed 0's ball-box world with `params`.
+fn seed_zero(spec: &str, params: WorldParams) -> (WarmStarter, World) {
     let spec: ModelSpec = spec.parse().unwrap();
     let mut warm = WarmStarter::new(spec.build(0).unwrap(), ModelKind::Builtin.build(0).unwrap());
     warm.begin_simulation(0, 0);
-    let mut world = World::new(&SceneConfig::default(), WorldParams::default()).unwrap();
+    (warm, World::new(&SceneConfig::default(), params).unwrap())
+}
+
+fn with_shadow(spec: &str, shadow: bool) -> (PairedSweeps, Vec<[f32; 2]>) {
+    let (mut warm, mut world) = seed_zero(spec, WorldParams::default());
     world.shadow_builtin(shadow);
     let per_step = (0..150)
         .map(|_| {
@@ -241,12 +246,9 @@ fn builtin_alongside_measures_the_same_problems_without_touching_the_run() {
 /// One ball-box simulation (seed 0, 150 steps) with `spec` at a budget of 8 PGS sweeps, the
 /// warm-start error split when `split`: every step's statistics and the final body positions.
 fn with_split(spec: &str, split: bool) -> (Vec<msgs::StepStats>, Vec<[f32; 2]>) {
-    let spec: ModelSpec = spec.parse().unwrap();
-    let mut warm = WarmStarter::new(spec.build(0).unwrap(), ModelKind::Builtin.build(0).unwrap());
-    warm.begin_simulation(0, 0);
     let mut params = WorldParams::default();
     params.solve = sim::solver::SolveParams { max_sweeps: 8, ..params.solve }.with_setting("pgs".parse().unwrap());
-    let mut world = World::new(&SceneConfig::default(), params).unwrap();
+    let (mut warm, mut world) = seed_zero(spec, params);
     world.error_split(split);
     let steps = (0..150)
         .map(|_| {
