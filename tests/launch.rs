@@ -467,9 +467,10 @@ fn eval_at_budgets_runs_every_model_at_each_and_tabulates_their_accuracy() {
         let builtin = row("builtin", k);
         assert_eq!((builtin[2].as_str(), builtin[3].as_str()), ("0%", "0%"), "{split}");
         assert_eq!(builtin[4], builtin[5], "{split}");
+        assert_eq!(builtin[6], builtin[7], "{split}");
         let none = row("none", k);
         assert!(figure(&none[4]) > figure(&none[5]), "{split}");
-        assert_eq!(row("grid", k).len(), 6, "{split}");
+        assert_eq!(row("grid", k).len(), 8, "{split}");
     }
     let report = std::fs::read_to_string(out_dir.join("budget-8/summary.md")).unwrap();
     assert!(

@@ -22,6 +22,9 @@ pub struct SummaryRow {
     pub rough_removed: f64,
     pub left_rms: f64,
     pub builtin_left_rms: f64,
+    /// The RMS natural residual the budget's sweeps leave from each start on the same steps.
+    pub left_natural: f64,
+    pub builtin_left_natural: f64,
 }
 
 /// A `summary.csv` that cannot be read.
@@ -41,7 +44,7 @@ const COLUMNS: [&str; 5] = ["model", "total_sweeps", "total_solve_ms", "cap_hits
 
 /// Columns read when present (reports written before them lack them; the split's are empty
 /// where not measured).
-const ACCURACY_COLUMNS: [&str; 7] = [
+const ACCURACY_COLUMNS: [&str; 9] = [
     "mean_natural_rms",
     "mean_penetration_max",
     "late_kinetic_energy",
@@ -49,6 +52,8 @@ const ACCURACY_COLUMNS: [&str; 7] = [
     "split_rough_removed",
     "split_left_rms",
     "split_builtin_left_rms",
+    "split_left_natural",
+    "split_builtin_left_natural",
 ];
 
 /// Reads the rows of a `summary.csv`.
@@ -99,6 +104,8 @@ pub fn read_summary(text: &str) -> Result<Vec<SummaryRow>, SummaryError> {
             rough_removed: accuracy(4)?,
             left_rms: accuracy(5)?,
             builtin_left_rms: accuracy(6)?,
+            left_natural: accuracy(7)?,
+            builtin_left_natural: accuracy(8)?,
         });
     }
     Ok(rows)
@@ -179,17 +186,19 @@ pub fn budget_markdown(summaries: &[(u32, Vec<SummaryRow>)]) -> String {
         .filter(|(_, r)| r.left_rms.is_finite())
         .collect();
     if !split.is_empty() {
-        out += "\nWhich part of builtin's warm-start error each model removes (`--error-split`): the share of builtin's smooth (pile-wide) and rough (local) error RMS the model's start does not have (negative: further from the exact solution), and the RMS error the budget's sweeps leave from the model's start and from builtin's on the same steps (the part slow for the solver).\n\n| model | budget | smooth removed | rough removed | left after the budget | builtin's left |\n|---|---:|---:|---:|---:|---:|\n";
+        out += "\nWhich part of builtin's warm-start error each model removes (`--error-split`): the share of builtin's smooth (pile-wide) and rough (local) error RMS the model's start does not have (negative: further from the exact solution), and the RMS error the budget's sweeps leave from the model's start and from builtin's on the same steps (the part slow for the solver); and the RMS natural residual those sweeps leave from each start (solver-independent, blind to which of a jammed pile's many solutions a start heads for: the same-states comparison at the budget).\n\n| model | budget | smooth removed | rough removed | left after the budget | builtin's left | natural residual left | builtin's natural residual left |\n|---|---:|---:|---:|---:|---:|---:|---:|\n";
         // Rounded before printing, so that a share just below zero reads 0%, not -0%.
         let percent = |share: f64| format!("{:.0}%", (100.0 * share).round() + 0.0);
         for (k, r) in split {
             out += &format!(
-                "| {} | {k} | {} | {} | {} | {} |\n",
+                "| {} | {k} | {} | {} | {} | {} | {} | {} |\n",
                 r.model,
                 percent(r.smooth_removed),
                 percent(r.rough_removed),
                 num(r.left_rms),
                 num(r.builtin_left_rms),
+                num(r.left_natural),
+                num(r.builtin_left_natural),
             );
         }
     }
@@ -244,12 +253,12 @@ mod tests {
 
     #[test]
     fn the_budget_table_says_which_part_of_the_error_a_model_removes_where_measured() {
-        let text = "model,total_sweeps,cap_hits,same_states_ratio_to_builtin,total_solve_ms,mean_natural_rms,split_smooth_removed,split_rough_removed,split_left_rms,split_builtin_left_rms\nbuiltin,800,0,,5.0,0.25,-0.001,0,0.6,0.6\nunet-delta,800,0,,90.0,0.2,-0.15,-0.3,0.49,0.63\nnone,800,0,,4.0,0.5,,,,\n";
+        let text = "model,total_sweeps,cap_hits,same_states_ratio_to_builtin,total_solve_ms,mean_natural_rms,split_smooth_removed,split_rough_removed,split_left_rms,split_builtin_left_rms,split_left_natural,split_builtin_left_natural\nbuiltin,800,0,,5.0,0.25,-0.001,0,0.6,0.6,0.011,0.011\nunet-delta,800,0,,90.0,0.2,-0.15,-0.3,0.49,0.63,0.0101,0.0108\nnone,800,0,,4.0,0.5,,,,,,\n";
         let rows = read_summary(text).unwrap();
         assert!(rows[2].left_rms.is_nan() && rows[2].smooth_removed.is_nan(), "empty cells: not measured");
         let table = budget_markdown(&[(8, rows)]);
-        assert!(table.contains("| unet-delta | 8 | -15% | -30% | 0.4900 | 0.6300 |"), "{table}");
-        assert!(table.contains("| builtin | 8 | 0% | 0% | 0.6000 | 0.6000 |"), "{table}");
+        assert!(table.contains("| unet-delta | 8 | -15% | -30% | 0.4900 | 0.6300 | 0.0101 | 0.0108 |"), "{table}");
+        assert!(table.contains("| builtin | 8 | 0% | 0% | 0.6000 | 0.6000 | 0.0110 | 0.0110 |"), "{table}");
         assert!(!table.lines().any(|l| l.starts_with("| none | 8 | -") || l.contains("| none | 8 | NaN")), "{table}");
         assert_eq!(table.lines().filter(|l| l.starts_with("| none |")).count(), 1, "only the accuracy row: {table}");
     }

@@ -332,6 +332,10 @@ pub struct SolveStatsHeader {
     pub split_model_left: f32,
     #[serde(default)]
     pub split_builtin_left: f32,
+    #[serde(default)]
+    pub split_model_left_natural: f32,
+    #[serde(default)]
+    pub split_builtin_left_natural: f32,
 }
 
 /// Most residuals a [`SolveStatsHeader`] frame carries (one per sweep; longer solves keep the first ones).

@@ -80,7 +80,9 @@ pub struct StepStats {
     /// [`ErrorSplit`]): the contacts summed over (0: not measured), the sweep budget the `left`
     /// sums were measured with, and sums of squares over the step's contacts (impulse units,
     /// normal and tangent together) of the model's and builtin's smooth and rough error parts
-    /// and of what the budget's sweeps leave from each start.
+    /// and of what the budget's sweeps leave from each start; then the RMS natural residual those
+    /// sweeps leave from each start (solver-independent, and blind to which of a jammed pile's
+    /// many solutions a start heads for: the same-states comparison at a budget).
     #[serde(default)]
     pub split_contacts: u32,
     #[serde(default)]
@@ -97,6 +99,10 @@ pub struct StepStats {
     pub split_model_left: f32,
     #[serde(default)]
     pub split_builtin_left: f32,
+    #[serde(default)]
+    pub split_model_left_natural: f32,
+    #[serde(default)]
+    pub split_builtin_left_natural: f32,
 }
 
 impl StepStats {
@@ -140,6 +146,8 @@ impl StepStats {
             split_builtin_rough: h.split_builtin_rough,
             split_model_left: h.split_model_left,
             split_builtin_left: h.split_builtin_left,
+            split_model_left_natural: h.split_model_left_natural,
+            split_builtin_left_natural: h.split_builtin_left_natural,
         }
     }
 
@@ -181,6 +189,8 @@ impl StepStats {
             split_builtin_rough: self.split_builtin_rough,
             split_model_left: self.split_model_left,
             split_builtin_left: self.split_builtin_left,
+            split_model_left_natural: self.split_model_left_natural,
+            split_builtin_left_natural: self.split_builtin_left_natural,
         }
     }
 
@@ -198,7 +208,10 @@ impl StepStats {
             builtin_rough: self.split_builtin_rough as f64,
             model_left: self.split_model_left as f64,
             builtin_left: self.split_builtin_left as f64,
+            model_left_natural: self.split_model_left_natural as f64,
+            builtin_left_natural: self.split_builtin_left_natural as f64,
             n: self.split_contacts as u64,
+            steps: 1,
         })
     }
 
@@ -213,6 +226,8 @@ impl StepStats {
         self.split_builtin_rough = s.builtin_rough as f32;
         self.split_model_left = s.model_left as f32;
         self.split_builtin_left = s.builtin_left as f32;
+        self.split_model_left_natural = s.model_left_natural as f32;
+        self.split_builtin_left_natural = s.builtin_left_natural as f32;
     }
 }
 
@@ -232,8 +247,14 @@ pub struct ErrorSplit {
     /// model's start and from builtin's, on the same step.
     pub model_left: f64,
     pub builtin_left: f64,
+    /// The RMS natural residual those sweeps leave from the model's start and from builtin's,
+    /// summed over the steps (what the run's accuracy is measured on, here on the same steps).
+    pub model_left_natural: f64,
+    pub builtin_left_natural: f64,
     /// Contacts summed over.
     pub n: u64,
+    /// Steps summed over.
+    pub steps: u64,
 }
 
 impl ErrorSplit {
@@ -245,7 +266,10 @@ impl ErrorSplit {
         self.builtin_rough += other.builtin_rough;
         self.model_left += other.model_left;
         self.builtin_left += other.builtin_left;
+        self.model_left_natural += other.model_left_natural;
+        self.builtin_left_natural += other.builtin_left_natural;
         self.n += other.n;
+        self.steps += other.steps;
     }
 
     /// The sum of the splits measured among `steps` (None when none was).
@@ -274,6 +298,13 @@ impl ErrorSplit {
     /// RMS of the error the budget's sweeps leave from the model's start and from builtin's.
     pub fn left_rms(&self) -> (f64, f64) {
         (self.rms(self.model_left), self.rms(self.builtin_left))
+    }
+
+    /// The mean over the steps of the RMS natural residual the sweeps leave from the model's
+    /// start and from builtin's: the budget's same-states comparison.
+    pub fn left_natural(&self) -> (f64, f64) {
+        let steps = self.steps.max(1) as f64;
+        (self.model_left_natural / steps, self.builtin_left_natural / steps)
     }
 
     /// The fractions of builtin's smooth and rough error (RMS) the model removes.
@@ -355,6 +386,7 @@ mod tests {
             split_budget: 8,
             split_model_smooth: 0.25,
             split_builtin_left: 1.5,
+            split_builtin_left_natural: 0.01,
             ..StepStats::default()
         };
         assert_eq!(StepStats::from_header(&s.to_header()), s);
@@ -369,7 +401,10 @@ mod tests {
             builtin_rough: 4.0,
             model_left: 0.5,
             builtin_left: 2.0,
+            model_left_natural: 0.25,
+            builtin_left_natural: 0.5,
             n: 4,
+            steps: 1,
         };
         let mut measured = StepStats { contacts: 4, ..StepStats::default() };
         measured.set_split(Some(&split), 8);
@@ -383,6 +418,8 @@ mod tests {
         assert_eq!(total.model_rms(), (0.5, 1.0));
         assert_eq!(total.removed(), (0.5, 0.0));
         assert_eq!(total.left_rms(), (0.125f64.sqrt(), 0.5f64.sqrt()));
+        // The natural residual left is a mean over the two measured steps.
+        assert_eq!((total.steps, total.left_natural()), (2, (0.25, 0.5)));
         // An unmeasured step stores nothing.
         measured.set_split(None, 8);
         assert_eq!((measured.split(), measured.split_budget), (None, 0));

@@ -535,7 +535,16 @@ mod tests {
     #[test]
     fn a_models_error_split_is_summed_over_its_measured_steps() {
         let mut agg = Aggregate::new();
-        let split = ErrorSplit { model_smooth: 2.0, builtin_smooth: 8.0, model_left: 1.0, n: 4, ..Default::default() };
+        let split = ErrorSplit {
+            model_smooth: 2.0,
+            builtin_smooth: 8.0,
+            model_left: 1.0,
+            model_left_natural: 0.01,
+            builtin_left_natural: 0.02,
+            n: 4,
+            steps: 1,
+            ..Default::default()
+        };
         for step in 0..3 {
             let mut r = record("gnn", 0, step, 4, 8);
             // The first step was not measured (a run without --error-split reads the same).
@@ -549,6 +558,7 @@ mod tests {
         let gnn = of("gnn").unwrap();
         assert_eq!((gnn.n, gnn.model_smooth, gnn.builtin_smooth, gnn.model_left), (8, 4.0, 16.0, 2.0));
         assert_eq!(gnn.removed().0, 0.5);
+        assert_eq!((gnn.steps, gnn.left_natural()), (2, (0.01f32 as f64, 0.02f32 as f64)));
     }
 
     #[test]

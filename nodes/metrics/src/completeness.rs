@@ -135,6 +135,8 @@ impl Completeness {
             ("split_builtin_rough", h.split_builtin_rough),
             ("split_model_left", h.split_model_left),
             ("split_builtin_left", h.split_builtin_left),
+            ("split_model_left_natural", h.split_model_left_natural),
+            ("split_builtin_left_natural", h.split_builtin_left_natural),
         ];
         if !h.pile_height.is_finite() {
             return Some(format!("pile_height = {}", h.pile_height));

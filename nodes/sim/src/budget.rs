@@ -442,13 +442,13 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
             continue;
         }
         out += &format!(
-            "\n## At {k} sweeps: which part of builtin's error each model removes\n\nEach model's warm-start error against the step's exact solution and builtin's on the same steps (the model's own trajectory), split as the smooth-error / rough-error references split it: the part 4 passes of averaging over the contact graph keep (smooth, pile-wide) and the rest (rough, local); and what {k} sweeps from each start leave of it (the part slow for the solver; the rest they remove); RMS over the contacts, impulse units.\n\n| model | smooth RMS | rough RMS | builtin's smooth RMS | builtin's rough RMS | smooth removed | rough removed | left after {k} sweeps | builtin's left |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+            "\n## At {k} sweeps: which part of builtin's error each model removes\n\nEach model's warm-start error against the step's exact solution and builtin's on the same steps (the model's own trajectory), split as the smooth-error / rough-error references split it: the part 4 passes of averaging over the contact graph keep (smooth, pile-wide) and the rest (rough, local); and what {k} sweeps from each start leave of it (the part slow for the solver; the rest they remove); RMS over the contacts, impulse units; and the RMS natural residual those sweeps leave from each start, mean over the steps (solver-independent, blind to which of a jammed pile's many solutions a start heads for: the same-states comparison at the budget).\n\n| model | smooth RMS | rough RMS | builtin's smooth RMS | builtin's rough RMS | smooth removed | rough removed | left after {k} sweeps | builtin's left | natural residual left | builtin's natural residual left |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
         );
         for s in split {
             let ((ms, mr), (bs, br), (fs, fr)) = (s.split.model_rms(), s.split.builtin_rms(), s.split.removed());
-            let (ml, bl) = s.split.left_rms();
+            let ((ml, bl), (mn, bn)) = (s.split.left_rms(), s.split.left_natural());
             out += &format!(
-                "| {} | {} | {} | {} | {} | {:.0}% | {:.0}% | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {:.0}% | {:.0}% | {} | {} | {} | {} |\n",
                 s.model,
                 num(ms),
                 num(mr),
@@ -457,7 +457,9 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
                 100.0 * fs,
                 100.0 * fr,
                 num(ml),
-                num(bl)
+                num(bl),
+                num(mn),
+                num(bn)
             );
         }
     }
@@ -711,6 +713,9 @@ mod tests {
         assert_eq!(builtin.left_rms().0, builtin.left_rms().1);
         assert!(builtin.left_rms().1 < builtin.builtin_rms().0.hypot(builtin.builtin_rms().1), "{builtin:?}");
         assert!(blend.left_rms().0 < blend.left_rms().1, "{blend:?}");
+        // And so does the natural residual they leave: builtin's own start leaves builtin's.
+        assert_eq!(builtin.left_natural().0, builtin.left_natural().1);
+        assert!(blend.left_natural().0 < blend.left_natural().1, "{blend:?}");
         // Only the judged budgets are split; the table says so.
         assert_eq!(of("builtin@8").n, 0);
         let table = markdown(&summaries, &spec.budgets);

@@ -285,6 +285,11 @@ fn the_error_split_measures_every_step_with_contacts_without_touching_the_run() 
     let (builtin, _) = with_split("builtin", true);
     let b = msgs::ErrorSplit::over(&builtin).unwrap();
     assert_eq!((b.model_rms(), b.model_left), (b.builtin_rms(), b.builtin_left));
+    assert_eq!(b.left_natural().0, b.left_natural().1);
+    // The natural residual the sweeps leave is the run's own on a builtin run: the same solve.
+    let run_mean =
+        builtin.iter().filter(|s| s.contacts > 0).map(|s| s.natural_rms as f64).sum::<f64>() / b.steps as f64;
+    assert!((b.left_natural().1 - run_mean).abs() < 1e-6 * run_mean, "{b:?} vs {run_mean}");
     assert_eq!(b.removed(), (0.0, 0.0));
 }
 

@@ -112,6 +112,8 @@ struct SummaryRow<'a> {
     split_rough_removed: Option<Num>,
     split_left_rms: Option<Num>,
     split_builtin_left_rms: Option<Num>,
+    split_left_natural: Option<Num>,
+    split_builtin_left_natural: Option<Num>,
 }
 
 impl<'a> From<&'a ModelSummary> for SummaryRow<'a> {
@@ -155,6 +157,8 @@ impl<'a> From<&'a ModelSummary> for SummaryRow<'a> {
             split_rough_removed: m.split.map(|s| Num(s.removed().1)),
             split_left_rms: m.split.map(|s| Num(s.left_rms().0)),
             split_builtin_left_rms: m.split.map(|s| Num(s.left_rms().1)),
+            split_left_natural: m.split.map(|s| Num(s.left_natural().0)),
+            split_builtin_left_natural: m.split.map(|s| Num(s.left_natural().1)),
         }
     }
 }
@@ -341,6 +345,6 @@ mod tests {
                 && text.ends_with(",blend_placed_on_same_states\n")
         );
         assert_eq!(text.lines().count(), 1);
-        assert_eq!(header::<SummaryRow>().unwrap().len(), 38);
+        assert_eq!(header::<SummaryRow>().unwrap().len(), 40);
     }
 }

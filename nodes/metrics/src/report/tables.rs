@@ -179,7 +179,7 @@ fn split_of(m: &ModelSummary) -> msgs::ErrorSplit {
     m.split.unwrap_or_default()
 }
 
-const SPLIT: [Column<ModelSummary>; 10] = [
+const SPLIT: [Column<ModelSummary>; 12] = [
     ("model", |m| m.model.clone()),
     ("contacts", |m| split_of(m).n.to_string()),
     ("smooth RMS", |m| fmt_small(split_of(m).model_rms().0)),
@@ -190,6 +190,8 @@ const SPLIT: [Column<ModelSummary>; 10] = [
     ("rough removed", |m| fmt_percent(split_of(m).removed().1)),
     ("left after the sweeps", |m| fmt_small(split_of(m).left_rms().0)),
     ("builtin's left", |m| fmt_small(split_of(m).left_rms().1)),
+    ("natural residual left", |m| fmt_small(split_of(m).left_natural().0)),
+    ("builtin's natural residual left", |m| fmt_small(split_of(m).left_natural().1)),
 ];
 
 /// Which part of builtin's warm-start error each model removes, one row per model that measured
@@ -205,7 +207,7 @@ impl SplitTable {
 }
 
 /// What the error-split table's columns mean.
-pub const SPLIT_NOTE: &str = "Measured with `dc-sim --error-split` (`dc eval --error-split`): on each of the model's steps, its warm start's error against the step's exact solution and builtin's warm start's error on the same step, each split into the part 4 passes of averaging over the contact graph keep (*smooth*: pile-wide) and the rest (*rough*: local); *removed*: the share of builtin's RMS the model's start does not have (negative: further from the solution than builtin); *left after the sweeps*: the error the run's sweep cap (its budget) leaves from the model's start, beside what it leaves from builtin's on the same step (the part slow for the solver). RMS over the contacts, impulse units, normal and tangent together.";
+pub const SPLIT_NOTE: &str = "Measured with `dc-sim --error-split` (`dc eval --error-split`): on each of the model's steps, its warm start's error against the step's exact solution and builtin's warm start's error on the same step, each split into the part 4 passes of averaging over the contact graph keep (*smooth*: pile-wide) and the rest (*rough*: local); *removed*: the share of builtin's RMS the model's start does not have (negative: further from the solution than builtin); *left after the sweeps*: the error the run's sweep cap (its budget) leaves from the model's start, beside what it leaves from builtin's on the same step (the part slow for the solver). RMS over the contacts, impulse units, normal and tangent together. *natural residual left*: the RMS natural residual those sweeps leave from each start, mean over the steps: solver-independent, and blind to which of a jammed pile's many solutions a start heads for (the error columns count another valid solution as error); at a budget it is the same-states comparison.";
 
 /// The report's tables formatted once, for both `summary.md` and `report.html`.
 pub(super) struct Tables<'a> {
@@ -347,7 +349,10 @@ mod tests {
             builtin_rough: 4.0,
             model_left: 0.25,
             builtin_left: 1.0,
+            model_left_natural: 0.002,
+            builtin_left_natural: 0.003,
             n: 4,
+            steps: 1,
         };
         let gnn = ModelSummary { split: Some(split), ..summary("gnn", None) };
         let table = SplitTable::new(&[summary("builtin", None), gnn]).unwrap();
@@ -356,7 +361,10 @@ mod tests {
         assert_eq!(lines[0], format!("| {} |", headers(&SPLIT).join(" | ")));
         // RMS over 4 contacts: smooth 0.5 against builtin's 1 (50% removed), rough 2 against 1
         // (-100%: further from the solution), left 0.25 against 0.5.
-        assert_eq!(lines[2], "| gnn | 4 | 0.5000 | 2.0000 | 1.0000 | 1.0000 | 50.0% | -100.0% | 0.2500 | 0.5000 |");
+        assert_eq!(
+            lines[2],
+            "| gnn | 4 | 0.5000 | 2.0000 | 1.0000 | 1.0000 | 50.0% | -100.0% | 0.2500 | 0.5000 | 0.0020 | 0.0030 |"
+        );
         assert_eq!(lines.len(), 3);
     }
 

@@ -167,7 +167,8 @@ impl Instruments {
     /// Splits the step's warm start `warm` ([`ErrorSplit`]): its error against the step's exact
     /// solution (the oracle's solve from builtin's warm start) and builtin's start's error, each
     /// into the part a few passes of averaging over the contact graph keep (pile-wide) and the
-    /// rest; and what `solve`'s sweeps leave from each start (the part slow for the solver).
+    /// rest; and what `solve`'s sweeps leave from each start (the part slow for the solver), as
+    /// error against the exact solution and as the natural residual.
     /// Every solve runs on scratch velocities; a step without contacts has no split.
     pub(crate) fn split_error(
         &mut self,
@@ -192,11 +193,11 @@ impl Instruments {
         let left = |start: &[Impulse], solver: &mut ContactSolver, scratch: &mut Vec<SolverBody>| {
             scratch.clear();
             scratch.extend_from_slice(step.bodies);
-            solver.solve(step.rows, scratch, start, solve);
-            sc.distance(solver.impulses())
+            let report = solver.solve(step.rows, scratch, start, solve);
+            (sc.distance(solver.impulses()), report.natural.rms as f64)
         };
-        let model_left = left(warm, &mut self.solver, &mut self.scratch_bodies);
-        let builtin_left = left(&self.start, &mut self.solver, &mut self.scratch_bodies);
+        let (model_left, model_left_natural) = left(warm, &mut self.solver, &mut self.scratch_bodies);
+        let (builtin_left, builtin_left_natural) = left(&self.start, &mut self.solver, &mut self.scratch_bodies);
         self.split = Some(ErrorSplit {
             model_smooth,
             model_rough,
@@ -204,7 +205,10 @@ impl Instruments {
             builtin_rough,
             model_left,
             builtin_left,
+            model_left_natural,
+            builtin_left_natural,
             n: step.contacts.len() as u64,
+            steps: 1,
         });
     }
 
