@@ -69,36 +69,41 @@ impl SplitScratch {
     fn parts(&mut self, contacts: &[ContactPoint], start: &[Impulse]) -> (f64, f64) {
         use crate::warm::references::ablations::{smooth_over_contacts, SMOOTHING_PASSES};
         self.error.clear();
-        self.error.extend(
-            start
-                .iter()
-                .zip(&self.exact)
-                .map(|(w, e)| Impulse { normal: w.normal - e.normal, tangent: w.tangent - e.tangent }),
-        );
+        self.error.extend(start.iter().zip(&self.exact).map(|(w, e)| minus(w, e)));
         smooth_over_contacts(contacts, &self.fixed, &self.error, SMOOTHING_PASSES, &mut self.smooth);
         let smooth: f64 = self.smooth.iter().map(squared).sum();
-        let rough: f64 = self
-            .error
-            .iter()
-            .zip(&self.smooth)
-            .map(|(e, s)| squared(&Impulse { normal: e.normal - s.normal, tangent: e.tangent - s.tangent }))
-            .sum();
+        let rough: f64 = self.error.iter().zip(&self.smooth).map(|(e, s)| squared(&minus(e, s))).sum();
         (smooth, rough)
     }
 
     /// The sum of squares of `impulses - exact`.
     fn distance(&self, impulses: &[Impulse]) -> f64 {
-        impulses
-            .iter()
-            .zip(&self.exact)
-            .map(|(l, e)| squared(&Impulse { normal: l.normal - e.normal, tangent: l.tangent - e.tangent }))
-            .sum()
+        impulses.iter().zip(&self.exact).map(|(l, e)| squared(&minus(l, e))).sum()
     }
 }
 
 /// An impulse's squared length (normal and tangent together).
 fn squared(i: &Impulse) -> f64 {
     (i.normal as f64).powi(2) + (i.tangent as f64).powi(2)
+}
+
+/// `a - b`, normal and tangent.
+fn minus(a: &Impulse, b: &Impulse) -> Impulse {
+    Impulse { normal: a.normal - b.normal, tangent: a.tangent - b.tangent }
+}
+
+/// Solves the step from `start` with `params` on a scratch copy of its bodies; the impulses are in
+/// `solver`.
+fn solve_on_scratch(
+    solver: &mut ContactSolver,
+    scratch: &mut Vec<SolverBody>,
+    step: StepView<'_>,
+    start: &[Impulse],
+    params: &SolveParams,
+) -> SolveReport {
+    scratch.clear();
+    scratch.extend_from_slice(step.bodies);
+    solver.solve(step.rows, scratch, start, params)
 }
 
 /// One solver setting's solve of a step, from builtin's warm start on scratch velocities.
@@ -119,9 +124,7 @@ impl Instruments {
         self.start.clear();
         self.start.resize(step.contacts.len(), Impulse::default());
         step.history.fill_previous(step.contacts, &mut self.start);
-        self.scratch_bodies.clear();
-        self.scratch_bodies.extend_from_slice(step.bodies);
-        self.solver.solve(step.rows, &mut self.scratch_bodies, &self.start, params)
+        solve_on_scratch(&mut self.solver, &mut self.scratch_bodies, step, &self.start, params)
     }
 
     /// The step's exact solution: solved from builtin's warm start to the oracle's stopping rule.
@@ -181,19 +184,22 @@ impl Instruments {
             self.split = None;
             return;
         }
-        // builtin's start lands in `self.start`, the exact solution in the solver.
-        self.solve_from_builtin(step, oracle);
+        // The model that asked for this step's exact solution had it solved already (from
+        // builtin's start, which is in `self.start`); else solve it: builtin's start lands in
+        // `self.start`, the exact solution in the solver.
+        let solved = self.exact_report.is_some();
+        if !solved {
+            self.solve_from_builtin(step, oracle);
+        }
         let sc = &mut self.split_scratch;
         sc.exact.clear();
-        sc.exact.extend_from_slice(self.solver.impulses());
+        sc.exact.extend_from_slice(if solved { &self.exact } else { self.solver.impulses() });
         sc.fixed.clear();
         sc.fixed.extend(step.bodies.iter().map(|b| b.inv_mass == 0.0));
         let (model_smooth, model_rough) = sc.parts(step.contacts, warm);
         let (builtin_smooth, builtin_rough) = sc.parts(step.contacts, &self.start);
         let left = |start: &[Impulse], solver: &mut ContactSolver, scratch: &mut Vec<SolverBody>| {
-            scratch.clear();
-            scratch.extend_from_slice(step.bodies);
-            let report = solver.solve(step.rows, scratch, start, solve);
+            let report = solve_on_scratch(solver, scratch, step, start, solve);
             (sc.distance(solver.impulses()), report.natural.rms as f64)
         };
         let (model_left, model_left_natural) = left(warm, &mut self.solver, &mut self.scratch_bodies);
