@@ -232,6 +232,91 @@ fn dry_run_and_list_show_the_graph_without_starting_it() {
     assert!(list.status.success(), "{}", text(&list));
 }
 
+/// The program `dc` runs for `binary` when none of that name is beside it: the first on PATH.
+fn on_path(binary: &str) -> std::path::PathBuf {
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    std::env::split_paths(&path).map(|d| d.join(binary)).find(|p| p.is_file()).expect("on PATH")
+}
+
+/// `dc list` ran what a launch file named: `env -S "sh -c ..."` ran a command from a file that
+/// was only being read. Neither `dc list` nor `dc launch --dry-run` runs a program that is not
+/// one of dc's node binaries; the error names the line, the node, the program and `--trust`.
+#[test]
+fn list_and_dry_run_run_no_program_a_file_names_unless_trusted() {
+    let dir = scratch_dir("untrusted");
+    let marker = dir.join("ran");
+    let graph = format!(
+        "[[nodes]]\nname = \"sneaky\"\nbinary = \"env\"\nparams = {{ split-string = \"sh -c 'touch {}'\" }}\n",
+        marker.display()
+    );
+    let file = dir.join("graph.toml");
+    std::fs::write(&file, &graph).unwrap();
+    let list = Command::new(bin("dc")).arg("list").arg(&file).output().unwrap();
+    let (_, dry) = launch("untrusted-dry", &graph, &["--dry-run"]);
+    let refusal = format!(
+        "graph.toml:1: node `sneaky` (env): not run: `{}` is not one of dc's node binaries",
+        on_path("env").display()
+    );
+    for out in [&list, &dry] {
+        assert_eq!(out.status.code(), Some(1), "{}", text(out));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(&refusal) && err.contains("--trust"), "{err}");
+        assert!(!marker.exists(), "the file's command ran:\n{}", text(out));
+    }
+}
+
+/// A node that never answered its check hung `dc list` for good. Named like one of dc's nodes
+/// but not beside dc, it is refused; trusted, its check has a time limit (`DC_CHECK_TIMEOUT`
+/// here, 20 s by default), past which its process group is killed and `dc list` fails.
+#[test]
+fn a_check_that_never_ends_fails_list_within_its_time_limit() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = scratch_dir("check-timeout");
+    let script = dir.join("dc-sleepy");
+    std::fs::write(&script, "#!/bin/sh\nsleep 1000\n").unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let file = dir.join("graph.toml");
+    std::fs::write(&file, format!("[[nodes]]\nname = \"sleepy\"\nbinary = \"{}\"\n", script.display())).unwrap();
+    let list = |extra: &[&str]| {
+        Command::new(bin("dc")).arg("list").arg(&file).args(extra).env("DC_CHECK_TIMEOUT", "1").output().unwrap()
+    };
+    let out = list(&[]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(err.contains(&format!("`{}` is not one of dc's node binaries", script.display())), "{err}");
+    assert!(err.contains("--trust"), "{err}");
+
+    let started = Instant::now();
+    let out = list(&["--trust"]);
+    assert!(started.elapsed() < Duration::from_secs(15), "took {:?}", started.elapsed());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(err.contains("graph.toml:1: node `sleepy`") && err.contains("did not end within 1 s"), "{err}");
+    // Its whole process group went: the shell running the script, and its `sleep`.
+    std::thread::sleep(Duration::from_millis(200));
+    let script = script.display().to_string();
+    assert!(pids_with(&script).is_empty(), "the check is still running: {:?}", pids_with(&script));
+}
+
+/// Each graph left its namespace's lock file in $TMPDIR/dc-graphs, one more per `dc eval`: the
+/// launcher removes it when the graph ends, after success as after a failure.
+#[test]
+fn a_graph_leaves_no_lock_file_when_it_ends() {
+    let lock = |ns: &str| std::env::temp_dir().join("dc-graphs").join(format!("{ns}@local.lock"));
+    let pair = "[[nodes]]\nname = \"sink\"\nbinary = \"dc-bench-bus\"\nparams = { role = \"sink\", count = 10 }\n\
+                [[nodes]]\nname = \"source\"\nbinary = \"dc-bench-bus\"\nparams = { role = \"source\", count = 10 }\n";
+    let doomed =
+        "[[nodes]]\nname = \"doomed\"\nbinary = \"dc-bench-bus\"\nparams = { role = \"sink\", kind = \"grid\", timeout-s = 0.3 }\n";
+    for (test, graph, succeeds) in [("lock-ok", pair, true), ("lock-failed", doomed, false)] {
+        let file = scratch_dir(test).join("graph.toml");
+        std::fs::write(&file, graph).unwrap();
+        let namespace = unique_namespace(test);
+        let out = Command::new(bin("dc")).arg("launch").arg(&file).args(["--namespace", &namespace]).output().unwrap();
+        assert_eq!(out.status.success(), succeeds, "{test}: {}", text(&out));
+        assert!(!lock(&namespace).exists(), "{test}: {} left behind", lock(&namespace).display());
+    }
+}
+
 #[test]
 fn dc_record_forwards_to_the_recorder_and_names_a_bad_file() {
     let readme = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md");
@@ -546,4 +631,52 @@ fn topic_list_shows_a_running_graphs_topics_with_their_writers_and_readers() {
         "{}",
         text(&none)
     );
+}
+
+#[test]
+fn a_launcher_whose_stdout_closes_keeps_supervising_its_graph() {
+    // `dc launch g.toml | head -1`: the reader goes away after the first line; the launcher must
+    // not die of the broken pipe (it took its nodes and the recording with it).
+    let dir = scratch_dir("closed-stdout");
+    let recording = dir.join("all.mcap");
+    let graph = format!(
+        "[[nodes]]\nname = \"recorder\"\nbinary = \"dc-record\"\ndaemon = true\nparams = {{ out = \"{}\", topics = \"stats/solve\" }}\n\n\
+         [[nodes]]\nname = \"sim\"\nbinary = \"dc-sim\"\nparams = {{ models = \"builtin,none,copy,bad\", seeds = \"0..2\", steps = 60, n = 30, \"step-period\" = \"2ms\" }}\n",
+        recording.display()
+    );
+    let file = dir.join("graph.toml");
+    std::fs::write(&file, graph).unwrap();
+    let mut child = Command::new(bin("dc"))
+        .arg("launch")
+        .arg(&file)
+        .args(["--namespace", &unique_namespace("closed-stdout")])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run dc");
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    std::io::BufRead::read_line(&mut stdout, &mut first).unwrap();
+    drop(stdout);
+    let stderr = child.stderr.take().unwrap();
+    let log = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = std::io::BufReader::new(stderr).read_to_string(&mut s);
+        s
+    });
+    let started = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(started.elapsed() < Duration::from_secs(120), "the graph did not end");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let log = log.join().unwrap();
+    assert!(status.success(), "{status}: {first}\n{log}");
+    assert!(!log.contains("panicked"), "{log}");
+    // Every run's every step reached the recording: 4 models x 2 seeds x 60 steps.
+    let info = recorder::Info::read(&recording).unwrap();
+    let solves = info.topics.get("stats/solve").map(|t| t.messages).unwrap_or(0);
+    assert_eq!(solves, 4 * 2 * 60, "{log}");
 }

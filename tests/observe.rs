@@ -397,3 +397,122 @@ fn an_attached_recorder_stopped_by_ctrl_c_leaves_a_finished_file() {
     }
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// The forged frame of the probe: a control frame whose items claim 2^40 bytes, padded to
+/// 300 kB so that zenoh delivers it in fragments.
+fn forged_control_frame() -> Vec<u8> {
+    let mut forged = msgs::encode(&msgs::Frame::new(msgs::Control::default(), Vec::<u8>::new())).unwrap();
+    forged.truncate(forged.len() - 1); // the empty byte string's head (0x40)
+    forged.push(0x5b); // a byte string with an 8-byte length
+    forged.extend_from_slice(&(1u64 << 40).to_be_bytes());
+    forged.resize(300_000, 0);
+    forged
+}
+
+#[test]
+fn a_forged_frame_from_a_foreign_session_is_counted_and_the_graph_completes() {
+    // Any peer that reaches the graph's zenoh (no TLS here) can put this on `control`: the
+    // metrics node and the recorder read it; before readers bounded a claimed length by the
+    // bytes present, the metrics node aborted allocating 1 TB and the graph stopped.
+    let dir = scratch_dir("observe-forged");
+    let namespace = unique_namespace("observe-forged");
+    let reference = dir.join("reference.mcap");
+    let report = dir.join("report");
+    let topics = "[topics]\n\"control\" = \"zenoh\"\n";
+    let metrics = format!(
+        "\n[[nodes]]\nname = \"metrics\"\nbinary = \"dc-metrics\"\nparams = {{ runs = 1, out = \"{}\" }}\n",
+        report.display()
+    );
+    let text_of_graph = graph(&reference, topics, 150) + &metrics;
+    let mut graph_run = start(&dir, "forged", &text_of_graph, &namespace);
+    let (endpoint, log) = router_endpoint(&mut graph_run);
+    wait_for_writer(&namespace, "bodies", None);
+
+    let mut config = runtime::zenoh::Config::default();
+    let settings = [
+        ("mode", "\"peer\"".to_string()),
+        ("connect/endpoints", format!("[\"{endpoint}\"]")),
+        ("listen/endpoints", "[\"tcp/127.0.0.1:0\"]".to_string()),
+        ("scouting/multicast/enabled", "false".to_string()),
+    ];
+    for (k, v) in settings {
+        config.insert_json5(k, &v).unwrap();
+    }
+    use runtime::zenoh::Wait;
+    let session = runtime::zenoh::open(config).wait().unwrap();
+    let forged = forged_control_frame();
+    for _ in 0..3 {
+        session.put(format!("dc/{namespace}/control"), forged.clone()).wait().unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let out = finish(graph_run, Duration::from_secs(120), "the graph");
+    let log = log.join().unwrap();
+    assert!(out.status.success(), "the graph must complete:\n{log}");
+    assert!(!log.contains("memory allocation"), "{log}");
+    assert!(log.contains("dropped a payload"), "the forged frames are logged and counted:\n{log}");
+    assert!(report.join("report.html").is_file(), "the metrics node wrote its report:\n{log}");
+    // The recorder kept every step of both simulations.
+    assert_eq!(sweeps(&reference).len(), 2 * 150, "{log}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn dc_play_into_a_live_graph_is_refused_unless_it_joins_with_its_runs_marked_as_replayed() {
+    // The probe: `dc play` into a running graph's namespace ended its metrics node at step 208
+    // of 1,200 (the recording's RunEnd), mixed both runs in the report and the recording.
+    let dir = scratch_dir("observe-play-live");
+    let namespace = unique_namespace("observe-play-live");
+    let reference = dir.join("reference.mcap");
+    let report = dir.join("report");
+    let fixture = deep_contact::repo_root().join("recordings/fixtures/ball-box-seed0-steps.mcap");
+    let fixture = fixture.to_str().unwrap();
+    let metrics = format!(
+        "\n[[nodes]]\nname = \"metrics\"\nbinary = \"dc-metrics\"\nparams = {{ runs = 1, out = \"{}\" }}\n",
+        report.display()
+    );
+    let graph_run = start(&dir, "observed", &(graph(&reference, "", 150) + &metrics), &namespace);
+    wait_for_writer(&namespace, "bodies", None);
+
+    let refused = dc(&["play", fixture, "--namespace", &namespace]).output().unwrap();
+    assert!(!refused.status.success(), "{}", text(&refused));
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(err.contains("is in use by graph `observed`") && err.contains("--into-live"), "{err}");
+
+    let joined = dc(&["play", fixture, "--namespace", &namespace, "--into-live", "--rate", "0"]).output().unwrap();
+    assert!(joined.status.success(), "{}", text(&joined));
+    let out = finish(graph_run, Duration::from_secs(120), "the graph");
+    assert!(out.status.success(), "{}", text(&out));
+
+    // The report is the graph's run alone: both seeds, every step.
+    let rows = std::fs::read_to_string(report.join("steps.csv")).unwrap().lines().count() - 1;
+    assert_eq!(rows, 2 * 150, "one row per step of the graph's own run");
+    // The recorder kept the replayed frames apart: their run ids carry the mark.
+    let mut reader = RecordingReader::open(&reference).unwrap();
+    let (mut own, mut replayed) = (0, 0);
+    while let Some(m) = reader.next_message() {
+        let m = m.unwrap();
+        if m.channel.topic == "stats/solve" {
+            let h: msgs::SolveStatsHeader = msgs::decode_header(&m.data).unwrap();
+            if msgs::is_replayed(h.step.run_id) {
+                replayed += 1;
+            } else {
+                own += 1;
+            }
+        }
+    }
+    assert_eq!(own, 2 * 150);
+    assert!(replayed > 0, "the replayed statistics are recorded, marked");
+
+    // And the other way round: a graph is refused a namespace a `dc play` holds.
+    let played = unique_namespace("observe-play-held");
+    let play = dc(&["play", fixture, "--namespace", &played, "--loop"]).spawn().unwrap();
+    wait_for_writer(&played, "stats/solve", None);
+    let file = dir.join("late.toml");
+    std::fs::write(&file, graph(&dir.join("late.mcap"), "", 10)).unwrap();
+    let late = Command::new(bin("dc")).arg("launch").arg(&file).args(["--namespace", &played]).output().unwrap();
+    assert!(!late.status.success(), "{}", text(&late));
+    assert!(String::from_utf8_lossy(&late.stderr).contains("dc play"), "{}", text(&late));
+    let _ = Command::new("kill").arg("-INT").arg(play.id().to_string()).status();
+    let _ = finish(play, Duration::from_secs(30), "dc play");
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -203,7 +203,7 @@ pub fn bench_graph(args: &[String], zenoh: bool) -> Result<Graph> {
             .with_env("RUST_LOG", "warn,zenoh::net::runtime::orchestrator=error")
     };
     let mut graph =
-        Graph::single_host("bench-bus", &crate::unique_namespace("bench"), vec![node("sink"), node("source")])?;
+        Graph::single_host("bench-bus", &launch::unique_namespace("bench"), vec![node("sink"), node("source")])?;
     graph.check_params()?;
     if zenoh {
         for t in [msgs::topics::BENCH_BODIES.name, msgs::topics::BENCH_GRID.name] {

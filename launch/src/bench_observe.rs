@@ -84,7 +84,7 @@ fn run_once(dir: &Path, args: &ObserveBenchArgs, observed: bool, r: usize) -> Re
             args.n
         ),
     )?;
-    let namespace = crate::unique_namespace("bench-observe");
+    let namespace = launch::unique_namespace("bench-observe");
     let mut graph = Command::new(&dc)
         .arg("launch")
         .arg(&file)
@@ -140,7 +140,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 pub fn run(args: &ObserveBenchArgs) -> Result<()> {
     find_binary("dc-sim").context("dc-sim not built (cargo build --workspace --bins)")?;
-    let dir: PathBuf = std::env::temp_dir().join(crate::unique_namespace("bench-observe"));
+    let dir: PathBuf = std::env::temp_dir().join(launch::unique_namespace("bench-observe"));
     std::fs::create_dir_all(&dir)?;
     println!(
         "simulator throughput alone and watched (echo bodies, hz stats/solve, bw contacts, record -a): \

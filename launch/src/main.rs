@@ -4,6 +4,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use launch::graph::{find_binary, Graph, NodeSpec, DEFAULT_HOST};
 use launch::supervisor::{self, Output, RunError};
+use launch::unique_namespace;
 use msgs::RunSummary;
 use runtime::Transport;
 use std::path::PathBuf;
@@ -35,6 +36,10 @@ enum Command {
         /// Show what would start where and over which transport, then exit.
         #[arg(long)]
         dry_run: bool,
+        /// Run programs the file names that are not dc's own node binaries (`dc-*` beside dc),
+        /// or with an environment that chooses what code runs: checking the graph runs them.
+        #[arg(long)]
+        trust: bool,
         /// With several hosts: how long to wait for the other hosts' nodes before giving up
         /// (`120s`, `500ms`; a unit is required: a bare `120` is ambiguous here).
         #[arg(long, default_value = "120s", value_parser = duration_with_unit)]
@@ -46,8 +51,14 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
     },
-    /// Print the graph of a launch file.
-    List { file: PathBuf },
+    /// Print the graph of a launch file (asking dc's own node binaries for their topics; other
+    /// programs the file names are refused unless --trust).
+    List {
+        file: PathBuf,
+        /// Run programs the file names that are not dc's own node binaries, to ask their topics.
+        #[arg(long)]
+        trust: bool,
+    },
     /// Record a running graph (`dc record -a`, `dc record TOPIC...`, `-o FILE`), inspect and
     /// repair recordings (`dc record info FILE`, `dc record recover IN OUT`); runs dc-record.
     Record {
@@ -72,6 +83,14 @@ enum Command {
     },
     /// The thesis protocol: every warm-start model on the same seeds, one report comparing them.
     Eval(EvalArgs),
+    /// The simulator's studies, in one process (runs dc-study): `dc study solvers SETTINGS`
+    /// (solvers side by side on the same states), `dc study budget BUDGETS` (the real-time
+    /// regime), `dc study bench` (our world against rapier's pipeline); `--help` lists each one's flags.
+    #[command(disable_help_flag = true)]
+    Study {
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -210,6 +229,8 @@ fn main() {
     let cli = Cli::parse();
     let code = match real_main(cli) {
         Ok(()) => 0,
+        // The reader of our output went away (`dc topic echo ... | head`): done, as coreutils.
+        Err(e) if e.chain().any(|c| c.is::<runtime::StdoutClosed>()) => 0,
         Err(e) => {
             eprintln!("dc: error: {}", runtime::error_text(&e));
             if e.downcast_ref::<RunError>().is_some_and(|r| matches!(r, RunError::Interrupted)) {
@@ -240,8 +261,9 @@ fn duration_with_unit(s: &str) -> Result<std::time::Duration, String> {
 
 fn real_main(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Launch { file, host, namespace, dry_run, wait_hosts } => {
+        Command::Launch { file, host, namespace, dry_run, trust, wait_hosts } => {
             let mut graph = Graph::load(&file)?;
+            graph.trust = trust;
             if let Some(ns) = namespace {
                 runtime::check_namespace(&ns).map_err(|why| anyhow::anyhow!("--namespace `{ns}`: {why}"))?;
                 graph.namespace = ns;
@@ -258,6 +280,7 @@ fn real_main(cli: Cli) -> Result<()> {
         }
         Command::Run { node, args } => exec_node(&node, &args),
         Command::Record { args } => exec_node("record", &args),
+        Command::Study { args } => exec_node("study", &args),
         Command::Play { file, args } => {
             let mut all = vec!["--input".to_string(), file.display().to_string()];
             all.extend(args);
@@ -267,8 +290,9 @@ fn real_main(cli: Cli) -> Result<()> {
             let (node, args) = train_command(args)?;
             exec_node(node, &args)
         }
-        Command::List { file } => {
-            let graph = Graph::load(&file)?;
+        Command::List { file, trust } => {
+            let mut graph = Graph::load(&file)?;
+            graph.trust = trust;
             print_graph(&graph, None)
         }
         Command::Topic { what } => match what {
@@ -367,11 +391,14 @@ fn bench_loop(seeds: &str, steps: u32, n: u32, model: &std::path::Path, repeat: 
     let scratch = std::env::temp_dir().join(unique_namespace("bench-loop"));
     std::fs::create_dir_all(&scratch)?;
     let flag = interrupt_flag();
-    println!(
+    runtime::print_line(&format!(
         "closed loop: ball-box, {n} bodies, seeds {seeds}, {steps} steps, unet model {} (lockstep), {repeat} runs each",
         model.display()
-    );
-    println!("{:<34} {:>10} {:>10} {:>12} {:>9}", "variant", "steps/s", "loop s", "total sweeps", "fallbacks");
+    ))?;
+    runtime::print_line(&format!(
+        "{:<34} {:>10} {:>10} {:>12} {:>9}",
+        "variant", "steps/s", "loop s", "total sweeps", "fallbacks"
+    ))?;
     let mut medians = Vec::new();
     for variant in ["one process (no bus)", "graph, iceoryx2 (one host)", "graph, every topic over zenoh"] {
         let mut runs = Vec::new();
@@ -402,13 +429,16 @@ fn bench_loop(seeds: &str, steps: u32, n: u32, model: &std::path::Path, repeat: 
         runs.sort_by(|a, b| (a.steps as f64 / a.loop_secs).total_cmp(&(b.steps as f64 / b.loop_secs)));
         let m = runs[runs.len() / 2].clone();
         let rate = m.steps as f64 / m.loop_secs;
-        println!("{variant:<34} {rate:>10.1} {:>10.2} {:>12} {:>9}", m.loop_secs, m.total_sweeps, m.fallbacks);
+        runtime::print_line(&format!(
+            "{variant:<34} {rate:>10.1} {:>10.2} {:>12} {:>9}",
+            m.loop_secs, m.total_sweeps, m.fallbacks
+        ))?;
         medians.push((rate, m));
     }
     let (inproc, iox, zenoh) = (medians[0].0, medians[1].0, medians[2].0);
-    println!("ratios (steps/s): iceoryx2 / one process = {:.2} (target >= 0.9); zenoh / one process = {:.2}; zenoh / iceoryx2 = {:.2}", iox / inproc, zenoh / inproc, zenoh / iox);
+    runtime::print_line(&format!("ratios (steps/s): iceoryx2 / one process = {:.2} (target >= 0.9); zenoh / one process = {:.2}; zenoh / iceoryx2 = {:.2}", iox / inproc, zenoh / inproc, zenoh / iox))?;
     let same = medians.iter().all(|(_, m)| m.total_sweeps == medians[0].1.total_sweeps);
-    println!("same total sweeps in every variant (lockstep solves the same problems): {same}");
+    runtime::print_line(&format!("same total sweeps in every variant (lockstep solves the same problems): {same}"))?;
     let _ = std::fs::remove_dir_all(&scratch);
     Ok(())
 }
@@ -603,7 +633,7 @@ fn eval(args: EvalArgs) -> Result<()> {
     let progress = EvalProgress::new(&args, 1)?;
     supervisor::run(&graph, DEFAULT_HOST, progress.output(), &flag)?;
     progress.finish();
-    println!("evaluation report: {}", out.join("report.html").display());
+    runtime::print_line(&format!("evaluation report: {}", out.join("report.html").display()))?;
     Ok(())
 }
 
@@ -634,7 +664,13 @@ impl EvalProgress {
         let say = {
             let bar = bar.clone();
             // A hidden bar (no terminal) prints nothing of its own, `println` included.
-            move |text: String| if bar.is_hidden() { println!("{text}") } else { bar.println(text) }
+            move |text: String| {
+                if bar.is_hidden() {
+                    let _ = runtime::try_print_line(&text);
+                } else {
+                    bar.println(text)
+                }
+            }
         };
         // The metrics node's first table (one row per model) is the evaluation's result.
         let in_table = std::sync::atomic::AtomicBool::new(false);
@@ -740,7 +776,7 @@ fn eval_variants(args: &EvalArgs, out: &std::path::Path) -> Result<()> {
         let path = out.join("solvers.md");
         std::fs::write(&path, format!("# Solvers x models\n\n{table}"))
             .with_context(|| format!("writing {}", path.display()))?;
-        println!("{table}\nsolver x model table: {}", path.display());
+        runtime::print_line(&format!("{table}\nsolver x model table: {}", path.display()))?;
         return Ok(());
     }
     let mut text = String::from("# Models at fixed sweep budgets\n\n");
@@ -758,7 +794,7 @@ fn eval_variants(args: &EvalArgs, out: &std::path::Path) -> Result<()> {
     }
     let path = out.join("budgets.md");
     std::fs::write(&path, &text).with_context(|| format!("writing {}", path.display()))?;
-    println!("{text}budget table: {}", path.display());
+    runtime::print_line(&format!("{text}budget table: {}", path.display()))?;
     Ok(())
 }
 
@@ -770,13 +806,6 @@ fn writable_dir(dir: &std::path::Path) -> Result<()> {
     std::fs::write(&probe, b"probe").with_context(|| format!("cannot write in the folder {}", dir.display()))?;
     std::fs::remove_file(&probe).with_context(|| format!("cannot remove {} again", probe.display()))?;
     Ok(())
-}
-
-/// A bus namespace no earlier graph used: process ids are recycled, and a namespace shared with
-/// a dead graph's leftovers (a subscriber that never reads) would stall publishers.
-fn unique_namespace(prefix: &str) -> String {
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0);
-    format!("{prefix}-{}-{nanos}", std::process::id())
 }
 
 /// Replaces this process with node binary `dc-<node>` (or `<node>`) run with `args`.

@@ -7,7 +7,7 @@
 //! forced transport on every port. Every host's launcher is a member too: it publishes `control`
 //! (node down / up notices) and, on a graph of several hosts, meets the other launchers over zenoh.
 
-use crate::graph::{Graph, GraphError, Problem};
+use crate::graph::{run_check, Graph, GraphError, Problem};
 use runtime::{BusConfig, Ports, Transport, ZenohConfig};
 use std::collections::BTreeMap;
 
@@ -50,20 +50,20 @@ pub struct Plan {
 type TopicUsers<'a> = (Vec<&'a str>, Vec<&'a str>);
 
 /// Asks each node binary for its ports (`DC_DESCRIBE=1`: it builds its ports from its
-/// parameters, prints them and exits before touching the bus).
+/// parameters, prints them and exits before touching the bus), through [`run_check`]: only dc's
+/// own node binaries unless the graph is trusted, bounded in time and output.
 pub fn describe_ports(graph: &Graph) -> Result<BTreeMap<String, Ports>, GraphError> {
     let mut out = BTreeMap::new();
     let mut problems = Vec::new();
     for node in &graph.nodes {
-        let result = std::process::Command::new(&node.program)
-            .args(&node.args)
-            .envs(&node.env)
-            .env("DC_DESCRIBE", "1")
-            .env("DC_NODE_NAME", &node.name)
-            .env_remove("DC_LAUNCHED")
-            .env_remove("DC_BUS")
-            .stdin(std::process::Stdio::null())
-            .output();
+        let result = run_check(node, graph.trust, |command| {
+            command
+                .envs(&node.env)
+                .env("DC_DESCRIBE", "1")
+                .env("DC_NODE_NAME", &node.name)
+                .env_remove("DC_LAUNCHED")
+                .env_remove("DC_BUS");
+        });
         let why = match result {
             Ok(o) => {
                 let stdout = String::from_utf8_lossy(&o.stdout);
@@ -87,7 +87,7 @@ pub fn describe_ports(graph: &Graph) -> Result<BTreeMap<String, Ports>, GraphErr
                     }
                 }
             }
-            Err(e) => format!("cannot run `{}`: {e}", node.program.display()),
+            Err(why) => why,
         };
         problems.push(Problem { line: node.line, message: format!("node `{}` ({}): {why}", node.name, node.binary) });
     }

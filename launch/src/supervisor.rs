@@ -70,62 +70,20 @@ pub enum RunError {
     #[error("host {missing} did not get its nodes connected within {secs} s (is `dc launch --host` running there, and can this host reach it?)")]
     HostsMissing { missing: String, secs: f64 },
     /// Another graph runs on this namespace and host: its nodes would read and write ours.
-    #[error("namespace `{namespace}` is in use on host `{host}` by another graph ({holder}); stop it, or give this one another namespace (`--namespace`)")]
+    #[error("namespace `{namespace}` is in use on host `{host}` by {holder}; stop it, or give this one another namespace (`--namespace`)")]
     NamespaceInUse { namespace: String, host: String, holder: String },
     #[error("namespace lock {path}: {what}")]
     NamespaceLock { path: String, what: String },
 }
 
-/// A graph's hold on its namespace on one host: an advisory lock (`flock`) on a file named after
-/// both, held while the launcher runs and released by the kernel when it exits, however it exits.
-/// A second graph on the same namespace and host is refused instead of sharing the first's
-/// topics (its recorder would record both graphs' runs).
-pub struct NamespaceLock {
-    _file: std::fs::File,
-}
-
-impl NamespaceLock {
-    /// The folder of the lock files.
-    pub fn folder() -> std::path::PathBuf {
-        std::env::temp_dir().join("dc-graphs")
-    }
-
-    /// Takes the namespace on `host` for this process, or says who holds it.
-    pub fn acquire(namespace: &str, host: &str, graph: &str) -> Result<NamespaceLock, RunError> {
-        use std::io::{Read, Seek, Write};
-        use std::os::fd::AsRawFd;
-        let safe = |s: &str| {
-            s.chars().map(|c| if c.is_ascii_alphanumeric() || "-_.".contains(c) { c } else { '_' }).collect::<String>()
-        };
-        let path = Self::folder().join(format!("{}@{}.lock", safe(namespace), safe(host)));
-        let err = |what: String| RunError::NamespaceLock { path: path.display().to_string(), what };
-        std::fs::create_dir_all(Self::folder()).map_err(|e| err(e.to_string()))?;
-        let mut file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .map_err(|e| err(e.to_string()))?;
-        // SAFETY: flock on a descriptor this function owns; no memory is involved.
-        if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
-            let e = std::io::Error::last_os_error();
-            if e.raw_os_error() != Some(libc::EWOULDBLOCK) {
-                return Err(err(e.to_string()));
+impl From<runtime::lock::LockError> for RunError {
+    fn from(e: runtime::lock::LockError) -> RunError {
+        match e {
+            runtime::lock::LockError::InUse { namespace, host, holder } => {
+                RunError::NamespaceInUse { namespace, host, holder }
             }
-            let mut holder = String::new();
-            let _ = file.read_to_string(&mut holder);
-            let holder = if holder.trim().is_empty() {
-                "a process that has not said which".to_string()
-            } else {
-                holder.trim().to_string()
-            };
-            return Err(RunError::NamespaceInUse { namespace: namespace.to_string(), host: host.to_string(), holder });
+            runtime::lock::LockError::Io { path, what } => RunError::NamespaceLock { path, what },
         }
-        let said = format!("graph `{graph}`, pid {}", std::process::id());
-        let wrote = file.set_len(0).and_then(|_| file.rewind()).and_then(|_| file.write_all(said.as_bytes()));
-        wrote.map_err(|e| err(e.to_string()))?;
-        Ok(NamespaceLock { _file: file })
     }
 }
 
@@ -546,7 +504,7 @@ struct Supervisor<'a> {
     barrier: BarrierState,
     hosts: HostWatch,
     /// Last: released after every node is stopped and the bus closed.
-    _namespace: NamespaceLock,
+    _namespace: runtime::lock::NamespaceLock,
 }
 
 impl<'a> Supervisor<'a> {
@@ -556,7 +514,16 @@ impl<'a> Supervisor<'a> {
             Some(w) => w,
             None => return Err(RunError::NoNodes(host.to_string())),
         };
-        let lock = NamespaceLock::acquire(&graph.namespace, host, &graph.name)?;
+        let lock = runtime::lock::NamespaceLock::acquire(&graph.namespace, host, &format!("graph `{}`", graph.name))?;
+        // A recording played into the namespace (`dc play`) would mix its runs with ours.
+        let players = runtime::lock::NamespaceLock::holders(&graph.namespace);
+        if let Some((_, holder)) = players.into_iter().find(|(h, _)| h == runtime::lock::PLAYER_HOST) {
+            return Err(RunError::NamespaceInUse {
+                namespace: graph.namespace.clone(),
+                host: host.to_string(),
+                holder,
+            });
+        }
         match runtime::cleanup_stale_resources() {
             Ok(0) => {}
             Ok(n) => tracing::info!("cleaned shared-memory resources of {n} dead iceoryx2 nodes"),
@@ -637,7 +604,7 @@ impl<'a> Supervisor<'a> {
         let watcher = match &self.output {
             Output::Watch(w) => Some((spec.name.clone(), w.clone())),
             Output::Forward => {
-                eprintln!("[dc] node `{}` started (pid {})", spec.name, child.id());
+                tell!("[dc] node `{}` started (pid {})", spec.name, child.id());
                 None
             }
             Output::Capture => None,
@@ -749,8 +716,8 @@ impl<'a> Supervisor<'a> {
         let changes = self.hosts.update(self.host, &connected);
         for change in &changes {
             match change {
-                HostChange::Gone(h) => eprintln!("[dc] host `{h}` is gone: its nodes count as down"),
-                HostChange::Back(h) => eprintln!("[dc] host `{h}` is back"),
+                HostChange::Gone(h) => tell!("[dc] host `{h}` is gone: its nodes count as down"),
+                HostChange::Back(h) => tell!("[dc] host `{h}` is back"),
             }
         }
         let graph = self.graph;
@@ -769,7 +736,7 @@ impl<'a> Supervisor<'a> {
     fn announce_restarted(&mut self) {
         for n in self.nodes.iter_mut().filter(|n| n.restarts > 0 && n.exited.is_none() && n.phase == Phase::Connected) {
             n.phase = Phase::Started;
-            eprintln!("[dc] node `{}` is back (restart {})", n.spec.name, n.restarts);
+            tell!("[dc] node `{}` is back (restart {})", n.spec.name, n.restarts);
             self.bus.notice(true, notice_of(&self.plan, &n.spec.name, self.host, "running"));
         }
     }
@@ -803,19 +770,19 @@ impl<'a> Supervisor<'a> {
         let e = match failure_action(self.nodes[i].spec.on_failure, self.nodes[i].restarts) {
             FailureAction::Restart { attempt, max } => {
                 self.nodes[i].restarts = attempt;
-                eprintln!("[dc] node `{name}` exited with {described}: restarting it ({attempt} of at most {max})");
+                tell!("[dc] node `{name}` exited with {described}: restarting it ({attempt} of at most {max})");
                 self.bus.notice(false, down);
                 self.restart(i)?;
                 self.report.restarts.insert(name, attempt);
                 return Ok(());
             }
             FailureAction::Exhausted { restarts } => {
-                eprintln!("[dc] node `{name}` exited with {described} after {restarts} restarts: stopping the graph");
+                tell!("[dc] node `{name}` exited with {described} after {restarts} restarts: stopping the graph");
                 self.bus.notice(false, down);
                 RunError::RestartsExhausted { node: name, status: described, restarts, said }
             }
             FailureAction::StopGraph => {
-                eprintln!("[dc] node `{name}` exited with {described}: stopping the graph");
+                tell!("[dc] node `{name}` exited with {described}: stopping the graph");
                 RunError::NodeFailed { node: name, status: described, said }
             }
         };
@@ -889,7 +856,7 @@ impl<'a> Supervisor<'a> {
     }
 
     fn interrupted(&mut self) -> RunError {
-        eprintln!("[dc] interrupted: stopping the graph");
+        tell!("[dc] interrupted: stopping the graph");
         self.abort(RunError::Interrupted)
     }
 
@@ -1004,7 +971,7 @@ fn stop_nodes(nodes: &mut [Running], which: impl Fn(&Running) -> bool) {
         }
         if Instant::now() >= deadline {
             for n in nodes.iter_mut().filter(|n| n.exited.is_none() && which(n)) {
-                eprintln!("[dc] node `{}` ignored SIGTERM for {STOP_GRACE:?}: killing it", n.spec.name);
+                tell!("[dc] node `{}` ignored SIGTERM for {STOP_GRACE:?}: killing it", n.spec.name);
                 let _ = n.child.kill();
                 n.exited = n.child.wait().ok();
             }
@@ -1023,14 +990,20 @@ fn read_stdout(
     watcher: Option<(String, LineWatcher)>,
     tx: mpsc::Sender<Event>,
 ) {
+    let mut printing = true;
     for line in BufReader::new(stdout).lines().map_while(Result::ok) {
         let event = match line.as_str() {
             runtime::READY_MARKER => Event::Ready(i),
             runtime::CONNECTED_MARKER => Event::Connected(i),
             runtime::DONE_MARKER => Event::Done(i),
             _ => {
+                // A closed stdout (`dc launch g.toml | head -3`) stops the printing, never the
+                // graph: the lines still go to the watcher and the events.
                 if let Some(p) = &prefix {
-                    println!("{p} {line}");
+                    if printing && !runtime::try_print_line(&format!("{p} {line}")) {
+                        printing = false;
+                        tell!("[dc] standard output closed: node output is no longer printed");
+                    }
                 }
                 if let Some((node, watch)) = &watcher {
                     watch(node, false, &line);
@@ -1055,10 +1028,10 @@ fn read_stderr(
             Some((node, watch)) => {
                 watch(node, true, &line);
                 if !routine_log_line(&line) {
-                    eprintln!("{prefix} {line}");
+                    tell!("{prefix} {line}");
                 }
             }
-            None => eprintln!("{prefix} {line}"),
+            None => tell!("{prefix} {line}"),
         }
         let _ = tx.send(Event::ErrLine(i, line));
     }
@@ -1259,27 +1232,5 @@ mod tests {
         assert!(failed_on_stop(code(3)));
         assert!(!failed_on_stop(code(0)));
         assert!(!failed_on_stop(signal(libc::SIGTERM)));
-    }
-}
-
-#[cfg(test)]
-mod namespace_tests {
-    use super::*;
-
-    #[test]
-    fn a_second_graph_on_a_namespace_and_host_is_refused_until_the_first_ends() {
-        let ns = format!("lock-test-{}", std::process::id());
-        let first = NamespaceLock::acquire(&ns, "local", "first").unwrap();
-        let e = NamespaceLock::acquire(&ns, "local", "second").err().expect("refused");
-        let text = e.to_string();
-        assert!(text.contains(&ns) && text.contains("graph `first`") && text.contains("--namespace"), "{text}");
-        // Another host of the same graph (two hosts on one machine, as the two-host tests run) is not refused.
-        let other_host = NamespaceLock::acquire(&ns, "b", "first").unwrap();
-        drop(first);
-        let again = NamespaceLock::acquire(&ns, "local", "second").unwrap();
-        drop((again, other_host));
-        for host in ["local", "b"] {
-            let _ = std::fs::remove_file(NamespaceLock::folder().join(format!("{ns}@{host}.lock")));
-        }
     }
 }

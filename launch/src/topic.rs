@@ -49,11 +49,17 @@ pub fn list(place: &Where) -> Result<()> {
     }
     let width = |f: fn(&LiveTopic) -> usize, title: &str| topics.iter().map(f).max().unwrap_or(0).max(title.len());
     let (wn, wt) = (width(|t| t.namespace.len(), "namespace"), width(|t| t.topic.len(), "topic"));
-    println!("{:wn$}  {:wt$}  {:15}  {:>7}  {:>7}  delivery", "namespace", "topic", "kind", "writers", "readers");
+    runtime::print_line(&format!(
+        "{:wn$}  {:wt$}  {:15}  {:>7}  {:>7}  delivery",
+        "namespace", "topic", "kind", "writers", "readers"
+    ))?;
     for t in &topics {
         let kind = msgs::topics::info(&t.topic).map(|i| format!("{:?}", i.kind)).unwrap_or_default();
         let delivery = if t.best_effort { "best effort" } else { "reliable" };
-        println!("{:wn$}  {:wt$}  {kind:15}  {:>7}  {:>7}  {delivery}", t.namespace, t.topic, t.writers, t.readers);
+        runtime::print_line(&format!(
+            "{:wn$}  {:wt$}  {kind:15}  {:>7}  {:>7}  {delivery}",
+            t.namespace, t.topic, t.writers, t.readers
+        ))?;
     }
     Ok(())
 }
@@ -457,15 +463,15 @@ pub fn rate(args: &RateArgs, figure: Figure) -> Result<()> {
         if last_print.elapsed() >= Duration::from_secs(1) {
             last_print = Instant::now();
             match window.stats() {
-                Some(s) if !printed_since => println!("{}", stats_line(figure, &s)),
-                _ => println!("no new frames"),
+                Some(s) if !printed_since => runtime::print_line(&stats_line(figure, &s))?,
+                _ => runtime::print_line("no new frames")?,
             }
             printed_since = true;
         }
     }
     if !printed_since {
         if let Some(s) = window.stats() {
-            println!("{}", stats_line(figure, &s));
+            runtime::print_line(&stats_line(figure, &s))?;
         }
     }
     observer.join()?;

@@ -30,6 +30,8 @@ pub enum CodecError {
     Version { found: u32, expected: u32 },
     #[error("item bytes ({bytes}) are not a whole number of {item_size}-byte `{item_type}` elements")]
     Length { bytes: usize, item_size: usize, item_type: &'static str },
+    #[error("a frame of {bytes} bytes is larger than any topic carries ({max} bytes)")]
+    TooLarge { bytes: usize, max: usize },
     #[error("could not encode frame: {0}")]
     Encode(String),
 }
@@ -73,6 +75,9 @@ pub fn encode<H: FrameHeader, T: FrameItem>(frame: &Frame<H, T>) -> Result<Vec<u
 
 /// Decodes CBOR bytes into a frame, checking version and item length.
 pub fn decode<H: FrameHeader, T: FrameItem>(bytes: &[u8]) -> Result<Frame<H, T>, CodecError> {
+    if bytes.len() > MAX_FRAME_BYTES {
+        return Err(CodecError::TooLarge { bytes: bytes.len(), max: MAX_FRAME_BYTES });
+    }
     let mut rest = bytes;
     if let Some((header, len)) = envelope::<H, T>(&mut rest) {
         if let Some(items) = rest.get(..len) {
@@ -82,15 +87,38 @@ pub fn decode<H: FrameHeader, T: FrameItem>(bytes: &[u8]) -> Result<Frame<H, T>,
     decode_any(bytes)
 }
 
-/// Decodes a frame from a payload read in pieces (a zenoh sample's slices), copying its items
-/// once, straight into their aligned vector. `None` when the payload is not laid out as
-/// [`encode`] writes frames (or is not valid): [`decode`] the whole bytes then, which reads any
-/// valid frame and says what is wrong with an invalid one.
-pub fn decode_reader<H: FrameHeader, T: FrameItem>(mut reader: impl std::io::Read) -> Option<Frame<H, T>> {
-    let (header, len) = envelope::<H, T>(&mut reader)?;
+/// The largest frame a reader accepts, in bytes: items a frame claims beyond it are refused
+/// before anything is allocated, whatever the bytes present (1,000,000 bodies are 48 MB).
+pub const MAX_FRAME_BYTES: usize = 256 << 20;
+
+/// Decodes a frame from a payload of `total` bytes read in pieces (a zenoh sample's slices),
+/// copying its items once, straight into their aligned vector. `None` when the payload is not
+/// laid out as [`encode`] writes frames (or is not valid), and before allocating anything when
+/// its items claim more bytes than the payload has left or than [`MAX_FRAME_BYTES`]: a peer's
+/// length is never trusted. [`decode`] the whole bytes then, which reads any valid frame and
+/// says what is wrong with an invalid one.
+pub fn decode_reader<H: FrameHeader, T: FrameItem>(reader: impl std::io::Read, total: usize) -> Option<Frame<H, T>> {
+    let mut counted = Counted { inner: reader, read: 0 };
+    let (header, len) = envelope::<H, T>(&mut counted)?;
+    let left = total.checked_sub(counted.read)?;
+    (len <= left && len <= MAX_FRAME_BYTES).then_some(())?;
     let mut items = vec![T::zeroed(); len / std::mem::size_of::<T>()];
-    reader.read_exact(bytemuck::cast_slice_mut(&mut items)).ok()?;
+    counted.inner.read_exact(bytemuck::cast_slice_mut(&mut items)).ok()?;
     Some(Frame { header, items })
+}
+
+/// A reader that counts the bytes read through it.
+struct Counted<R> {
+    inner: R,
+    read: usize,
+}
+
+impl<R: std::io::Read> std::io::Read for Counted<R> {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(out)?;
+        self.read += n;
+        Ok(n)
+    }
 }
 
 /// The header of a frame laid out as [`encode`] writes it (a map of `v`, `h`, `i` in this
@@ -330,10 +358,10 @@ mod tests {
         g.items.iter_mut().enumerate().for_each(|(i, v)| *v = -(i as f32));
         let (fb, gb) = (encode(&f).unwrap(), encode(&g).unwrap());
         for piece in [1, 7, 4096, usize::MAX] {
-            let back: Bodies = decode_reader(Pieces { bytes: &fb, piece }).expect("encode's layout");
+            let back: Bodies = decode_reader(Pieces { bytes: &fb, piece }, fb.len()).expect("encode's layout");
             assert_eq!(back.header, f.header);
             assert_eq!(bits(&back.items), bits(&f.items));
-            let back: Grid = decode_reader(Pieces { bytes: &gb, piece }).expect("encode's layout");
+            let back: Grid = decode_reader(Pieces { bytes: &gb, piece }, gb.len()).expect("encode's layout");
             assert_eq!(back, g);
         }
         // The slice decoder's fast path and the general decoder agree bit for bit.
@@ -344,7 +372,10 @@ mod tests {
         assert_eq!(decode::<GridHeader, f32>(&gb).unwrap(), decode_any(&gb).unwrap());
         // An empty frame.
         let empty = Frame::new(StepHeader::default(), Vec::<Body>::new());
-        assert_eq!(decode_reader::<StepHeader, Body>(encode(&empty).unwrap().as_slice()), Some(empty));
+        assert_eq!(
+            decode_reader::<StepHeader, Body>(encode(&empty).unwrap().as_slice(), encode(&empty).unwrap().len()),
+            Some(empty)
+        );
     }
 
     #[test]
@@ -372,7 +403,7 @@ mod tests {
         }
         chunked.push(0xff);
         for bytes in [&reordered, &chunked] {
-            assert!(decode_reader::<StepHeader, Body>(bytes.as_slice()).is_none());
+            assert!(decode_reader::<StepHeader, Body>(bytes.as_slice(), bytes.len()).is_none());
             let back: Bodies = decode(bytes).unwrap();
             assert_eq!(back.header, f.header);
             assert_eq!(bits(&back.items), bits(&f.items));
@@ -383,17 +414,35 @@ mod tests {
     fn invalid_payloads_leave_the_fast_path_with_the_general_decoders_error() {
         let bytes = encode(&bodies(10)).unwrap();
         for cut in [0, 1, 5, 30, bytes.len() - 1] {
-            assert!(decode_reader::<StepHeader, Body>(&bytes[..cut]).is_none(), "cut at {cut}");
+            assert!(decode_reader::<StepHeader, Body>(&bytes[..cut], cut).is_none(), "cut at {cut}");
         }
         // A frame of contacts read as bodies: 76-byte items are not whole 48-byte bodies.
         let contacts =
             encode(&ProblemContacts::new(ProblemHeader::default(), vec![ProblemContact::default(); 3])).unwrap();
-        assert!(decode_reader::<ProblemHeader, Body>(contacts.as_slice()).is_none());
+        assert!(decode_reader::<ProblemHeader, Body>(contacts.as_slice(), contacts.len()).is_none());
         assert!(matches!(decode::<ProblemHeader, Body>(&contacts), Err(CodecError::Length { .. })));
         // Another wire version goes the general way (and is refused there).
         let mut future = bytes.clone();
         future[3] = 0x09;
-        assert!(decode_reader::<StepHeader, Body>(future.as_slice()).is_none());
+        assert!(decode_reader::<StepHeader, Body>(future.as_slice(), future.len()).is_none());
         assert!(matches!(decode::<StepHeader, Body>(&future), Err(CodecError::Version { found: 9, .. })));
+    }
+
+    #[test]
+    fn an_items_length_beyond_the_bytes_present_is_refused_before_allocating() {
+        // The forged control frame of the probe: items claiming 2^40 bytes, padded to 300 kB.
+        let mut forged = encode(&Frame::new(Control::default(), Vec::<u8>::new())).unwrap();
+        forged.truncate(forged.len() - 1); // the empty byte string's head (0x40)
+        forged.push(0x5b); // a byte string with an 8-byte length
+        forged.extend_from_slice(&(1u64 << 40).to_be_bytes());
+        forged.resize(300_000, 0);
+        for piece in [1, 4096, usize::MAX] {
+            assert!(decode_reader::<Control, u8>(Pieces { bytes: &forged, piece }, forged.len()).is_none());
+        }
+        assert!(decode::<Control, u8>(&forged).is_err());
+        // A payload that says it is longer than it is (a lying `total`) still stops at the bytes.
+        let ok = encode(&bodies(10)).unwrap();
+        assert!(decode_reader::<StepHeader, Body>(&ok[..ok.len() - 48], ok.len()).is_none());
+        assert!(decode_reader::<StepHeader, Body>(&ok[..], ok.len() - 1).is_none());
     }
 }

@@ -14,6 +14,7 @@
 mod codec;
 pub mod control;
 pub mod curve;
+pub mod flags;
 pub mod models;
 mod names;
 pub mod problem;
@@ -21,13 +22,14 @@ mod stats;
 pub mod topics;
 
 pub use codec::{
-    decode, decode_header, decode_reader, encode, encode_into, CodecError, OLDEST_WIRE_VERSION, WIRE_VERSION,
+    decode, decode_header, decode_reader, encode, encode_into, CodecError, MAX_FRAME_BYTES, OLDEST_WIRE_VERSION,
+    WIRE_VERSION,
 };
 pub use control::{ControlDetails, DetailsError, NodeNotice, RunParams, RunSummary, SceneInfo};
 pub use names::id_text;
 pub use problem::{ProblemBodies, ProblemBody, ProblemContact, ProblemContacts, ProblemHeader};
 pub use stats::{Accuracy, ErrorSplit, StepStats};
-pub use topics::{FrameKind, HasStep};
+pub use topics::{is_replayed, FrameKind, HasStep, REPLAYED_RUN};
 
 use bytemuck::{Pod, Zeroable};
 use iceoryx2_bb_derive_macros::ZeroCopySend;

@@ -136,33 +136,59 @@ impl KindOf for ProblemContacts {
     const KIND: FrameKind = FrameKind::ProblemContacts;
 }
 
+/// The mark `dc play --into-live` sets on the run id of every frame it publishes into a live
+/// graph (the top bit; the simulator's clock-derived run ids stay far below it), so that the
+/// graph's metrics and recorder keep a replayed run apart from their own.
+pub const REPLAYED_RUN: u64 = 1 << 63;
+
+/// Whether a run id carries [`REPLAYED_RUN`].
+pub fn is_replayed(run_id: u64) -> bool {
+    run_id & REPLAYED_RUN != 0
+}
+
 /// A header that carries the (run, simulation, step) of its frame.
 pub trait HasStep {
     fn step_header(&self) -> StepHeader;
+    fn step_header_mut(&mut self) -> &mut StepHeader;
 }
 impl HasStep for StepHeader {
     fn step_header(&self) -> StepHeader {
         *self
+    }
+    fn step_header_mut(&mut self) -> &mut StepHeader {
+        self
     }
 }
 impl HasStep for GridHeader {
     fn step_header(&self) -> StepHeader {
         self.step
     }
+    fn step_header_mut(&mut self) -> &mut StepHeader {
+        &mut self.step
+    }
 }
 impl HasStep for SolveStatsHeader {
     fn step_header(&self) -> StepHeader {
         self.step
+    }
+    fn step_header_mut(&mut self) -> &mut StepHeader {
+        &mut self.step
     }
 }
 impl HasStep for ProblemHeader {
     fn step_header(&self) -> StepHeader {
         self.step
     }
+    fn step_header_mut(&mut self) -> &mut StepHeader {
+        &mut self.step
+    }
 }
 impl HasStep for Control {
     fn step_header(&self) -> StepHeader {
         self.step
+    }
+    fn step_header_mut(&mut self) -> &mut StepHeader {
+        &mut self.step
     }
 }
 

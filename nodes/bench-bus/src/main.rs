@@ -36,8 +36,9 @@ struct Args {
     role: Role,
     #[arg(long, value_enum, default_value = "bodies")]
     kind: Kind,
-    /// Bodies per frame (kind = bodies).
-    #[arg(long, default_value_t = 10_000)]
+    /// Bodies per frame (kind = bodies; 1 to 1,000,000: 48 MB a frame).
+    #[arg(long, default_value_t = 10_000,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1_000_000))]
     n: usize,
     /// Frames of the throughput phase (or of the verification).
     #[arg(long, default_value_t = 200)]
@@ -51,14 +52,16 @@ struct Args {
     /// Source: publish an undecodable payload before every K-th frame (zenoh topics only).
     #[arg(long, default_value_t = 0)]
     garbage_every: u32,
-    /// Sink: give up (and fail) when nothing arrived for this long.
-    #[arg(long, default_value_t = 30.0)]
+    /// Sink: give up (and fail) when nothing arrived for this long, seconds (above 0, at most a
+    /// day).
+    #[arg(long, default_value_t = 30.0, value_parser = msgs::flags::f64_above(0.0, 86_400.0))]
     timeout_s: f64,
-    /// Sleep this long before creating the ports (a node that is slow to start).
-    #[arg(long, default_value_t = 0)]
+    /// Sleep this long before creating the ports (a node that is slow to start; at most an hour).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=3_600_000))]
     create_delay_ms: u64,
-    /// Sink: sleep this long after start before the first receive (a slow consumer).
-    #[arg(long, default_value_t = 0)]
+    /// Sink: sleep this long after start before the first receive (a slow consumer; at most an
+    /// hour).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=3_600_000))]
     start_delay_ms: u64,
     /// Label of the transport in the result line.
     #[arg(long, default_value = "")]

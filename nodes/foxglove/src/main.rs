@@ -47,14 +47,16 @@ struct NodeArgs {
     /// Bus topics to bridge, comma separated (default: every topic Foxglove can show).
     #[arg(long, value_delimiter = ',')]
     topics: Vec<String>,
-    /// Messages each client may have queued before the oldest are dropped.
-    #[arg(long, default_value_t = 256)]
+    /// Messages each client may have queued before the oldest are dropped (1 to 65536).
+    #[arg(long, default_value_t = 256,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_BACKLOG))]
     backlog: usize,
-    /// Most messages per second per topic for the scene, grids and heat maps (0: unlimited).
-    #[arg(long, default_value_t = 30.0)]
+    /// Most messages per second per topic for the scene, grids and heat maps (0: unlimited; at
+    /// most 10000).
+    #[arg(long, default_value_t = 30.0, value_parser = msgs::flags::f64_in(0.0, MAX_HZ))]
     max_hz: f64,
-    /// Most messages per second per topic for the JSON statistics (0: unlimited).
-    #[arg(long, default_value_t = 100.0)]
+    /// Most messages per second per topic for the JSON statistics (0: unlimited; at most 10000).
+    #[arg(long, default_value_t = 100.0, value_parser = msgs::flags::f64_in(0.0, MAX_HZ))]
     plot_hz: f64,
     #[command(flatten)]
     style: StyleArgs,
@@ -69,13 +71,20 @@ impl NodeArgs {
 /// How the scene is drawn.
 #[derive(clap::Args, Debug, Clone)]
 struct StyleArgs {
-    /// Contact arrow length per unit of normal impulse, metres per N·s.
-    #[arg(long, default_value_t = 1.0)]
+    /// Contact arrow length per unit of normal impulse, metres per N·s (above 0, at most 1000).
+    #[arg(long, default_value_t = 1.0, value_parser = msgs::flags::f32_above(0.0, MAX_STYLE))]
     impulse_scale: f32,
-    /// Longest contact arrow, metres.
-    #[arg(long, default_value_t = 2.0)]
+    /// Longest contact arrow, metres (above 0, at most 1000; the thesis box is 15 m wide).
+    #[arg(long, default_value_t = 2.0, value_parser = msgs::flags::f32_above(0.0, MAX_STYLE))]
     max_arrow: f32,
 }
+
+/// Highest rate limit (`--max-hz`, `--plot-hz`): far above any display's frame rate.
+const MAX_HZ: f64 = 10_000.0;
+/// Largest `--impulse-scale` and `--max-arrow`.
+const MAX_STYLE: f32 = 1000.0;
+/// Most messages queued per client (`--backlog`).
+const MAX_BACKLOG: u64 = 65_536;
 
 impl StyleArgs {
     fn style(&self) -> SceneStyle {

@@ -55,8 +55,10 @@ struct Args {
     /// Seed of the message-passing weights.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// With `readout` (research): ridge strengths tried (relative to each input's own scale).
-    #[arg(long, value_delimiter = ',', default_value = "1e-4,1e-3,1e-2,1e-1,1")]
+    /// With `readout` (research): ridge strengths tried (relative to each input's own scale; each
+    /// above 0, at most 1e6).
+    #[arg(long, value_delimiter = ',', default_value = "1e-4,1e-3,1e-2,1e-1,1",
+          value_parser = msgs::flags::f64_above(0.0, 1e6))]
     ridge: Vec<f64>,
     /// What is minimised: `residual` (the step's velocity residual at the warm start; with
     /// compliant contacts in `backprop` the compliant one; the shipped model's), `mse` (the
@@ -66,30 +68,30 @@ struct Args {
     #[arg(long, default_value = "residual", value_parser = ["residual", "mse", "unrolled"])]
     loss: String,
     /// Research, with `--loss unrolled`: the PGS sweeps unrolled before the residual is taken (0: per step,
-    /// one less than builtin took on it, at most 400).
-    #[arg(long, default_value_t = 10)]
+    /// one less than builtin took on it, at most 400; given, at most 1000).
+    #[arg(long, default_value_t = 10,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(0..=1000))]
     sweeps: usize,
     /// Research, with `--loss unrolled`: the power of each change's energy in the loss (2: the energy;
-    /// larger: the largest changes, which decide when PGS stops, weigh more).
-    #[arg(long, default_value_t = 2.0)]
+    /// larger: the largest changes, which decide when PGS stops, weigh more; above 0, at most 16).
+    #[arg(long, default_value_t = 2.0, value_parser = msgs::flags::f64_above(0.0, 16.0))]
     power: f64,
     /// With `--loss unrolled`: the weight of a normal row's last-sweep change that adds impulse
     /// (a contact still approaching after the sweeps: too little push, which accumulates as
-    /// penetration at a fixed budget) against 1 for every other change.
-    #[arg(long, default_value_t = 1.0, value_parser = |s: &str| match s.parse::<f64>() {
-        Ok(w) if w.is_finite() && w > 0.0 => Ok(w),
-        _ => Err(format!("`{s}` must be a number > 0")),
-    })]
+    /// penetration at a fixed budget) against 1 for every other change (above 0, at most 1e6).
+    #[arg(long, default_value_t = 1.0, value_parser = msgs::flags::f64_above(0.0, 1e6))]
     approach_weight: f64,
     /// `readout` (research; no shipped model uses it): the closed-form ridge fit of the readout
     /// alone; `backprop`: the whole network end to end (burn, Adam), how the shipped model is
     /// trained.
     #[arg(long, default_value = "readout", value_parser = ["readout", "backprop"])]
     method: String,
-    /// With `backprop`: passes over the training steps, and Adam's learning rate.
-    #[arg(long, default_value_t = 2)]
+    /// With `backprop`: passes over the training steps (at most 100000), and Adam's learning rate
+    /// (above 0, at most 10).
+    #[arg(long, default_value_t = 2,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(0..=100_000))]
     epochs: usize,
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = 1e-3, value_parser = msgs::flags::f64_above(0.0, 10.0))]
     lr: f64,
     /// Also write every candidate beside --out, whichever wins on validation: each epoch's
     /// network (`backprop`: `<out>.epoch<N>.dcg`) or each ridge's fit (`readout`:

@@ -142,10 +142,13 @@ impl ModelFile {
         Ok(self)
     }
 
-    /// The file's CBOR, all of it: bytes after the model are an error.
+    /// The file's CBOR, all of it: bytes after the model are an error. Only a regular file of at
+    /// most [`runtime::files::MAX_MODEL_BYTES`] is read (`/dev/zero`, a FIFO or a folder is
+    /// refused by its kind, before reading).
     fn read(path: &Path) -> Result<ModelFile, GnnError> {
         let p = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| GnnError::Io { path: p.clone(), source })?;
+        let bytes = runtime::files::read_bounded(path, "model file", runtime::files::MAX_MODEL_BYTES)
+            .map_err(|e| GnnError::Io { path: p.clone(), source: e.into() })?;
         let mut rest = bytes.as_slice();
         let file: ModelFile =
             ciborium::from_reader(&mut rest).map_err(|e| GnnError::Format { path: p.clone(), why: e.to_string() })?;
@@ -258,6 +261,32 @@ mod tests {
         std::fs::write(&path, b"\x00\x01junk").unwrap();
         assert!(ModelFile::load(&path).unwrap_err().to_string().contains("not a contact-graph model file"));
         assert!(matches!(ModelFile::load(&dir.join("missing.dcg")), Err(GnnError::Io { .. })));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn devices_fifos_folders_and_oversized_files_are_refused_before_reading() {
+        let dir = std::env::temp_dir().join(format!("dc-gnn-kinds-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("pipe.dcg");
+        assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+        // Sparse: 1 GiB long, nothing written.
+        let huge = dir.join("huge.dcg");
+        std::fs::File::create(&huge).unwrap().set_len(1 << 30).unwrap();
+        let started = std::time::Instant::now();
+        for (path, why) in [
+            (Path::new("/dev/zero"), "is a character device, not a model file"),
+            (dir.as_path(), "is a directory, not a model file"),
+            (fifo.as_path(), "is a FIFO (named pipe), not a model file"),
+            (huge.as_path(), "is 1 GiB, larger than any model file (at most 256 MiB)"),
+        ] {
+            for e in [ModelFile::load(path).unwrap_err(), ModelFile::upgrade(path, &dir.join("out.dcg")).unwrap_err()] {
+                assert!(matches!(e, GnnError::Io { .. }), "{e}");
+                assert_eq!(e.to_string(), format!("{}: {why}", path.display()));
+            }
+        }
+        assert!(started.elapsed() < std::time::Duration::from_secs(5), "{:?}", started.elapsed());
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -64,14 +64,22 @@ fn unit_f64(rng: &mut SplitMix64) -> f64 {
     (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64
 }
 
+/// Widest state a network may have: about 6.3 million weights, some 30 MB as a model file, well
+/// under [`runtime::files::MAX_MODEL_BYTES`] (the shipped networks have 16).
+pub const MAX_HIDDEN: usize = 1024;
+/// Most message-passing rounds.
+pub const MAX_ROUNDS: usize = 64;
+
 /// The network's shape (also the command-line flags of the tools that make networks).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::Args)]
 pub struct NetConfig {
-    /// Width of the contact and body states.
-    #[arg(long, default_value_t = 16)]
+    /// Width of the contact and body states (1 to 1024).
+    #[arg(long, default_value_t = 16,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=MAX_HIDDEN as u64))]
     pub hidden: usize,
-    /// Message-passing rounds (weights shared across rounds).
-    #[arg(long, default_value_t = 4)]
+    /// Message-passing rounds (weights shared across rounds; at most 64).
+    #[arg(long, default_value_t = 4,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(0..=MAX_ROUNDS as u64))]
     pub rounds: usize,
 }
 
@@ -139,7 +147,7 @@ impl Net {
     /// Checks every layer's shape against the configuration, and that weights are finite.
     pub fn validate(&self) -> Result<(), String> {
         let h = self.config.hidden;
-        if h == 0 || self.config.rounds > 64 {
+        if h == 0 || h > MAX_HIDDEN || self.config.rounds > MAX_ROUNDS {
             return Err(format!("configuration {:?} is out of range", self.config));
         }
         self.encode_contact.check("encode_contact", CONTACT_FEATURES, h)?;

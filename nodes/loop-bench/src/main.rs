@@ -30,7 +30,7 @@ struct Args {
     #[arg(long)]
     record: PathBuf,
     /// burn device of the U-Net (flex; libtorch with the `tch` feature).
-    #[arg(long, default_value = "flex")]
+    #[arg(long, default_value = "flex", value_parser = unet::device_name)]
     device: String,
 }
 

@@ -22,8 +22,9 @@ struct Args {
     /// Title of the report.
     #[arg(long, default_value = "Warm-start evaluation")]
     title: String,
-    /// A step is settled once every body stays slower than this (m/s) for the rest of its simulation.
-    #[arg(long, default_value_t = 0.1)]
+    /// A step is settled once every body stays slower than this (m/s) for the rest of its
+    /// simulation (above 0, at most 1000).
+    #[arg(long, default_value_t = 0.1, value_parser = msgs::flags::f32_above(0.0, 1000.0))]
     settle_speed: f32,
     /// First steps of the step-range phases after the first, comma-separated and increasing
     /// (`100,150`: steps 0-99, 100-149, 150-end; the last is the late phase of the accuracy table;
@@ -70,10 +71,16 @@ fn try_main() -> Result<()> {
     // Per model: cumulative sweeps, for the live summary.
     let mut cumulative: BTreeMap<String, u64> = BTreeMap::new();
     let mut dropped = 0u64;
+    // Frames of a recording played into this graph (`dc play --into-live`): not our runs.
+    let mut replayed = 0u64;
     let mut handle_stats = |r: &runtime::Received<msgs::SolveStatsHeader, f32>,
                             aggregate: &mut Aggregate,
                             completeness: &mut Completeness|
      -> Result<()> {
+        if msgs::is_replayed(r.header().step.run_id) {
+            replayed += 1;
+            return Ok(());
+        }
         if let Some(why) = completeness.implausible(r.header()) {
             // Logged once in full, then counted: a flood of bad frames must not flood the log.
             if dropped == 0 {
@@ -92,8 +99,13 @@ fn try_main() -> Result<()> {
         Ok(())
     };
 
+    let mut replayed_control = 0u64;
     loop {
         while let Some(c) = control.try_recv()? {
+            if msgs::is_replayed(c.header().step.run_id) {
+                replayed_control += 1;
+                continue;
+            }
             completeness.control(c.header(), c.items());
             node.observe_control(c.header());
         }
@@ -113,7 +125,16 @@ fn try_main() -> Result<()> {
         handle_stats(&r, &mut aggregate, &mut completeness)?;
     }
     while let Some(c) = control.try_recv()? {
-        completeness.control(c.header(), c.items());
+        if !msgs::is_replayed(c.header().step.run_id) {
+            completeness.control(c.header(), c.items());
+        }
+    }
+    if replayed + replayed_control > 0 {
+        tracing::info!(
+            statistics = replayed,
+            control = replayed_control,
+            "left out frames of replayed runs (dc play --into-live)"
+        );
     }
 
     let mut missing = completeness.missing();

@@ -27,7 +27,6 @@ use crate::summary::{SummaryCheck, SummaryProblem};
 use crate::{Error, FrameKind, Result, MESSAGE_ENCODING, META_TYPE, META_WIRE_VERSION};
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::fmt;
-use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -336,12 +335,16 @@ impl RecordingReader {
         Self::open_with(path, ReadOptions::default())
     }
 
+    /// Only a regular file is opened: a folder, a FIFO, a device (`/dev/zero`) or a socket is
+    /// refused by its kind ([`Error::NotMcap`]) before anything is read.
     pub fn open_with(path: &Path, options: ReadOptions) -> Result<RecordingReader> {
-        let io = |source| Error::Io { path: path.to_path_buf(), source };
-        let file = File::open(path).map_err(io)?;
-        if file.metadata().map_err(io)?.is_dir() {
-            return Err(Error::NotMcap { path: path.to_path_buf(), detail: "a folder".into() });
-        }
+        let file = match runtime::files::open_regular(path, "recording") {
+            Ok(file) => file,
+            Err(runtime::files::UserFileError::NotRegular { kind, .. }) => {
+                return Err(Error::NotMcap { path: path.to_path_buf(), detail: kind.into() })
+            }
+            Err(e) => return Err(Error::Io { path: path.to_path_buf(), source: e.into() }),
+        };
         Self::from_source(path, file, options)
     }
 

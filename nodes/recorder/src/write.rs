@@ -52,6 +52,9 @@ pub struct RecordingWriter {
     messages: u64,
 }
 
+/// How many numbered names [`RecordingWriter::create_numbered`] tries before it gives up.
+pub const NUMBERED_TRIES: u32 = 999;
+
 impl RecordingWriter {
     /// Creates `path` (and its folder), truncating a file already there.
     pub fn create(path: &Path) -> Result<RecordingWriter> {
@@ -64,6 +67,20 @@ impl RecordingWriter {
     pub fn create_new(path: &Path) -> Result<RecordingWriter> {
         let file = Self::open(path, std::fs::OpenOptions::new().write(true).create_new(true))?;
         Self::to_file(path, file, None)
+    }
+
+    /// Creates `dir/<stem>.mcap`, or `<stem>-2.mcap`, `<stem>-3.mcap`, ... when another
+    /// recorder (of this graph or another, started in the same second) took the name first; each
+    /// try is [`RecordingWriter::create_new`], so two recorders never share a file.
+    pub fn create_numbered(dir: &Path, stem: &str) -> Result<RecordingWriter> {
+        for n in 1..=NUMBERED_TRIES {
+            let name = if n == 1 { format!("{stem}.mcap") } else { format!("{stem}-{n}.mcap") };
+            match Self::create_new(&dir.join(name)) {
+                Err(Error::Exists { .. }) => continue,
+                other => return other,
+            }
+        }
+        Err(Error::Exists { path: dir.join(format!("{stem}-{NUMBERED_TRIES}.mcap")) })
     }
 
     fn open(path: &Path, options: &std::fs::OpenOptions) -> Result<File> {
@@ -332,4 +349,26 @@ fn copy_io_error(e: &std::io::Error) -> std::io::Error {
         Some(code) => std::io::Error::from_raw_os_error(code),
         None => std::io::Error::new(e.kind(), e.to_string()),
     }
+}
+
+/// `YYYYMMDDTHHMMSSZ` in UTC: the time in recordings' default names.
+pub fn utc_stamp(t: std::time::SystemTime) -> String {
+    let secs = t.duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0) as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!("{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
+}
+
+/// Now, in nanoseconds since the Unix epoch: a message's log time.
+pub fn now_ns() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
 }

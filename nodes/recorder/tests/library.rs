@@ -150,6 +150,27 @@ fn non_mcap_empty_and_missing_files_are_refused_naming_the_file() {
     assert!(matches!(e, Error::Io { .. }) && e.to_string().contains("missing.mcap"), "{e}");
 }
 
+/// A device, a FIFO or a folder named as a recording is refused by its kind, before anything is
+/// read: `/dev/zero` never ends, and opening a FIFO waits for a writer that never comes.
+#[test]
+fn devices_fifos_and_folders_are_refused_by_their_kind() {
+    let dir = scratch("kinds");
+    let fifo = dir.join("pipe.mcap");
+    assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let started = std::time::Instant::now();
+    for (path, kind) in [
+        (std::path::Path::new("/dev/zero"), "a character device"),
+        (fifo.as_path(), "a FIFO (named pipe)"),
+        (dir.as_path(), "a directory"),
+    ] {
+        for e in [Info::read(path).unwrap_err(), recorder::RecordingReader::open(path).err().expect("refused")] {
+            assert!(matches!(&e, Error::NotMcap { detail, .. } if detail == kind), "{e}");
+            assert!(e.to_string().starts_with(&format!("{}: not an MCAP file ({kind})", path.display())), "{e}");
+        }
+    }
+    assert!(started.elapsed() < std::time::Duration::from_secs(5), "{:?}", started.elapsed());
+}
+
 #[test]
 fn an_unknown_wire_version_is_refused_naming_the_file_and_topic() {
     let dir = scratch("version");
@@ -168,4 +189,22 @@ fn an_unknown_wire_version_is_refused_naming_the_file_and_topic() {
     assert!(text.contains("future.mcap") && text.contains("bodies") && text.contains("99"), "{text}");
     let e = Steps::open(&file).unwrap().next().unwrap().unwrap_err();
     assert!(matches!(e, Error::WireVersion { .. }), "{e}");
+}
+
+#[test]
+fn recorders_started_in_the_same_second_take_numbered_names_never_an_error() {
+    // `dc record -a` twice within a second (and the graph's recorder beside them): one stem,
+    // three files, none written over.
+    let dir = scratch("numbered");
+    let stem = "attached-ns-20261204T101010Z";
+    let writers: Vec<RecordingWriter> = (0..3).map(|_| RecordingWriter::create_numbered(&dir, stem).unwrap()).collect();
+    let names: Vec<String> =
+        writers.iter().map(|w| w.path().file_name().unwrap().to_string_lossy().into_owned()).collect();
+    assert_eq!(names, [format!("{stem}.mcap"), format!("{stem}-2.mcap"), format!("{stem}-3.mcap")]);
+    for w in writers {
+        w.finish().unwrap();
+    }
+    // A name given by the user is still never taken over.
+    let given = dir.join(format!("{stem}.mcap"));
+    assert!(matches!(RecordingWriter::create_new(&given), Err(Error::Exists { .. })));
 }

@@ -9,7 +9,7 @@
 //! - `AllocationStrategy::PowerOfTwo`: slices may grow (contacts 0 -> 30,000) past the initial size;
 //! - limits raised above the defaults (2 publishers, buffer 2, 20 nodes), too small for our graphs.
 
-use crate::{BusConfig, Error, Result};
+use crate::config::{BusConfig, Error, Result};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
@@ -38,6 +38,15 @@ pub const MAX_PUBLISHERS: usize = 32;
 pub const MAX_SUBSCRIBERS: usize = 64;
 /// Most processes using one topic on one host.
 pub const MAX_NODES: usize = 128;
+
+/// Whether `name` can name a graph node: the runtime names its iceoryx2 node after it and cannot
+/// start under a name iceoryx2 refuses, so the launcher applies this rule when it reads a file.
+pub fn check_node_name(name: &str) -> std::result::Result<(), String> {
+    if name.len() > NodeName::max_len() {
+        return Err(format!("{} bytes, more than the {} a node name may have", name.len(), NodeName::max_len()));
+    }
+    NodeName::new(name).map(|_| ()).map_err(|e| format!("not a valid iceoryx2 node name ({e:?})"))
+}
 
 impl IoxNode {
     pub(crate) fn new(name: &str) -> Result<IoxNode> {
@@ -255,12 +264,20 @@ mod tests {
     #[test]
     fn the_longest_namespace_gives_valid_service_names() {
         let bus = BusConfig {
-            namespace: "n".repeat(crate::MAX_NAMESPACE_LEN),
+            namespace: "n".repeat(crate::config::MAX_NAMESPACE_LEN),
             host: "a-host-name-of-some-length".into(),
             ..BusConfig::default()
         };
         let longest = msgs::topics::TABLE.iter().map(|t| t.name).max_by_key(|n| n.len()).unwrap();
         assert!(service_name(&bus, longest, "/@event").is_ok());
+    }
+
+    #[test]
+    fn a_node_name_iceoryx2_refuses_is_refused_by_the_check_too() {
+        let longest = "n".repeat(NodeName::max_len());
+        assert!(check_node_name(&longest).is_ok() && IoxNode::new(&longest).is_ok());
+        let e = check_node_name(&format!("{longest}n")).unwrap_err();
+        assert!(e.contains(&format!("more than the {}", NodeName::max_len())), "{e}");
     }
 }
 

@@ -24,20 +24,24 @@
 //!   and subscribe as JSON ([`Ports`]) and returns false (the node returns), so the launcher can
 //!   route every topic.
 
+mod config;
 pub mod files;
 mod iox;
+pub mod lock;
 pub mod observe;
 mod pubsub;
 mod zen;
 
-pub use iox::{live_topics, LiveTopic, MAX_NODES, MAX_PUBLISHERS, MAX_SUBSCRIBERS};
+pub use config::{
+    check_namespace, BusConfig, Error, Ports, Result, ShutdownSignal, TlsConfig, Transport, ZenohConfig,
+    MAX_NAMESPACE_LEN, PORTS_MARKER,
+};
+pub use iox::{check_node_name, live_topics, LiveTopic, MAX_NODES, MAX_PUBLISHERS, MAX_SUBSCRIBERS};
 pub use pubsub::{Publisher, Received, Subscriber};
 pub use zen::{live_topics_zenoh, open_router, HostSync, READERS, WRITERS};
 /// The zenoh crate, for launchers holding sessions.
 pub use zenoh;
 
-use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
 use std::io::{BufRead, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
@@ -54,186 +58,6 @@ pub const START_LINE: &str = "start";
 /// Line a launched node prints when its work is done but its shared-memory publishers must stay
 /// alive until the graph's readers have taken what it sent (see [`Node`]'s drop).
 pub const DONE_MARKER: &str = "\u{1e}dc-done";
-
-/// Errors of the runtime.
-#[derive(Debug, thiserror::Error)]
-pub enum Error {
-    #[error("topic `{topic}`: iceoryx2: {what}")]
-    Iceoryx2 { topic: String, what: String },
-    #[error("topic `{topic}`: zenoh: {what}")]
-    Zenoh { topic: String, what: String },
-    #[error("topic `{topic}`: {source}")]
-    Codec { topic: String, source: msgs::CodecError },
-    #[error("bad bus configuration in DC_BUS: {0}")]
-    Config(String),
-    #[error("iceoryx2 node: {0}")]
-    Node(String),
-    #[error("launcher pipe: {0}")]
-    Launcher(String),
-}
-
-pub type Result<T, E = Error> = std::result::Result<T, E>;
-
-/// Which transport carries a topic.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum Transport {
-    /// Zero-copy shared memory on this host.
-    #[default]
-    Iceoryx2,
-    /// CBOR over zenoh (across hosts).
-    Zenoh,
-    /// Both: a publisher whose topic is consumed locally and remotely publishes once to each; a
-    /// subscriber with publishers on this host and on others reads both.
-    Both,
-}
-
-impl Transport {
-    pub fn uses_iceoryx2(self) -> bool {
-        matches!(self, Transport::Iceoryx2 | Transport::Both)
-    }
-    pub fn uses_zenoh(self) -> bool {
-        matches!(self, Transport::Zenoh | Transport::Both)
-    }
-}
-
-/// Zenoh session settings of one node.
-#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
-pub struct ZenohConfig {
-    /// Endpoints this node listens on, e.g. `tcp/127.0.0.1:7447` (never every interface by default).
-    #[serde(default)]
-    pub listen: Vec<String>,
-    /// Endpoints this node connects to (other nodes, or a router).
-    #[serde(default)]
-    pub connect: Vec<String>,
-    /// `peer` (default) or `client` (through a router).
-    #[serde(default)]
-    pub mode: Option<String>,
-    /// TLS for every link (endpoints are then `tls/...`); None: plain TCP.
-    #[serde(default)]
-    pub tls: Option<TlsConfig>,
-}
-
-/// A node's TLS files (PEM): the graph's CA, and this host's certificate and private key, used
-/// both to accept links and to open them.
-#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
-pub struct TlsConfig {
-    /// The CA every certificate of the graph is signed by.
-    pub ca: String,
-    pub cert: String,
-    pub key: String,
-    /// Mutual TLS: a peer must present a certificate signed by the CA too (not only the side
-    /// that accepts the link).
-    pub mutual: bool,
-}
-
-/// How a node reaches the bus; written by the launcher, read by the runtime.
-#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
-pub struct BusConfig {
-    /// Separates graphs on one machine: iceoryx2 services are `dc/<namespace>/<topic>`, zenoh
-    /// keys `dc/<namespace>/<topic>` (`dc/<topic>` when empty).
-    #[serde(default)]
-    pub namespace: String,
-    /// Transport of topics not listed in `topics`.
-    #[serde(default)]
-    pub default_transport: Transport,
-    /// Per-topic transport.
-    #[serde(default)]
-    pub topics: BTreeMap<String, Transport>,
-    /// Topics delivered best effort: a subscriber that falls behind loses the oldest frames
-    /// instead of holding the publisher back (viewers and taps that must never slow the loop).
-    /// Every other topic is reliable: nothing is lost, a full queue waits.
-    #[serde(default)]
-    pub best_effort: std::collections::BTreeSet<String>,
-    /// Per topic this node publishes over zenoh: how many subscribers the launcher planned for it
-    /// over zenoh. The publisher holds its first frame until that many have announced themselves
-    /// (liveliness tokens), so none misses the start; 0 or absent: until any one matches.
-    #[serde(default)]
-    pub zenoh_readers: BTreeMap<String, usize>,
-    #[serde(default)]
-    pub zenoh: ZenohConfig,
-    /// Queue depth per subscriber; a full queue holds the publisher back (no loss).
-    #[serde(default = "default_queue_depth")]
-    pub queue_depth: usize,
-    /// The host of a multi-host graph: iceoryx2 services are then `dc/<namespace>@<host>/<topic>`,
-    /// so two "hosts" sharing one machine's shared memory (network namespaces, tests) stay apart.
-    #[serde(default)]
-    pub host: String,
-    /// This process observes a running graph (`dc topic echo`, `dc record -a`): it opens the
-    /// graph's iceoryx2 topics as the graph made them and never creates one.
-    #[serde(default)]
-    pub observe: bool,
-}
-
-/// The topics a node publishes and subscribes, as `DC_DESCRIBE=1` reports them.
-#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq, Eq)]
-pub struct Ports {
-    pub publishes: std::collections::BTreeSet<String>,
-    pub subscribes: std::collections::BTreeSet<String>,
-}
-
-/// Line prefix of a described node's [`Ports`] JSON on stdout.
-pub const PORTS_MARKER: &str = "\u{1e}dc-ports ";
-
-fn default_queue_depth() -> usize {
-    16
-}
-
-/// The longest bus namespace: with the longest topic, a host qualifier and an event suffix the
-/// iceoryx2 service name stays well inside its limit (tested).
-pub const MAX_NAMESPACE_LEN: usize = 64;
-
-/// Whether `namespace` can name a graph's bus: at most [`MAX_NAMESPACE_LEN`] ASCII letters,
-/// digits, `-`, `_` or `.`, so every iceoryx2 service name and zenoh key built from it is valid
-/// (checked when a launch file is read, not when its nodes start).
-pub fn check_namespace(namespace: &str) -> std::result::Result<(), String> {
-    if namespace.len() > MAX_NAMESPACE_LEN {
-        return Err(format!("{} bytes, more than the {MAX_NAMESPACE_LEN} a bus namespace may have", namespace.len()));
-    }
-    if let Some(c) = namespace.chars().find(|c| !(c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))) {
-        return Err(format!(
-            "`{}` is not allowed in a bus namespace (ASCII letters, digits, `-`, `_`, `.`)",
-            c.escape_debug()
-        ));
-    }
-    Ok(())
-}
-
-impl BusConfig {
-    pub fn transport(&self, topic: &str) -> Transport {
-        self.topics.get(topic).copied().unwrap_or(self.default_transport)
-    }
-
-    /// Whether `topic` is delivered best effort (see [`BusConfig::best_effort`]).
-    pub fn is_best_effort(&self, topic: &str) -> bool {
-        self.best_effort.contains(topic)
-    }
-
-    /// The bus key of `topic`: `dc/<namespace>/<topic>`.
-    pub fn key(&self, topic: &str) -> String {
-        if self.namespace.is_empty() {
-            format!("dc/{topic}")
-        } else {
-            format!("dc/{}/{topic}", self.namespace)
-        }
-    }
-
-    /// The iceoryx2 service name of `topic`: the bus key, qualified by the host when one is set.
-    pub fn iox_key(&self, topic: &str) -> String {
-        if self.host.is_empty() {
-            self.key(topic)
-        } else {
-            format!("dc/{}@{}/{topic}", self.namespace, self.host)
-        }
-    }
-
-    fn from_env() -> Result<BusConfig> {
-        match std::env::var("DC_BUS") {
-            Ok(json) => serde_json::from_str(&json).map_err(|e| Error::Config(e.to_string())),
-            Err(_) => Ok(BusConfig { queue_depth: default_queue_depth(), ..Default::default() }),
-        }
-    }
-}
 
 /// A node's handle on the graph.
 pub struct Node {
@@ -308,7 +132,7 @@ impl Node {
         // One handler per process; every node of the process sees the signal.
         static INSTALL: std::sync::Once = std::sync::Once::new();
         INSTALL.call_once(|| {
-            match ctrlc::set_handler(|| SIGNALLED.store(true, Ordering::SeqCst)) {
+            match ctrlc::set_handler(|| config::SIGNALLED.store(true, Ordering::SeqCst)) {
                 // The process (a launcher) handles signals itself.
                 Ok(()) | Err(ctrlc::Error::MultipleHandlers) => {}
                 Err(e) => tracing::warn!("could not install the Ctrl-C handler: {e}"),
@@ -546,22 +370,6 @@ pub fn open_zenoh_session(config: &ZenohConfig) -> std::result::Result<zenoh::Se
     zen::open_session(config)
 }
 
-/// Set by Ctrl-C / SIGTERM.
-static SIGNALLED: AtomicBool = AtomicBool::new(false);
-
-/// A node's shutdown signal: its own flag or a process-wide Ctrl-C / SIGTERM.
-#[derive(Clone, Debug, Default)]
-pub struct ShutdownSignal(Arc<AtomicBool>);
-
-impl ShutdownSignal {
-    pub fn is_set(&self) -> bool {
-        self.0.load(Ordering::SeqCst) || SIGNALLED.load(Ordering::SeqCst)
-    }
-    pub fn set(&self) {
-        self.0.store(true, Ordering::SeqCst);
-    }
-}
-
 /// Removes shared-memory resources left behind by iceoryx2 nodes whose processes died; returns
 /// how many dead nodes were cleaned. The launcher calls this when a graph starts.
 pub fn cleanup_stale_resources() -> Result<usize> {
@@ -609,12 +417,52 @@ pub fn error_text(error: &anyhow::Error) -> String {
     text
 }
 
+/// Standard output was closed by its reader (`dc topic echo ... | head -3`); [`exit`] ends the
+/// program quietly with status 0 on it, as coreutils do.
+#[derive(Debug, thiserror::Error)]
+#[error("standard output was closed")]
+pub struct StdoutClosed;
+
+/// Writes `text` to standard output and flushes it; a closed pipe is [`StdoutClosed`] (where
+/// `println!` would panic), any other failure an error naming standard output.
+pub fn print_out(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(StdoutClosed.into()),
+        Err(e) => Err(anyhow::Error::new(e).context("writing to standard output")),
+    }
+}
+
+/// Writes a line to standard output for a program that must go on when nobody reads it (a
+/// launcher forwarding its nodes' output): never panics; false when the line could not be
+/// written (the reader went away).
+pub fn try_print_line(text: &str) -> bool {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{text}").and_then(|()| out.flush()).is_ok()
+}
+
+/// [`try_print_line`] on standard error.
+pub fn try_eprint_line(text: &str) -> bool {
+    use std::io::Write;
+    writeln!(std::io::stderr().lock(), "{text}").is_ok()
+}
+
+/// [`print_out`] of `text` and a line end.
+pub fn print_line(text: &str) -> anyhow::Result<()> {
+    print_out(&format!("{text}\n"))
+}
+
 /// A node binary's exit: `error: <error_text>` on stderr and status 1 for an error (every line of
 /// a multi-line message kept, so the launcher forwards all of it), status 0 otherwise. Use as
 /// `fn main() -> ExitCode { runtime::exit(run()) }`.
 pub fn exit(result: anyhow::Result<()>) -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        // Whoever read the output has stopped (`| head`): nothing is wrong, as for coreutils.
+        Err(e) if e.chain().any(|c| c.is::<StdoutClosed>()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", error_text(&e));
             std::process::ExitCode::FAILURE

@@ -9,7 +9,8 @@
 //! Over zenoh the observer's subscribers are best effort (a ring that loses its oldest frame) for
 //! the same reason.
 
-use crate::{BusConfig, Node, Result, ShutdownSignal, Transport, ZenohConfig};
+use crate::config::{BusConfig, Result, ShutdownSignal, Transport, ZenohConfig};
+use crate::Node;
 use msgs::topics::FrameKind;
 use msgs::{FrameHeader, FrameItem, HasStep, StepHeader};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -51,10 +52,10 @@ const ZENOH_LIST_WAIT: Duration = Duration::from_secs(2);
 
 /// The topics alive on this host's iceoryx2 bus, or over zenoh through `zenoh` (an endpoint of
 /// the graph); every namespace, or one.
-pub fn live_topics_at(zenoh: Option<&str>, namespace: Option<&str>) -> anyhow::Result<Vec<crate::LiveTopic>> {
+pub fn live_topics_at(zenoh: Option<&str>, namespace: Option<&str>) -> anyhow::Result<Vec<crate::iox::LiveTopic>> {
     match zenoh {
         Some(endpoint) => crate::live_topics_zenoh(endpoint, namespace, ZENOH_LIST_WAIT).map_err(anyhow::Error::msg),
-        None => Ok(crate::live_topics(namespace)?),
+        None => Ok(crate::iox::live_topics(namespace)?),
     }
 }
 

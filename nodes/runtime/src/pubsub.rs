@@ -1,8 +1,8 @@
 //! Typed publishers and subscribers over whichever transport the bus configuration names.
 
+use crate::config::{Error, Result, ShutdownSignal};
 use crate::iox::{IoxPublisher, IoxSample, IoxSubscriber};
 use crate::zen::{ZenPublisher, ZenSubscriber};
-use crate::{Error, Result, ShutdownSignal};
 use msgs::{Frame, FrameHeader, FrameItem};
 use std::time::{Duration, Instant};
 
@@ -241,17 +241,7 @@ impl<H: FrameHeader, T: FrameItem> Subscriber<H, T> {
     }
 
     fn decode(&mut self, sample: &zenoh::sample::Sample) -> Option<Frame<H, T>> {
-        let payload = sample.payload();
-        // A large frame arrives in pieces (zenoh's fragments): read across them, copying the
-        // items once; a frame in one piece is decoded in place.
-        let mut pieces = payload.slices();
-        if let (Some(_), Some(_)) = (pieces.next(), pieces.next()) {
-            if let Some(frame) = msgs::decode_reader::<H, T>(payload.reader()) {
-                return Some(frame);
-            }
-        }
-        let bytes = payload.to_bytes();
-        match msgs::decode::<H, T>(&bytes) {
+        match decode_payload::<H, T>(sample.payload()) {
             Ok(frame) => Some(frame),
             Err(source) => {
                 self.decode_errors += 1;
@@ -260,5 +250,175 @@ impl<H: FrameHeader, T: FrameItem> Subscriber<H, T> {
                 None
             }
         }
+    }
+}
+
+/// Decodes a zenoh payload. A large frame arrives in pieces (zenoh's fragments): read across
+/// them, copying the items once; a frame in one piece is decoded in place. No length the
+/// payload claims is trusted beyond the bytes it has (a peer may lie).
+pub(crate) fn decode_payload<H: FrameHeader, T: FrameItem>(
+    payload: &zenoh::bytes::ZBytes,
+) -> std::result::Result<Frame<H, T>, msgs::CodecError> {
+    let mut pieces = payload.slices();
+    if let (Some(_), Some(_)) = (pieces.next(), pieces.next()) {
+        if let Some(frame) = msgs::decode_reader::<H, T>(payload.reader(), payload.len()) {
+            return Ok(frame);
+        }
+    }
+    msgs::decode::<H, T>(&payload.to_bytes())
+}
+
+#[cfg(test)]
+mod fuzz {
+    //! The zenoh receive path fed fragmented and lying frames: no panic, no allocation beyond
+    //! a bound (a claimed length is never allocated before the bytes are there), every valid
+    //! frame decoded as sent.
+    use super::decode_payload;
+    use msgs::{Body, Control, Frame, StepHeader};
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::cell::Cell;
+    use zenoh::bytes::ZBytes;
+
+    /// The largest single allocation of each thread (the other tests of this binary run
+    /// beside this one and must not count).
+    struct Largest;
+    thread_local! {
+        static LARGEST: Cell<usize> = const { Cell::new(0) };
+    }
+    fn note(size: usize) {
+        let _ = LARGEST.try_with(|l| l.set(l.get().max(size)));
+    }
+    fn largest() -> usize {
+        LARGEST.with(Cell::get)
+    }
+    fn reset() {
+        LARGEST.with(|l| l.set(0));
+    }
+    unsafe impl GlobalAlloc for Largest {
+        unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+            note(layout.size());
+            unsafe { System.alloc(layout) }
+        }
+        unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+            unsafe { System.dealloc(ptr, layout) }
+        }
+        unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+            note(new_size);
+            unsafe { System.realloc(ptr, layout, new_size) }
+        }
+    }
+    #[global_allocator]
+    static ALLOCATOR: Largest = Largest;
+
+    /// xorshift64*: the cases are the same on every run.
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+        }
+        fn below(&mut self, n: usize) -> usize {
+            (self.next() % n.max(1) as u64) as usize
+        }
+    }
+
+    /// `bytes` as a payload in pieces of random sizes (zenoh's fragments).
+    fn fragmented(rng: &mut Rng, bytes: &[u8]) -> ZBytes {
+        let mut writer = ZBytes::writer();
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            let n = 1 + rng.below(rest.len().min(4096));
+            writer.append(ZBytes::from(rest[..n].to_vec()));
+            rest = &rest[n..];
+        }
+        writer.finish()
+    }
+
+    /// One lie or damage to an encoded frame.
+    fn damage(rng: &mut Rng, b: &mut Vec<u8>) {
+        let items_head = b.iter().rposition(|&x| x == 0x61).map(|p| p + 2).unwrap_or(0).min(b.len());
+        match rng.below(6) {
+            // The items' byte string claims a length (up to 2^63) it does not have.
+            0 => {
+                b.truncate(items_head);
+                b.push(0x5b);
+                b.extend_from_slice(&(1u64 << (20 + rng.below(44))).to_be_bytes());
+                let pad = rng.below(300_000);
+                b.resize(b.len() + pad, 0);
+            }
+            // A 4-byte length that lies.
+            1 => {
+                b.truncate(items_head);
+                b.push(0x5a);
+                b.extend_from_slice(&(rng.next() as u32).to_be_bytes());
+                let pad = rng.below(5000);
+                b.resize(b.len() + pad, 0xab);
+            }
+            // Cut anywhere.
+            2 => {
+                let cut = rng.below(b.len());
+                b.truncate(cut);
+            }
+            // Random bytes flipped.
+            3 => {
+                for _ in 0..1 + rng.below(8) {
+                    let i = rng.below(b.len());
+                    b[i] = rng.next() as u8;
+                }
+            }
+            // A header field's length or an array count claiming much more (header CBOR).
+            4 => {
+                let i = rng.below(items_head.max(1));
+                b[i] = [0x5b, 0x7b, 0x9b, 0xbb][rng.below(4)];
+            }
+            // Garbage of any length.
+            _ => {
+                let n = rng.below(2000);
+                *b = (0..n).map(|_| rng.next() as u8).collect();
+            }
+        }
+    }
+
+    #[test]
+    fn lying_and_fragmented_frames_never_panic_or_allocate_what_they_claim() {
+        let cases: u64 = std::env::var("DC_FUZZ_FRAMES").ok().and_then(|v| v.parse().ok()).unwrap_or(12_000);
+        let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+        let bodies: Vec<Body> = (0..200).map(|i| Body { id: i, ..Default::default() }).collect();
+        let valid = msgs::encode(&Frame::new(StepHeader { run_id: 7, simulation: 1, step: 2 }, bodies)).unwrap();
+        let control = msgs::encode(&Frame::new(Control::default(), vec![1u8; 100])).unwrap();
+        let (mut decoded, mut refused) = (0u64, 0u64);
+        for case in 0..cases {
+            reset();
+            let mut bytes = if case % 2 == 0 { valid.clone() } else { control.clone() };
+            let untouched = rng.below(10) == 0;
+            if !untouched {
+                damage(&mut rng, &mut bytes);
+            }
+            let largest_input = largest();
+            reset();
+            let payload = fragmented(&mut rng, &bytes);
+            let ok = if case % 2 == 0 {
+                let r = decode_payload::<StepHeader, Body>(&payload);
+                if untouched {
+                    assert_eq!(msgs::encode(r.as_ref().unwrap()).unwrap(), valid, "case {case}");
+                }
+                r.is_ok()
+            } else {
+                decode_payload::<Control, u8>(&payload).is_ok()
+            };
+            if ok {
+                decoded += 1;
+            } else {
+                refused += 1;
+            }
+            // A decode allocates at most a few copies of what it was given (and small scratch).
+            let bound = 4 * bytes.len().max(largest_input) + (1 << 20);
+            let largest = largest();
+            assert!(largest <= bound, "case {case}: allocated {largest} bytes for a {}-byte payload", bytes.len());
+        }
+        eprintln!("{cases} frames: {decoded} decoded, {refused} refused");
+        assert!(refused > cases / 2 && decoded > cases / 20, "{decoded} decoded, {refused} refused");
     }
 }

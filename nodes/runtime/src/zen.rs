@@ -5,7 +5,7 @@
 //! the launch file names and never scout by multicast, so a test or a graph does not wander onto
 //! the host's other interfaces.
 
-use crate::{Error, Result, ZenohConfig};
+use crate::config::{Error, Result, ZenohConfig};
 use std::time::{Duration, Instant};
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::qos::CongestionControl;
@@ -67,7 +67,7 @@ pub(crate) fn open_session(cfg: &ZenohConfig) -> Result<zenoh::Session, String> 
 
 /// The zenoh settings of `tls`: the same certificate to accept and to open links, signed by the
 /// graph's CA; peers' names (their addresses) are verified.
-fn tls_settings(tls: Option<&crate::TlsConfig>) -> Vec<(&'static str, String)> {
+fn tls_settings(tls: Option<&crate::config::TlsConfig>) -> Vec<(&'static str, String)> {
     let Some(t) = tls else { return Vec::new() };
     let quoted = |s: &str| serde_json::to_string(s).expect("strings serialise");
     vec![
@@ -270,7 +270,7 @@ impl ZenSubscriber {
 }
 
 /// Opens a zenoh router session listening on `endpoint` (the graph's router, run by a launcher).
-pub fn open_router(endpoint: &str, tls: Option<&crate::TlsConfig>) -> Result<zenoh::Session, String> {
+pub fn open_router(endpoint: &str, tls: Option<&crate::config::TlsConfig>) -> Result<zenoh::Session, String> {
     let mut config = zenoh::Config::default();
     let mut settings = vec![
         ("mode", "\"router\"".to_string()),
@@ -363,7 +363,7 @@ pub fn live_topics_zenoh(
     endpoint: &str,
     namespace: Option<&str>,
     wait: Duration,
-) -> Result<Vec<crate::LiveTopic>, String> {
+) -> Result<Vec<crate::iox::LiveTopic>, String> {
     let config = ZenohConfig { connect: vec![endpoint.to_string()], ..Default::default() };
     let session = open_session(&config)?;
     // A query sent before this session has learnt the graph's routes comes back empty at once:
@@ -390,13 +390,13 @@ pub fn live_topics_zenoh(
         }
         std::thread::sleep(Duration::from_millis(100));
     }
-    let mut topics: std::collections::BTreeMap<(String, String), crate::LiveTopic> = Default::default();
+    let mut topics: std::collections::BTreeMap<(String, String), crate::iox::LiveTopic> = Default::default();
     for key in &tokens {
         let Some((ns, topic, writer, best_effort)) = parse_port_token(key) else { continue };
         if namespace.is_some_and(|want| want != ns) {
             continue;
         }
-        let entry = topics.entry((ns.clone(), topic.clone())).or_insert_with(|| crate::LiveTopic {
+        let entry = topics.entry((ns.clone(), topic.clone())).or_insert_with(|| crate::iox::LiveTopic {
             namespace: ns,
             topic,
             writers: 0,

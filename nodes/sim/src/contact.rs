@@ -199,6 +199,55 @@ pub fn feature_key(fa: PackedFeatureId, fb: PackedFeatureId) -> u32 {
     (pack_feature(fa) << 16) | pack_feature(fb)
 }
 
+/// Jacobi passes of the contact-graph average that define the "smooth part" of an error field.
+pub const SMOOTHING_PASSES: usize = 4;
+
+/// `passes` Jacobi passes of averaging `field` over the contact graph: a contact's value becomes the
+/// mean of itself and the contacts it shares a moving body with (bodies of infinite mass, `fixed`,
+/// do not link their contacts: the floor would smooth across the whole pile). What survives a few
+/// passes is the pile-wide, low-frequency part of the field.
+pub fn smooth_over_contacts(
+    contacts: &[ContactPoint],
+    fixed: &[bool],
+    field: &[Impulse],
+    passes: usize,
+    out: &mut Vec<Impulse>,
+) {
+    let n = contacts.len();
+    out.clear();
+    out.extend_from_slice(field);
+    if n == 0 {
+        return;
+    }
+    // Contacts per moving body.
+    let bodies = contacts.iter().map(|c| c.key.body_b.max(c.key.body_a) as usize + 1).max().unwrap_or(0);
+    let mut per_body: Vec<Vec<u32>> = vec![Vec::new(); bodies];
+    for (i, c) in contacts.iter().enumerate() {
+        for b in [c.key.body_a, c.key.body_b] {
+            if !fixed.get(b as usize).copied().unwrap_or(false) {
+                per_body[b as usize].push(i as u32);
+            }
+        }
+    }
+    let mut next = vec![Impulse::default(); n];
+    for _ in 0..passes {
+        for (i, c) in contacts.iter().enumerate() {
+            let (mut sn, mut st, mut k) = (out[i].normal as f64, out[i].tangent as f64, 1u32);
+            for b in [c.key.body_a, c.key.body_b] {
+                for &j in per_body.get(b as usize).map(Vec::as_slice).unwrap_or(&[]) {
+                    if j as usize != i {
+                        sn += out[j as usize].normal as f64;
+                        st += out[j as usize].tangent as f64;
+                        k += 1;
+                    }
+                }
+            }
+            next[i] = Impulse { normal: (sn / k as f64) as f32, tangent: (st / k as f64) as f32 };
+        }
+        out.copy_from_slice(&next);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

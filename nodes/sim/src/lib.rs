@@ -16,20 +16,23 @@
 //! - [`warm`]: the warm-start trait and registry, and the models in three groups: product,
 //!   references (need the oracle), probes;
 //! - [`scene`]: ball-box (thesis), drum, mixed; numpy-exact or native sampling;
-//! - [`contact`]: contact keys and points, the impulse history across steps;
+//! - [`body`]: a body's state and mass properties (what the world moves and the models read);
+//! - [`contact`]: contact keys and points, the impulse history across steps, smoothing over
+//!   the contact graph;
 //! - [`problem`]: the step's velocity problem as data (`problem/*` topics), re-solved exactly;
 //! - [`run`]: the step loop of a run, its control messages, a sink for each step's outputs;
 //! - [`source`]: grids from another node as warm starts, with the producer's fault handling;
-//! - [`bench`]: ms/step against rapier's full pipeline;
-//! - [`budget`]: the real-time regime, a fixed sweep budget per step, each model's accuracy
-//!   after it placed on builtin's curve of accuracy against budget;
-//! - [`compare`]: solvers side by side on the same states, the hindsight ceiling, a learned
-//!   per-step choice of solver;
+//! - [`bus`]: the simulator as a node: its publishers, served models' inboxes, runs on the bus;
+//! - [`cli`]: the flags every simulator program shares (scene and seeds, the solve);
 //! - [`rng`]: MT19937 / numpy legacy `RandomState`, xoshiro256++.
+//!
+//! The studies that use the simulator (solvers side by side, the real-time regime, the
+//! benchmark against rapier) live in their own crate, `study` (`dc study`), which uses this one
+//! and never the other way round.
 
-pub mod bench;
-pub mod budget;
-pub mod compare;
+pub mod body;
+pub mod bus;
+pub mod cli;
 pub mod contact;
 pub mod error;
 pub mod problem;

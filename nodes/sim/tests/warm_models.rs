@@ -304,3 +304,118 @@ fn the_subspace_correction_runs_in_the_world_and_stays_near_builtin() {
     assert!(s < 1.25 * b && s > 0.75 * b, "subspace:2 {s} vs builtin {b}");
     assert_eq!(ModelSpec::of(ModelKind::Subspace).name(), "subspace:2");
 }
+
+/// The world's problem capture and the pipelined model's carry: the step carried one step on is
+/// the next step's problem (a test of the world driving a model, so it lives outside both).
+mod carried {
+    use sim::problem::Problem;
+    use sim::warm::{Needs, SolvedStep, Unavailable, WarmStartInput, WarmStartModel};
+    use sim::{Impulse, SceneConfig, World, WorldParams};
+
+    /// Keeps, at each step, the problem the world captured and the problem carried one step on.
+    #[derive(Default)]
+    struct Watch {
+        actual: Vec<Problem>,
+        ahead: Vec<Problem>,
+    }
+
+    impl WarmStartModel for std::rc::Rc<std::cell::RefCell<Watch>> {
+        fn name(&self) -> &str {
+            "builtin"
+        }
+        fn needs(&self) -> Needs {
+            Needs::PROBLEM
+        }
+        fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+            self.borrow_mut().actual.push(sim::warm::model::step_problem(input)?.clone());
+            input.history.fill_previous(input.contacts, out);
+            Ok(())
+        }
+        fn after_step(&mut self, done: &SolvedStep<'_>) {
+            let mut ahead = Problem { header: Default::default(), bodies: Vec::new(), contacts: Vec::new() };
+            sim::warm::product::carry_one_step(done, done.problem.expect("asked for"), &mut ahead);
+            self.borrow_mut().ahead.push(ahead);
+        }
+    }
+
+    /// The problem carried one step on is the next step's problem on every contact that
+    /// persists: the same previous impulses and ages exactly, the same velocities, and the
+    /// geometry re-measured at the corrected poses within a small fraction of a body's size.
+    #[test]
+    fn a_step_carried_on_is_the_next_steps_problem_on_persisting_contacts() {
+        let watch = std::rc::Rc::new(std::cell::RefCell::new(Watch::default()));
+        let mut warm = sim::warm::WarmStarter::new(Box::new(watch.clone()), Box::new(sim::warm::Builtin));
+        let recommended = WorldParams::recommended();
+        // A budget of 8 sweeps: the regime the pipelined model is for.
+        let params = WorldParams { solve: sim::SolveParams { max_sweeps: 8, ..recommended.solve }, ..recommended };
+        let mut world = World::new(&SceneConfig { n: 60, seed: 5, ..Default::default() }, params).unwrap();
+        for _ in 0..120 {
+            world.step(&mut warm);
+        }
+        let watch = watch.borrow();
+        let (mut compared, mut worst) = (0, [0.0f32; 5]);
+        for (ahead, next) in watch.ahead.iter().zip(&watch.actual[1..]) {
+            assert_eq!(ahead.header.step, next.header.step);
+            for (a, n) in ahead.bodies.iter().zip(&next.bodies) {
+                worst[0] = worst[0].max((a.v[0] - n.v[0]).abs().max((a.v[1] - n.v[1]).abs()).max((a.w - n.w).abs()));
+            }
+            for n in &next.contacts {
+                let Some(a) =
+                    ahead.contacts.iter().find(|a| (a.body_a, a.body_b, a.feature) == (n.body_a, n.body_b, n.feature))
+                else {
+                    continue;
+                };
+                compared += 1;
+                assert_eq!((a.age, a.previous, a.before_previous), (n.age, n.previous, n.before_previous));
+                let d = |x: [f32; 2], y: [f32; 2]| (x[0] - y[0]).hypot(x[1] - y[1]);
+                worst[1] = worst[1].max(d(a.normal, n.normal));
+                worst[2] = worst[2].max(d(a.ra, n.ra).max(d(a.rb, n.rb)));
+                worst[3] = worst[3].max((a.penetration - n.penetration).abs());
+                worst[4] = worst[4].max((a.height - n.height).abs());
+            }
+        }
+        eprintln!(
+            "{compared} contacts compared; worst: velocity {}, normal {}, arm {}, depth {}, height {}",
+            worst[0], worst[1], worst[2], worst[3], worst[4]
+        );
+        assert!(compared > 1000, "{compared}");
+        assert!(worst[0] < 1e-5, "velocities differ by {}", worst[0]);
+        assert!(worst[1] < 0.05 && worst[2] < 0.05 && worst[3] < 0.01 && worst[4] < 0.05, "{worst:?}");
+    }
+}
+
+/// A `--gnn-model` that is a device, a FIFO or a folder is refused by its kind before anything is
+/// read (`/dev/zero` used to grow `dc-sim` to gigabytes), in the library and in the parameter
+/// check a launch file goes through (`DC_VALIDATE=1`: exit status 2), naming the file.
+#[test]
+fn a_gnn_model_that_is_not_a_regular_file_is_refused_before_reading() {
+    let dir = std::env::temp_dir().join(format!("dc-sim-gnn-kinds-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let fifo = dir.join("pipe.dcg");
+    assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    let spec: ModelSpec = "gnn".parse().unwrap();
+    let started = std::time::Instant::now();
+    for (path, why) in [
+        (std::path::PathBuf::from("/dev/zero"), "is a character device, not a model file"),
+        (fifo.clone(), "is a FIFO (named pipe), not a model file"),
+        (dir.clone(), "is a directory, not a model file"),
+    ] {
+        let files = sim::ModelFiles { gnn: Some(path.clone()) };
+        let e = spec.build_with(0, sim::warm::Served::default(), &files).err().expect("refused").to_string();
+        assert!(e.contains(&format!("{}: {why}", path.display())), "{e}");
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_dc-sim"))
+            .args(["--model", "gnn", "--gnn-model"])
+            .arg(&path)
+            .env("DC_VALIDATE", "1")
+            .env_remove("DC_BUS")
+            .env_remove("DC_LAUNCHED")
+            .output()
+            .expect("run dc-sim");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        assert!(err.contains(&format!("{}: {why}", path.display())), "{err}");
+    }
+    assert!(started.elapsed() < std::time::Duration::from_secs(20), "{:?}", started.elapsed());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -5,7 +5,7 @@
 //! transposed and flipped (it plotted with the image convention, row 0 at the top, and indexed
 //! `[x][y]`); every conversion here goes through [`GridGeometry`] so that cannot happen twice.
 
-use crate::SphError;
+use crate::error::SphError;
 use msgs::{Body, GridHeader, Shape, StepHeader};
 use std::str::FromStr;
 

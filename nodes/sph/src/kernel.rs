@@ -9,7 +9,7 @@
 //!   `exp(-r^2 / 2 sigma^2) / (2 pi sigma^2 (1 - exp(-h^2 / 2 sigma^2)))`, the denominator being
 //!   the mass inside the truncation radius.
 
-use crate::SphError;
+use crate::error::SphError;
 use std::f32::consts::PI;
 use std::fmt;
 use std::str::FromStr;

@@ -18,6 +18,7 @@
 //! The library depends on `msgs`, `kiddo` and `thiserror` only; the `dc-sph` binary (node, bench)
 //! sits behind the default `node` feature.
 
+mod error;
 pub mod geometry;
 pub mod kernel;
 pub mod mode;
@@ -27,52 +28,16 @@ mod scatter;
 pub mod synth;
 pub mod transfer;
 
+pub use error::{Source, SphError};
 pub use geometry::{Bounds, GridGeometry};
 pub use kernel::{Kernel, KernelKind};
 pub use mode::Mode;
 pub use pairing::StepPairer;
-pub use particles::{ParticleSet, Source, BODY_CHANNELS, CONTACT_CHANNELS, TEMPORAL_CHANNELS, WEIGHT_CHANNEL};
+pub use particles::{ParticleSet, BODY_CHANNELS, CONTACT_CHANNELS, TEMPORAL_CHANNELS, WEIGHT_CHANNEL};
 pub use synth::SplitMix64;
 pub use transfer::{sample_bilinear, Search, SplatReport, Transfer, TransferConfig};
 
 use msgs::{Body, Contact, Grid, StepHeader};
-
-/// Errors of the grid transfer.
-#[derive(Debug, thiserror::Error, PartialEq)]
-pub enum SphError {
-    /// A particle value or position is NaN or infinite.
-    #[error("{particle}: {what} is {value}, not a finite number")]
-    NonFinite {
-        /// The body or contact it came from.
-        particle: Source,
-        /// The channel, or `x` / `y`.
-        what: String,
-        /// The offending value.
-        value: f32,
-    },
-    /// A parameter out of range (kernel radius, spacing, bounds, names).
-    #[error("bad parameter: {0}")]
-    BadParameter(String),
-    /// A particle with the wrong number of values.
-    #[error("particle has {got} values, the set has {expected} channels")]
-    ChannelCount {
-        /// Channels of the set.
-        expected: usize,
-        /// Values given.
-        got: usize,
-    },
-    /// An output buffer of the wrong size.
-    #[error("output buffer holds {got} values, the grid needs {expected}")]
-    OutputLength {
-        /// Values the grid needs.
-        expected: usize,
-        /// Values the buffer holds.
-        got: usize,
-    },
-    /// More channels than a `msgs::GridHeader` can name.
-    #[error("{0} grid channels, at most {max} fit in a grid header", max = msgs::MAX_GRID_CHANNELS)]
-    TooManyChannels(usize),
-}
 
 impl Transfer {
     /// The contact impulse grid of one step: channels `normal`, `tangent` (and `weight` when

@@ -4,7 +4,7 @@
 //! loops (which branch on it) need it: the dependency runs one way, transfer -> scatter -> kernel
 //! and mode. The transfer module's documentation explains the two modes.
 
-use crate::SphError;
+use crate::error::SphError;
 use std::fmt;
 use std::str::FromStr;
 

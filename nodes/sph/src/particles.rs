@@ -2,9 +2,8 @@
 //! Values are checked on the way in, so a NaN from the simulator is an error that names the body
 //! instead of a grid that silently turns NaN around it.
 
-use crate::SphError;
+use crate::error::SphError;
 use msgs::{Body, Contact, Shape};
-use std::fmt;
 
 /// Grid channels of the bodies: the U-Net's 5-channel input.
 pub const BODY_CHANNELS: [&str; 5] = ["vx", "vy", "omega", "mass", "inertia"];
@@ -16,31 +15,7 @@ pub const TEMPORAL_CHANNELS: [&str; 2] = ["prev_normal", "prev_tangent"];
 /// within reach).
 pub const WEIGHT_CHANNEL: &str = "weight";
 
-/// What a particle stands for, for error messages.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Source {
-    /// A body, by id.
-    Body(u32),
-    /// A contact, by the ids of its two bodies.
-    Contact {
-        /// First body.
-        body_a: u32,
-        /// Second body.
-        body_b: u32,
-    },
-    /// A synthetic particle, by index.
-    Index(u32),
-}
-
-impl fmt::Display for Source {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Source::Body(id) => write!(f, "body {id}"),
-            Source::Contact { body_a, body_b } => write!(f, "contact between bodies {body_a} and {body_b}"),
-            Source::Index(i) => write!(f, "particle {i}"),
-        }
-    }
-}
+pub use crate::error::Source;
 
 /// Particles with `channels().len()` values each, stored particle-major (`values[i * C + c]`) so
 /// that a particle's values are contiguous when it is splatted.

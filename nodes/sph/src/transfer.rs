@@ -26,10 +26,10 @@
 use crate::geometry::GridGeometry;
 use crate::kernel::{Kernel, KernelKind};
 // Re-exported: `sph::transfer::Mode` was defined here before it moved beside the kernels.
+use crate::error::SphError;
 pub use crate::mode::Mode;
 use crate::particles::{ParticleSet, WEIGHT_CHANNEL};
 use crate::scatter;
-use crate::SphError;
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
 use msgs::{Grid, GridHeader, StepHeader};

@@ -113,7 +113,10 @@ impl Split {
         }
         let n = keys.len();
         let at_least = |f: f64| if n >= 3 && f > 0.0 { ((f * n as f64).round() as usize).max(1) } else { 0 };
-        let (n_val, n_test) = (at_least(validation), at_least(test));
+        // Never more than there are (shares that add up past 1, or are not finite, from a caller
+        // that skipped the flags' bounds): validation first, then test, the rest trains.
+        let n_val = at_least(validation).min(n);
+        let n_test = at_least(test).min(n - n_val);
         Split {
             validation: keys[..n_val].iter().copied().collect(),
             test: keys[n_val..n_val + n_test].iter().copied().collect(),

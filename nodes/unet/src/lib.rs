@@ -53,12 +53,50 @@ pub fn backends() -> &'static [&'static str] {
     }
 }
 
+/// Most CUDA devices a `cuda:N` may name (`N` below it).
+pub const MAX_CUDA_DEVICES: usize = 64;
+
+/// `name` if [`device`] can make a device of it in this build, without making it: the
+/// `--device` flags' parser, so that a wrong device is refused when the parameters are checked
+/// (a launch file's check too), not when the node starts. `libtorch`, `cuda` and `cuda:N` need
+/// the `tch` feature; a build without it says so.
+pub fn device_name(name: &str) -> std::result::Result<String, String> {
+    let cuda_index = name.strip_prefix("cuda:");
+    if !matches!(name, "flex" | "cpu" | "libtorch" | "tch" | "cuda") && cuda_index.is_none() {
+        return Err(format!(
+            "unknown device `{name}`; this build has {:?}{}",
+            backends(),
+            if cfg!(feature = "tch") {
+                ""
+            } else {
+                " (libtorch and cuda need `--features tch`, see scripts/libtorch.sh)"
+            }
+        ));
+    }
+    if !matches!(name, "flex" | "cpu") && !cfg!(feature = "tch") {
+        return Err(format!(
+            "device `{name}` needs the libtorch backend, which this build lacks (it has only flex): \
+             build with `--features tch`, see scripts/libtorch.sh"
+        ));
+    }
+    if let Some(index) = cuda_index {
+        match index.parse::<usize>() {
+            Ok(i) if i < MAX_CUDA_DEVICES => {}
+            _ => {
+                return Err(format!("device `{name}`: `cuda:N` with N a GPU index from 0 to {}", MAX_CUDA_DEVICES - 1))
+            }
+        }
+    }
+    Ok(name.to_string())
+}
+
 /// The device called `name`: `flex` (pure-Rust CPU); with the `tch` feature also `libtorch`
-/// (libtorch CPU) and `cuda` / `cuda:N` (libtorch CUDA).
+/// (libtorch CPU) and `cuda` / `cuda:N` (libtorch CUDA). Names are checked by [`device_name`].
 // burn 0.22 marks burn-tch deprecated in favour of CubeCL backends; libtorch is the GPU route
 // this project chose, and it still builds and runs here.
 #[allow(deprecated)]
 pub fn device(name: &str) -> Result<Device> {
+    device_name(name).map_err(UnetError::Config)?;
     match name {
         "flex" | "cpu" => Ok(Device::flex()),
         #[cfg(feature = "tch")]

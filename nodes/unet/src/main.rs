@@ -29,11 +29,11 @@ struct NodeArgs {
     /// Model file (written by `dc-unet train`).
     #[arg(long, default_value = "models/unet-demo.dcu")]
     model: PathBuf,
-    /// Backend: flex (CPU); with the `tch` feature also libtorch, cuda.
-    #[arg(long, default_value = "flex")]
+    /// Backend: flex (CPU); with the `tch` feature also libtorch, cuda, cuda:N.
+    #[arg(long, default_value = "flex", value_parser = unet::device_name)]
     device: String,
-    /// Most grids predicted in one batch (grids of several simulators waiting at once).
-    #[arg(long, default_value_t = 16)]
+    /// Most grids predicted in one batch (grids of several simulators waiting at once; 1 to 1024).
+    #[arg(long, default_value_t = 16, value_parser = usize_in(1..=1024))]
     max_batch: usize,
 }
 
@@ -61,14 +61,15 @@ enum Command {
 
 #[derive(Args, Debug, Clone)]
 struct NetArgs {
-    /// Downsampling levels (grid sides must be multiples of 2^levels).
-    #[arg(long, default_value_t = 3)]
+    /// Downsampling levels (grid sides must be multiples of 2^levels; at most 7).
+    #[arg(long, default_value_t = 3, value_parser = usize_in(0..=7))]
     levels: usize,
-    /// Channels of the first level (doubling per level).
-    #[arg(long, default_value_t = 8)]
+    /// Channels of the first level (doubling per level; 1 to 256).
+    #[arg(long, default_value_t = 8, value_parser = usize_in(1..=unet::model::MAX_BASE_WIDTH as u64))]
     base_width: usize,
-    /// Dilations of the bottom's parallel convolutions.
-    #[arg(long, value_delimiter = ',', default_value = "2,4,8")]
+    /// Dilations of the bottom's parallel convolutions (each 1 to 64).
+    #[arg(long, value_delimiter = ',', default_value = "2,4,8",
+          value_parser = usize_in(1..=unet::model::MAX_DILATION as u64))]
     dilations: Vec<usize>,
     /// Bodies only (5 channels) instead of bodies + the step's impulses (7).
     #[arg(long)]
@@ -79,17 +80,17 @@ struct NetArgs {
     /// Grid: kernel.
     #[arg(long, default_value = "poly6")]
     kernel: String,
-    /// Grid: kernel support radius.
-    #[arg(long, default_value_t = 0.5)]
+    /// Grid: kernel support radius, metres (above 0, at most 100).
+    #[arg(long, default_value_t = 0.5, value_parser = msgs::flags::f32_above(0.0, 100.0))]
     h: f32,
-    /// Grid: node spacing.
-    #[arg(long, default_value_t = 0.125)]
+    /// Grid: node spacing, metres (above 0, at most 100).
+    #[arg(long, default_value_t = 0.125, value_parser = msgs::flags::f32_above(0.0, 100.0))]
     res: f32,
     /// Grid: preserving or sph.
     #[arg(long, default_value = "preserving")]
     mode: String,
-    /// Grid: sides rounded up to a multiple of this.
-    #[arg(long, default_value_t = 128)]
+    /// Grid: sides rounded up to a multiple of this (1 to 4096, the largest grid side).
+    #[arg(long, default_value_t = 128, value_parser = usize_in(1..=4096))]
     pad_to: usize,
 }
 
@@ -127,9 +128,11 @@ struct TrainArgs {
     out: PathBuf,
     #[command(flatten)]
     net: NetArgs,
-    #[arg(long, default_value_t = 4)]
+    /// Passes over the training data (at most 100000).
+    #[arg(long, default_value_t = 4, value_parser = usize_in(0..=100_000))]
     epochs: usize,
-    #[arg(long, default_value_t = 8)]
+    /// Samples per optimiser step (1 to 4096).
+    #[arg(long, default_value_t = 8, value_parser = usize_in(1..=4096))]
     batch: usize,
     /// adam or sgd (momentum 0.9).
     #[arg(long, default_value = "adam")]
@@ -137,8 +140,8 @@ struct TrainArgs {
     /// constant:LR, triangular:MIN:MAX:HALF_CYCLE_STEPS, cosine:MIN:MAX:PERIOD_STEPS[:MULT].
     #[arg(long, default_value = "cosine:1e-5:1e-3:200:2", value_parser = Schedule::parse)]
     schedule: Schedule,
-    /// Extra loss weight where the target impulse is non-zero (0 = plain MSE).
-    #[arg(long, default_value_t = 0.0)]
+    /// Extra loss weight where the target impulse is non-zero (0 = plain MSE; at most 1e6).
+    #[arg(long, default_value_t = 0.0, value_parser = msgs::flags::f32_in(0.0, 1e6))]
     contact_weight: f32,
     /// grid: MSE over every grid node (the thesis's); points: at the next step's contact points
     /// as `unet-delta` reads them (the change on persisting contacts), weighted by the step's
@@ -148,22 +151,23 @@ struct TrainArgs {
     /// `--publish-problem`: a warm start for a sweep budget).
     #[arg(long, default_value = "grid")]
     loss: LossKind,
-    /// With `--loss unrolled`: the sweep budget trained for.
-    #[arg(long, default_value_t = 8)]
+    /// With `--loss unrolled`: the sweep budget trained for (1 to 1000).
+    #[arg(long, default_value_t = 8, value_parser = usize_in(1..=1000))]
     unroll_sweeps: usize,
     /// With `--loss unrolled`: weight of a normal row still adding impulse after the sweeps (too
-    /// little push: it accumulates as penetration) against 1 for the rest (the gnn-budget recipe's 4).
-    #[arg(long, default_value_t = 4.0)]
+    /// little push: it accumulates as penetration) against 1 for the rest (the gnn-budget recipe's
+    /// 4; above 0, at most 1e6).
+    #[arg(long, default_value_t = 4.0, value_parser = msgs::flags::f64_above(0.0, 1e6))]
     approach_weight: f64,
-    /// Share of simulations held out for validation / test.
-    #[arg(long, default_value_t = 0.1)]
+    /// Share of simulations held out for validation / test (each from 0 to 0.5).
+    #[arg(long, default_value_t = 0.1, value_parser = msgs::flags::f64_in(0.0, 0.5))]
     validation: f64,
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, value_parser = msgs::flags::f64_in(0.0, 0.5))]
     test: f64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Samples held for shuffling.
-    #[arg(long, default_value_t = 256)]
+    /// Samples held for shuffling (1 to 65536).
+    #[arg(long, default_value_t = 256, value_parser = usize_in(1..=65_536))]
     shuffle_buffer: usize,
     /// Batches per epoch at most (0 = all).
     #[arg(long, default_value_t = 0)]
@@ -175,7 +179,8 @@ struct TrainArgs {
     /// false`: the first one is an error).
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
     skip_bad: bool,
-    #[arg(long, default_value = "flex")]
+    /// Backend: flex (CPU); with the `tch` feature also libtorch, cuda, cuda:N.
+    #[arg(long, default_value = "flex", value_parser = unet::device_name)]
     device: String,
 }
 
@@ -211,25 +216,32 @@ impl TrainArgs {
 struct LrFindArgs {
     #[command(flatten)]
     train: TrainArgs,
-    #[arg(long, default_value_t = 1e-6)]
+    /// First and last rate of the sweep (above 0, at most 10; start below end).
+    #[arg(long, default_value_t = 1e-6, value_parser = msgs::flags::f64_above(0.0, 10.0))]
     start: f64,
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = msgs::flags::f64_above(0.0, 10.0))]
     end: f64,
-    #[arg(long, default_value_t = 100)]
+    /// Steps of the sweep (2 to 100000).
+    #[arg(long, default_value_t = 100, value_parser = usize_in(2..=100_000))]
     steps: usize,
 }
 
 #[derive(Args, Debug)]
 struct BenchArgs {
-    /// Repetitions per measurement (median reported).
-    #[arg(long, default_value_t = 10)]
+    /// Repetitions per measurement (median reported; 1 to 100000).
+    #[arg(long, default_value_t = 10, value_parser = usize_in(1..=100_000))]
     reps: usize,
     /// Backends to time (default: every one this build has).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = unet::device_name)]
     devices: Vec<String>,
     /// Networks: `demo` (this repo's model shape) and/or `thesis` (levels 4, width 16: 2.7M parameters, the size of the thesis network).
     #[arg(long, value_delimiter = ',', default_value = "demo,thesis")]
     nets: Vec<String>,
+}
+
+/// The parser of a `usize` flag in `range`.
+fn usize_in(range: std::ops::RangeInclusive<u64>) -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::<usize>::new().range(range)
 }
 
 fn main() -> std::process::ExitCode {
@@ -248,6 +260,9 @@ fn try_main() -> Result<()> {
             Ok(())
         }
         Some(Command::LrFind(a)) => {
+            if a.start >= a.end {
+                bail!("--start {} must be below --end {}", a.start, a.end);
+            }
             let device = unet::device(&a.train.device)?;
             let opts = a.train.options();
             let (curve, suggestion) = unet::train::find_lr(&opts, a.start, a.end, a.steps, &device)?;

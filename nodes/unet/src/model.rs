@@ -92,6 +92,18 @@ impl UNetConfig {
                 return Err(format!("residual channels {r:?} must be input channels and the output 2 channels"));
             }
         }
+        // A network whose model file no reader would take (4 bytes a weight).
+        let bytes = self.convolution_weights().saturating_mul(4);
+        if bytes > runtime::files::MAX_MODEL_BYTES {
+            return Err(format!(
+                "{} levels of base width {} with {} dilations: {} of weights, more than a model file holds (at most {})",
+                self.levels,
+                self.base_width,
+                self.dilations.len(),
+                runtime::files::size_text(bytes),
+                runtime::files::size_text(runtime::files::MAX_MODEL_BYTES)
+            ));
+        }
         Ok(())
     }
 

@@ -115,7 +115,7 @@ impl ModelFile {
     /// which is all a file without a checksum can be checked for.
     /// The metadata and weight bytes are kept as they were.
     pub fn upgrade(path: &Path, out: &Path, device: &Device) -> Result<ModelFile> {
-        let bytes = std::fs::read(path).map_err(|e| UnetError::Io(path.display().to_string(), e))?;
+        let bytes = read_file(path)?;
         let model = |what| UnetError::Model(path.display().to_string(), what);
         let file = Self::from_bytes(&bytes, device, true).map_err(model)?;
         let (json, weights) = sections(&bytes).map_err(model)?;
@@ -124,14 +124,14 @@ impl ModelFile {
     }
 
     fn read(path: &Path, device: &Device, accept_unchecked: bool) -> Result<ModelFile> {
-        let bytes = std::fs::read(path).map_err(|e| UnetError::Io(path.display().to_string(), e))?;
+        let bytes = read_file(path)?;
         Self::from_bytes(&bytes, device, accept_unchecked)
             .map_err(|what| UnetError::Model(path.display().to_string(), what))
     }
 
     /// Only the metadata (no weights are built).
     pub fn read_meta(path: &Path) -> Result<ModelMeta> {
-        let bytes = std::fs::read(path).map_err(|e| UnetError::Io(path.display().to_string(), e))?;
+        let bytes = read_file(path)?;
         parse(&bytes, false).map(|(m, _)| m).map_err(|what| UnetError::Model(path.display().to_string(), what))
     }
 
@@ -151,6 +151,14 @@ impl ModelFile {
         }
         Ok(ModelFile { meta, model })
     }
+}
+
+/// The bytes of the model file `path`: only a regular file of at most
+/// [`runtime::files::MAX_MODEL_BYTES`] is read (`/dev/zero`, a FIFO or a folder is refused by its
+/// kind, an oversized file by its size, before reading).
+fn read_file(path: &Path) -> Result<Vec<u8>> {
+    runtime::files::read_bounded(path, "model file", runtime::files::MAX_MODEL_BYTES)
+        .map_err(|e| UnetError::Io(path.display().to_string(), e.into()))
 }
 
 /// Writes a current-format file of `json` metadata and `weights` at `path`, atomically.

@@ -79,14 +79,15 @@ impl Schedule {
             },
             other => return Err(format!("unknown schedule `{other}` (constant, triangular, cosine)")),
         };
+        // Finite rates (an infinite or NaN one would train to NaN), at most 10.
+        let rate = |lr: f64| lr.is_finite() && lr <= 10.0;
         let rates_ok = match schedule {
-            Schedule::Constant { lr } => lr > 0.0,
-            Schedule::Triangular { min, max, .. } | Schedule::CosineRestarts { min, max, .. } => {
-                min >= 0.0 && max > min
-            }
+            Schedule::Constant { lr } => lr > 0.0 && rate(lr),
+            Schedule::Triangular { min, max, .. } => min >= 0.0 && max > min && rate(max),
+            Schedule::CosineRestarts { min, max, mult, .. } => min >= 0.0 && max > min && rate(max) && mult.is_finite(),
         };
         if !rates_ok {
-            return Err(format!("schedule `{s}`: rates must be positive with max > min"));
+            return Err(format!("schedule `{s}`: rates must be finite, positive and at most 10, with max > min"));
         }
         Ok(schedule)
     }
@@ -163,6 +164,10 @@ mod tests {
         assert!(Schedule::parse("triangular:0.1:0.01:5").is_err(), "max below min");
         assert!(Schedule::parse("cyclic:1").is_err());
         assert!(Schedule::parse("constant:abc").is_err());
+        for nonsense in ["constant:inf", "constant:nan", "constant:1e308", "cosine:0:inf:100", "cosine:0:0.01:100:nan"]
+        {
+            assert!(Schedule::parse(nonsense).is_err(), "{nonsense}");
+        }
     }
 
     #[test]

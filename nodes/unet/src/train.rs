@@ -768,14 +768,25 @@ fn save_checkpoint(
 
 type Resumed = (ModelMeta, UNet, ModuleOptimizer, usize, usize);
 
+/// Largest checkpoint state (`state.json`: the metadata with its per-epoch losses).
+const MAX_STATE_BYTES: u64 = 64 << 20;
+/// Largest optimiser state: Adam keeps two moments a weight, and a model's weights are at most
+/// [`runtime::files::MAX_MODEL_BYTES`].
+const MAX_OPTIMIZER_BYTES: u64 = 4 * runtime::files::MAX_MODEL_BYTES;
+
 fn resume_state(opts: &TrainOptions, dir: &Path, device: &Device) -> Result<Option<Resumed>> {
     if !opts.resume {
         return Ok(None);
     }
     let state_path = dir.join("state.json");
-    let Ok(text) = std::fs::read(&state_path) else {
-        tracing::warn!(dir = %dir.display(), "no checkpoint to resume from; starting afresh");
-        return Ok(None);
+    // The checkpoint's files are read as model files are: regular files of a bounded size.
+    let text = match runtime::files::read_bounded(&state_path, "checkpoint state", MAX_STATE_BYTES) {
+        Ok(text) => text,
+        Err(runtime::files::UserFileError::Io(e)) if e.kind() == std::io::ErrorKind::NotFound => {
+            tracing::warn!(dir = %dir.display(), "no checkpoint to resume from; starting afresh");
+            return Ok(None);
+        }
+        Err(e) => return Err(UnetError::Io(state_path.display().to_string(), e.into())),
     };
     let state: CheckpointState =
         serde_json::from_slice(&text).map_err(|e| UnetError::Model(state_path.display().to_string(), e.to_string()))?;
@@ -789,7 +800,8 @@ fn resume_state(opts: &TrainOptions, dir: &Path, device: &Device) -> Result<Opti
     }
     let file = ModelFile::load(&dir.join("model.dcu"), device)?;
     let opt_path = dir.join("optimizer.bpk");
-    let bytes = std::fs::read(&opt_path).map_err(|e| UnetError::Io(opt_path.display().to_string(), e))?;
+    let bytes = runtime::files::read_bounded(&opt_path, "optimiser state", MAX_OPTIMIZER_BYTES)
+        .map_err(|e| UnetError::Io(opt_path.display().to_string(), e.into()))?;
     let optim = optimizer(opts.optimizer)
         .from_bytes(Bytes::from_bytes_vec(bytes))
         .map_err(|e| UnetError::Model(opt_path.display().to_string(), format!("{e:?}")))?;

@@ -385,6 +385,116 @@ fn format_1_model_files_are_refused_until_upgraded() {
     assert!(!refused.exists());
 }
 
+/// A device, a FIFO or a folder named as a model is refused by its kind, and a file larger than
+/// any model by its size, before anything is read (`/dev/zero` used to grow without end), by
+/// every reader, naming the file.
+#[test]
+fn model_paths_that_are_not_regular_files_or_too_large_are_refused_before_reading() {
+    let d = device();
+    let dir = scratch("kinds");
+    let fifo = dir.join("pipe.dcu");
+    assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    // Sparse: 2 GiB long, nothing written.
+    let huge = dir.join("huge.dcu");
+    std::fs::File::create(&huge).unwrap().set_len(2 << 30).unwrap();
+    let folder = dir.join("folder.dcu");
+    std::fs::create_dir_all(&folder).unwrap();
+    let started = std::time::Instant::now();
+    for (path, why) in [
+        (Path::new("/dev/zero"), "is a character device, not a model file"),
+        (folder.as_path(), "is a directory, not a model file"),
+        (fifo.as_path(), "is a FIFO (named pipe), not a model file"),
+        (huge.as_path(), "is 2 GiB, larger than any model file (at most 256 MiB)"),
+    ] {
+        let errors = [
+            ModelFile::load(path, &d).unwrap_err(),
+            ModelFile::read_meta(path).unwrap_err(),
+            ModelFile::upgrade(path, &dir.join("out.dcu"), &d).unwrap_err(),
+            Predictor::load(path, &d).err().expect("refused"),
+        ];
+        for e in errors {
+            assert!(matches!(e, UnetError::Io(..)), "{e}");
+            assert_eq!(e.to_string(), format!("{}: {why}", path.display()));
+        }
+    }
+    assert!(started.elapsed() < std::time::Duration::from_secs(10), "{:?}", started.elapsed());
+    // The binary says the same and ends (it used to read /dev/zero until memory ran out).
+    let out = dc_unet(&["info", "/dev/zero"], false);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("/dev/zero: is a character device, not a model file"), "{err}");
+    // A network whose weights alone would not fit a model file is refused before training.
+    let wide = UNetConfig { levels: 7, base_width: 256, ..small_net() };
+    let e = wide.validate().unwrap_err();
+    assert!(e.contains("more than a model file holds"), "{e}");
+}
+
+fn dc_unet(args: &[&str], validate: bool) -> std::process::Output {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_dc-unet"));
+    command.args(args).env_remove("DC_BUS").env_remove("DC_LAUNCHED");
+    match validate {
+        true => command.env("DC_VALIDATE", "1"),
+        false => command.env_remove("DC_VALIDATE"),
+    };
+    command.output().expect("run dc-unet")
+}
+
+/// Numbers outside a flag's range and devices this build cannot make are refused when the flags
+/// are parsed (exit status 2, the flag named), under the launcher's check (`DC_VALIDATE=1`) too.
+#[test]
+fn flags_out_of_range_and_unknown_devices_are_refused_by_name() {
+    let train = ["train", "--data", "x.mcap"];
+    let cases: &[(&[&str], &str, &[&str])] = &[
+        (&[], "--device", &["gpu", "cuda:x", "cuda:64", ""]),
+        (&[], "--max-batch", &["0", "-1", "1025"]),
+        (&train, "--device", &["gpu"]),
+        (&train, "--validation", &["-1", "1e308", "nan", "0.6"]),
+        (&train, "--test", &["-1", "inf", "0.51"]),
+        (&train, "--h", &["nan", "0", "-1", "1e308"]),
+        (&train, "--res", &["nan", "0", "inf"]),
+        (&train, "--contact-weight", &["-1", "nan", "inf"]),
+        (&train, "--approach-weight", &["0", "nan", "1e308"]),
+        (&train, "--levels", &["8", "-1"]),
+        (&train, "--base-width", &["0", "257"]),
+        (&train, "--dilations", &["0", "2,65"]),
+        (&train, "--batch", &["0", "4097"]),
+        (&train, "--schedule", &["constant:inf", "cosine:0:nan:100"]),
+        (&["lr-find", "--data", "x.mcap"], "--start", &["0", "nan", "-1"]),
+        (&["bench"], "--devices", &["flex,gpu"]),
+    ];
+    for (before, flag, values) in cases {
+        for value in *values {
+            for validate in [false, true] {
+                let arg = format!("{flag}={value}");
+                let args: Vec<&str> = before.iter().copied().chain([arg.as_str()]).collect();
+                let out = dc_unet(&args, validate);
+                let err = String::from_utf8_lossy(&out.stderr);
+                assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+                assert!(err.contains(flag), "{args:?}: {err}");
+            }
+        }
+    }
+    // A build without libtorch says what `cuda` needs.
+    if !cfg!(feature = "tch") {
+        let err = String::from_utf8_lossy(&dc_unet(&["--device=cuda:0"], true).stderr).into_owned();
+        assert!(err.contains("--features tch"), "{err}");
+    }
+    let out = dc_unet(&["--device=flex", "--max-batch=4"], true);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// Shares that add up past the simulations there are (from a library caller: the flags bound
+/// them) split what there is, never index past it.
+#[test]
+fn a_split_never_takes_more_simulations_than_there_are() {
+    let sims: std::collections::BTreeSet<(u64, u32)> = (0..5).map(|i| (1, i)).collect();
+    for (validation, test) in [(1e308, 0.1), (0.9, 0.9), (f64::INFINITY, f64::INFINITY), (f64::NAN, 2.0)] {
+        let split = Split::by_simulation(&sims, validation, test, 3);
+        let total = split.train.len() + split.validation.len() + split.test.len();
+        assert_eq!(total, 5, "{validation}, {test}: {split:?}");
+    }
+}
+
 /// FNV-1a 64, the model file's checksum.
 fn fnv(parts: &[&[u8]]) -> u64 {
     parts

@@ -39,9 +39,12 @@ pub fn steps(dir: &Path, aggregate: &Aggregate, models: &[String]) -> Result<Pat
 /// The steps of a report's `steps.csv` (what [`steps`] puts there), to build a report again — with
 /// newer tables, or other phases — without running the simulations again. The per-sweep residuals
 /// are not in the file: the records come back without them.
+/// Only a regular file is read: a FIFO, a device (`/dev/zero`) or a folder is refused by its kind.
 pub fn read_steps(path: &Path) -> Result<Vec<StepRecord>, ReportError> {
     let e = csv_error(path);
-    let mut reader = Reader::from_path(path).map_err(&e)?;
+    let file = runtime::files::open_regular(path, "steps file")
+        .map_err(|source| ReportError::Io { path: path.display().to_string(), source: source.into() })?;
+    let mut reader = Reader::from_reader(file);
     reader
         .deserialize::<msgs::StepStats>()
         .map(|row| row.map(|stats| StepRecord { stats, residuals: Vec::new() }).map_err(&e))

@@ -6,16 +6,18 @@ use clap::{Parser, Subcommand};
 use msgs::HasStep;
 use msgs::{ControlKind, FrameHeader, FrameItem};
 use recorder::read::ReadOptions;
-use recorder::{FrameKind, RecordingWriter};
+use recorder::{now_ns, utc_stamp, FrameKind, RecordingWriter};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime};
 
 // In a folder of its own: a file directly in src/bin would be taken for a binary.
 #[path = "dc-record/attach.rs"]
 mod attach;
 #[path = "dc-record/bench.rs"]
 mod bench;
+#[path = "dc-record/notes.rs"]
+mod notes;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -263,14 +265,7 @@ impl Files<'_> {
     /// appended when another recorder (of this graph or another) took that name first.
     fn new_run_file(&self, run_id: u64) -> anyhow::Result<RecordingWriter> {
         let stem = format!("run-{run_id}-{}", utc_stamp(SystemTime::now()));
-        for n in 1..1000 {
-            let name = if n == 1 { format!("{stem}.mcap") } else { format!("{stem}-{n}.mcap") };
-            match RecordingWriter::create_new(&self.args.dir.join(name)) {
-                Err(recorder::Error::Exists { .. }) => continue,
-                other => return Ok(other?),
-            }
-        }
-        anyhow::bail!("{}: 999 files named {stem}*.mcap already: choose another --dir", self.args.dir.display())
+        Ok(RecordingWriter::create_numbered(&self.args.dir, &stem)?)
     }
 
     fn finish(&mut self, run_id: u64) -> anyhow::Result<()> {
@@ -381,7 +376,7 @@ fn record(args: &Args) -> anyhow::Result<()> {
                             open.last_flush = Instant::now();
                         }
                         Some(ControlKind::RunStart) => {
-                            note_control(&mut open.writer, &data, step)?;
+                            notes::note_control(&mut open.writer, &data, step)?;
                         }
                         Some(ControlKind::RunEnd) => {
                             open.writer.flush()?;
@@ -453,29 +448,6 @@ fn record(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// What a recorder notes about a control frame it wrote: a run start's parameters as a
-/// `run_start` metadata record (JSON text, readable by any MCAP tool). Returns the frame's kind.
-fn note_control(
-    writer: &mut RecordingWriter,
-    data: &[u8],
-    step: msgs::StepHeader,
-) -> anyhow::Result<Option<ControlKind>> {
-    let c: msgs::Control = msgs::decode_header(data)?;
-    if c.kind() == Some(ControlKind::RunStart) {
-        let msg = msgs::decode::<msgs::Control, u8>(data)?;
-        let details = match msg.details() {
-            Ok(msgs::ControlDetails::RunStart(p)) => serde_json::to_string(&p)?,
-            other => {
-                tracing::warn!("control: a run start whose details do not decode: {other:?}");
-                String::new()
-            }
-        };
-        let meta = BTreeMap::from([("run_id".to_string(), step.run_id.to_string()), ("details".to_string(), details)]);
-        writer.write_metadata("run_start", meta)?;
-    }
-    Ok(c.kind())
-}
-
 /// Prints `text` on stdout; a closed stdout (`dc-record info FILE | head`) ends the output quietly.
 fn show(text: impl std::fmt::Display) -> anyhow::Result<()> {
     use std::io::Write;
@@ -514,10 +486,6 @@ fn is_graph_notice(data: &[u8]) -> bool {
         .is_ok_and(|c| matches!(c.kind(), Some(ControlKind::NodeDown | ControlKind::NodeUp)))
 }
 
-fn now_ns() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
-}
-
 /// `git rev-parse HEAD` of the working directory, best effort.
 fn git_revision() -> Option<String> {
     let out = std::process::Command::new("git")
@@ -526,21 +494,4 @@ fn git_revision() -> Option<String> {
         .output()
         .ok()?;
     out.status.success().then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
-}
-
-/// `YYYYMMDDTHHMMSSZ` in UTC.
-fn utc_stamp(t: SystemTime) -> String {
-    let secs = t.duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0) as i64;
-    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!("{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
 }

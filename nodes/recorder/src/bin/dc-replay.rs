@@ -4,7 +4,7 @@
 
 use anyhow::Context;
 use clap::Parser;
-use msgs::{FrameHeader, FrameItem};
+use msgs::{FrameHeader, FrameItem, HasStep};
 use recorder::read::{Item, RecordingReader};
 use recorder::FrameKind;
 use std::collections::{BTreeMap, HashMap};
@@ -35,6 +35,12 @@ struct Args {
     /// the graph's.
     #[arg(long, value_parser = namespace)]
     namespace: Option<String>,
+    /// Publish into a namespace a running graph uses (refused without it: the graph's metrics
+    /// and recorder would take the recording's runs for their own). Every frame's run id is
+    /// then marked as replayed (`msgs::REPLAYED_RUN`), which the metrics node leaves out of its
+    /// report and the recorder keeps as a run of its own.
+    #[arg(long)]
+    into_live: bool,
 }
 
 fn namespace(s: &str) -> Result<String, String> {
@@ -104,15 +110,23 @@ trait ReplayedTopic {
     fn publish(&mut self, data: &[u8]) -> anyhow::Result<bool>;
 }
 
-struct Typed<H: FrameHeader, T: FrameItem>(runtime::Publisher<H, T>);
+/// A topic's publisher; `mark`: every frame's run id marked as replayed (`--into-live`).
+struct Typed<H: FrameHeader, T: FrameItem> {
+    publisher: runtime::Publisher<H, T>,
+    mark: bool,
+}
 
-impl<H: FrameHeader, T: FrameItem> ReplayedTopic for Typed<H, T> {
+impl<H: FrameHeader + HasStep, T: FrameItem> ReplayedTopic for Typed<H, T> {
     fn publish(&mut self, data: &[u8]) -> anyhow::Result<bool> {
         // Decode first: the zenoh path would otherwise forward a bad payload untouched.
-        if msgs::decode::<H, T>(data).is_err() {
-            return Ok(false);
-        }
-        match self.0.publish_encoded(data) {
+        let Ok(mut frame) = msgs::decode::<H, T>(data) else { return Ok(false) };
+        let sent = if self.mark {
+            frame.header.step_header_mut().run_id |= msgs::REPLAYED_RUN;
+            self.publisher.publish(&frame.header, &frame.items)
+        } else {
+            self.publisher.publish_encoded(data)
+        };
+        match sent {
             Ok(()) => Ok(true),
             Err(runtime::Error::Codec { .. }) => Ok(false),
             Err(e) => Err(e.into()),
@@ -120,14 +134,38 @@ impl<H: FrameHeader, T: FrameItem> ReplayedTopic for Typed<H, T> {
     }
 }
 
-fn publisher(node: &runtime::Node, kind: FrameKind, topic: &str) -> anyhow::Result<Box<dyn ReplayedTopic>> {
-    fn typed<H: FrameHeader, T: FrameItem>(
+fn publisher(node: &runtime::Node, kind: FrameKind, topic: &str, mark: bool) -> anyhow::Result<Box<dyn ReplayedTopic>> {
+    fn typed<H: FrameHeader + HasStep, T: FrameItem>(
         node: &runtime::Node,
         topic: &str,
+        mark: bool,
     ) -> anyhow::Result<Box<dyn ReplayedTopic>> {
-        Ok(Box::new(Typed(node.publisher_named::<H, T>(topic)?)))
+        Ok(Box::new(Typed { publisher: node.publisher_named::<H, T>(topic)?, mark }))
     }
-    msgs::with_frame_types!(kind, typed(node, topic))
+    msgs::with_frame_types!(kind, typed(node, topic, mark))
+}
+
+/// Takes `namespace` for the player, or (with `--into-live`) joins the graph that holds it; a
+/// namespace a graph holds without `--into-live` is refused, naming the graph.
+fn hold_namespace(namespace: &str, args: &Args) -> anyhow::Result<Option<runtime::lock::NamespaceLock>> {
+    use runtime::lock::{NamespaceLock, PLAYER_HOST};
+    let holders = NamespaceLock::holders(namespace);
+    if args.into_live {
+        if holders.is_empty() {
+            tracing::warn!(
+                namespace,
+                "--into-live: no graph runs in this namespace; publishing marked as replayed anyway"
+            );
+        }
+        return Ok(None);
+    }
+    if let Some((host, holder)) = holders.first() {
+        anyhow::bail!(
+            "namespace `{namespace}` is in use by {holder} (host `{host}`): its metrics and recorder would take the recording's runs for their own; give another --namespace, or pass --into-live to publish into it with every run marked as replayed"
+        );
+    }
+    let holder = format!("dc play {}", args.input.display());
+    Ok(Some(NamespaceLock::acquire(namespace, PLAYER_HOST, &holder)?))
 }
 
 fn main() -> std::process::ExitCode {
@@ -157,9 +195,10 @@ fn try_main() -> anyhow::Result<()> {
             }
         }
     }
+    let standalone = std::env::var_os("DC_BUS").is_none();
     let node = match &args.namespace {
         // From a terminal: this namespace. A launched node publishes in its graph's.
-        Some(ns) if std::env::var_os("DC_BUS").is_none() => {
+        Some(ns) if standalone => {
             let bus = runtime::BusConfig { namespace: ns.clone(), queue_depth: 16, ..Default::default() };
             runtime::Node::new("dc-replay", bus, false)
         }
@@ -170,11 +209,17 @@ fn try_main() -> anyhow::Result<()> {
             runtime::Node::from_env("dc-replay")?
         }
     };
+    // From a terminal, `dc play` is a graph of its own: it holds its namespace, and refuses one
+    // a running graph holds unless told to join it (then its runs are marked as replayed).
+    let _namespace = if standalone { hold_namespace(&node.bus().namespace, &args)? } else { None };
     let mut pubs: HashMap<String, Box<dyn ReplayedTopic>> = HashMap::new();
     for (topic, kind) in &channels {
         if wanted(topic) {
             let out = remap.get(topic).map(String::as_str).unwrap_or(topic);
-            pubs.insert(topic.clone(), publisher(&node, *kind, out).with_context(|| format!("publisher for `{out}`"))?);
+            pubs.insert(
+                topic.clone(),
+                publisher(&node, *kind, out, args.into_live).with_context(|| format!("publisher for `{out}`"))?,
+            );
             tracing::info!(topic, to = out, "replaying");
         }
     }
@@ -209,7 +254,7 @@ fn try_main() -> anyhow::Result<()> {
                             if wanted(&c.topic) {
                                 let out = remap.get(&c.topic).map(String::as_str).unwrap_or(&c.topic);
                                 tracing::warn!(topic = %c.topic, "channel declared late; its first frames may reach no subscriber");
-                                pubs.insert(c.topic.clone(), publisher(&node, kind, out)?);
+                                pubs.insert(c.topic.clone(), publisher(&node, kind, out, args.into_live)?);
                             }
                         }
                         continue;

@@ -85,7 +85,7 @@ pub struct SolvedStep<'a> {
     /// The solution, one impulse per contact in the problem's order.
     pub impulses: &'a [Impulse],
     /// The bodies after the step (velocities integrated, positions corrected), per body id.
-    pub bodies: &'a [crate::world::BodyState],
+    pub bodies: &'a [crate::body::BodyState],
     /// The step's contacts as the position pass measures them, one per contact...
     pub geometry: &'a [crate::solver::PositionRow],
     /// ... at these poses (after the position pass), per body id.

@@ -2,7 +2,7 @@
 //! on the bodies' current poses, into contact points sorted by key and the rows the position pass
 //! measures them by. rapier holds only a mirror of the poses; the bodies are ours.
 
-use super::body::BodyState;
+use crate::body::BodyState;
 use crate::contact::{feature_key, ContactKey, ContactPoint};
 use crate::scene::{BodyKind, Scene, ShapeSpec};
 use crate::solver::position::rotate;

@@ -7,7 +7,7 @@
 //! - problem capture: the step's velocity problem as data (`problem/*`), optionally labelled
 //!   with a reference solution;
 //! - the solver menu: the same step solved from builtin's warm start by each of several solver
-//!   settings, sweeps and time each (`dc-sim --compare-solvers`: solvers side by side on the
+//!   settings, sweeps and time each (`dc study solvers`: solvers side by side on the
 //!   same states);
 //! - the error split: the warm start's error against the step's exact solution and builtin's,
 //!   each split into its pile-wide and local part, and what the run's sweeps leave of each
@@ -67,7 +67,7 @@ impl SplitScratch {
     /// `(smooth, rough)` sums of squares of `start - exact` (`exact` is this scratch's), split
     /// as the `smooth-error` / `rough-error` references split builtin's error.
     fn parts(&mut self, contacts: &[ContactPoint], start: &[Impulse]) -> (f64, f64) {
-        use crate::warm::references::ablations::{smooth_over_contacts, SMOOTHING_PASSES};
+        use crate::contact::{smooth_over_contacts, SMOOTHING_PASSES};
         self.error.clear();
         self.error.extend(start.iter().zip(&self.exact).map(|(w, e)| minus(w, e)));
         smooth_over_contacts(contacts, &self.fixed, &self.error, SMOOTHING_PASSES, &mut self.smooth);

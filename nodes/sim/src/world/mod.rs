@@ -18,12 +18,11 @@
 //! Our body states are the source of truth; rapier only mirrors poses. Everything that affects the
 //! physics is iterated in sorted order, so a run is bit-identical given the same scene and models.
 
-mod body;
 mod collide;
 mod instruments;
 mod params;
 
-pub use body::BodyState;
+pub use crate::body::BodyState;
 pub use instruments::MenuSolve;
 pub use params::WorldParams;
 

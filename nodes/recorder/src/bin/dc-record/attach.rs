@@ -4,7 +4,7 @@
 //! so a slow disk drops frames (counted) instead of stalling the simulator, unless `--reliable`.
 //! It stops on Ctrl-C, after `--duration`, or when the graph ends, with the file finished.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use msgs::ControlKind;
 use recorder::{FrameKind, RecordingWriter};
 use runtime::observe::{Event, ObserveOptions, Observer};
@@ -33,14 +33,17 @@ const QUEUE_FRAMES: usize = 1024;
 pub fn record(a: &Attach) -> Result<()> {
     let (target, topics) = runtime::observe::find_graph(a.namespace, a.zenoh, a.topics)?;
     let namespace = target.namespace.clone();
-    let path = match a.out {
-        Some(p) => p.to_path_buf(),
+    // A default name is taken as the graph recorder takes its own: a second recorder started in
+    // the same second gets `-2`, never an error.
+    let mut writer = match a.out {
+        Some(p) if a.overwrite => RecordingWriter::create(p)?,
+        Some(p) => RecordingWriter::create_new(p)?,
         None => {
-            std::fs::create_dir_all(a.dir).with_context(|| format!("creating {}", a.dir.display()))?;
-            a.dir.join(format!("attached-{namespace}-{}.mcap", super::utc_stamp(std::time::SystemTime::now())))
+            let stem = format!("attached-{namespace}-{}", recorder::utc_stamp(std::time::SystemTime::now()));
+            RecordingWriter::create_numbered(a.dir, &stem)?
         }
     };
-    let mut writer = if a.overwrite { RecordingWriter::create(&path)? } else { RecordingWriter::create_new(&path)? };
+    let path = writer.path().to_path_buf();
     let kinds: Vec<FrameKind> =
         topics.iter().map(|t| FrameKind::of_topic(t).expect("alive topics are known ones")).collect::<Vec<_>>();
     for (t, k) in topics.iter().zip(&kinds) {
@@ -61,7 +64,7 @@ pub fn record(a: &Attach) -> Result<()> {
     })?;
     eprintln!("recording {} of namespace `{namespace}` to {} (Ctrl-C stops)", topics.join(", "), path.display());
     // Log times: the wall clock when the observer took each frame.
-    let (clock_at, clock_ns) = (Instant::now(), super::now_ns());
+    let (clock_at, clock_ns) = (Instant::now(), recorder::now_ns());
     let started = Instant::now();
     let mut last_flush = Instant::now();
     let (mut written, mut undecodable, mut bytes) = (0u64, 0u64, 0u64);
@@ -93,8 +96,11 @@ pub fn record(a: &Attach) -> Result<()> {
         writer.write(&topics[o.topic], kinds[o.topic], log_time, log_time, data)?;
         written += 1;
         bytes += data.len() as u64;
-        let control =
-            if kinds[o.topic] == FrameKind::Control { super::note_control(&mut writer, data, o.step)? } else { None };
+        let control = if kinds[o.topic] == FrameKind::Control {
+            super::notes::note_control(&mut writer, data, o.step)?
+        } else {
+            None
+        };
         // A simulation's or run's end is a flush point, as in a graph's recorder.
         let ended = matches!(control, Some(ControlKind::SimulationEnd | ControlKind::RunEnd));
         if ended || last_flush.elapsed() >= a.flush_every {

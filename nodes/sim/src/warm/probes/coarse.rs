@@ -165,7 +165,7 @@ fn stress_basis(row: &ContactRow, [closed, sticking]: [bool; 2]) -> [[f64; 2]; P
 /// by Cholesky, leaving out every unknown whose pivot is below 1e-9 of its diagonal — a basis
 /// vector the step's problem cannot see, or one the earlier ones already span, gets 0. `None`
 /// when nothing is left or a value is not finite.
-pub(crate) fn solve_semidefinite(a: &mut [f64], b: &[f64], n: usize) -> Option<Vec<f64>> {
+pub fn solve_semidefinite(a: &mut [f64], b: &[f64], n: usize) -> Option<Vec<f64>> {
     let diagonal: Vec<f64> = (0..n).map(|i| a[i * n + i]).collect();
     let mut kept = vec![false; n];
     // In place: the lower triangle becomes L, column by column.

@@ -3,7 +3,7 @@
 //! error a model must remove, and which part of it, to save sweeps — the accuracy -> sweeps curve
 //! any learned model is judged on. Not usable in a real simulator (the oracle *is* the solve).
 
-use crate::contact::{ContactKey, ContactPoint};
+use crate::contact::{smooth_over_contacts, ContactKey, SMOOTHING_PASSES};
 use crate::rng::{Sampler, Xoshiro};
 use crate::solver::rows::Impulse;
 use crate::warm::model::{exact_solution, Needs, Unavailable, WarmStartInput, WarmStartModel};
@@ -27,9 +27,6 @@ pub enum Ablation {
     /// `rough-error`: exact + builtin's error minus its smooth part.
     RoughError,
 }
-
-/// Jacobi passes of the contact-graph average that define the "smooth part" of an error field.
-pub const SMOOTHING_PASSES: usize = 4;
 
 /// An ablation model.
 pub struct OracleAblation {
@@ -151,56 +148,10 @@ impl WarmStartModel for OracleAblation {
     }
 }
 
-/// `passes` Jacobi passes of averaging `field` over the contact graph: a contact's value becomes the
-/// mean of itself and the contacts it shares a moving body with (bodies of infinite mass, `fixed`,
-/// do not link their contacts: the floor would smooth across the whole pile). What survives a few
-/// passes is the pile-wide, low-frequency part of the field.
-pub fn smooth_over_contacts(
-    contacts: &[ContactPoint],
-    fixed: &[bool],
-    field: &[Impulse],
-    passes: usize,
-    out: &mut Vec<Impulse>,
-) {
-    let n = contacts.len();
-    out.clear();
-    out.extend_from_slice(field);
-    if n == 0 {
-        return;
-    }
-    // Contacts per moving body.
-    let bodies = contacts.iter().map(|c| c.key.body_b.max(c.key.body_a) as usize + 1).max().unwrap_or(0);
-    let mut per_body: Vec<Vec<u32>> = vec![Vec::new(); bodies];
-    for (i, c) in contacts.iter().enumerate() {
-        for b in [c.key.body_a, c.key.body_b] {
-            if !fixed.get(b as usize).copied().unwrap_or(false) {
-                per_body[b as usize].push(i as u32);
-            }
-        }
-    }
-    let mut next = vec![Impulse::default(); n];
-    for _ in 0..passes {
-        for (i, c) in contacts.iter().enumerate() {
-            let (mut sn, mut st, mut k) = (out[i].normal as f64, out[i].tangent as f64, 1u32);
-            for b in [c.key.body_a, c.key.body_b] {
-                for &j in per_body.get(b as usize).map(Vec::as_slice).unwrap_or(&[]) {
-                    if j as usize != i {
-                        sn += out[j as usize].normal as f64;
-                        st += out[j as usize].tangent as f64;
-                        k += 1;
-                    }
-                }
-            }
-            next[i] = Impulse { normal: (sn / k as f64) as f32, tangent: (st / k as f64) as f32 };
-        }
-        out.copy_from_slice(&next);
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::contact::ContactKey;
+    use crate::contact::{ContactKey, ContactPoint};
     use rapier2d::math::Vec2;
 
     fn contact(a: u32, b: u32) -> ContactPoint {

@@ -4,12 +4,12 @@
 //! The ratio is the figure of merit: what iterating to a tolerance (the thesis's setting) costs
 //! over a production solver with a fixed, small iteration count. Both run single-threaded.
 
-use crate::error::SimError;
-use crate::scene::{BodyKind, Scene, SceneConfig};
-use crate::warm::ModelKind;
-use crate::world::{World, WorldParams};
 use rapier2d::math::{Pose, Vec2};
 use rapier2d::prelude::PhysicsWorld;
+use sim::error::SimError;
+use sim::scene::{BodyKind, Scene, SceneConfig};
+use sim::warm::ModelKind;
+use sim::world::{World, WorldParams};
 use std::time::Instant;
 
 /// One measured configuration.

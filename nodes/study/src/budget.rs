@@ -1,4 +1,4 @@
-//! The real-time regime (`dc-sim --budget-study`): every step solved with a fixed sweep budget,
+//! The real-time regime (`dc study budget`): every step solved with a fixed sweep budget,
 //! as real-time engines run (Box2D 2.x 8 velocity iterations, rapier 4), stopping earlier only when
 //! the natural residual is already below the tolerance. There a warm start decides how *accurate*
 //! a step is, so each model is judged by its accuracy after the budget K, placed on builtin's
@@ -14,15 +14,15 @@
 //! part of what a warm start is judged on here.
 
 use crate::compare::phase;
-use crate::error::SimError;
-use crate::scene::SceneConfig;
-use crate::solver::{SolveParams, StopRule};
-use crate::warm::{ModelFiles, ModelKind, ModelSpec, Served, WarmStarter};
-use crate::world::{World, WorldParams};
 use msgs::curve::figure as num;
 pub use msgs::curve::{along, worth, Worth};
 pub use msgs::ErrorSplit;
 use msgs::{Accuracy, StepStats};
+use sim::error::SimError;
+use sim::scene::SceneConfig;
+use sim::solver::{SolveParams, StopRule};
+use sim::warm::{ModelFiles, ModelKind, ModelSpec, Served, WarmStarter};
+use sim::world::{World, WorldParams};
 
 /// The first steps of the phases after the first (the report's phases: steps 0-99 falling,
 /// 100-149 piling up, 150-end settled).
@@ -86,7 +86,7 @@ impl BudgetSpec {
             stop: StopRule::Natural,
             ..self.params.solve
         }
-        .with_setting(crate::SolverSetting::RECOMMENDED)
+        .with_setting(sim::SolverSetting::RECOMMENDED)
     }
 
     /// Checks the budgets and the models (a learned model's file) before anything runs.
@@ -123,7 +123,7 @@ impl BudgetSpec {
 }
 
 /// The largest budget (the largest judged budget's curve reaches 16 times as far).
-pub const MAX_BUDGET: u32 = msgs::curve::MAX_BUDGET;
+pub use sim::cli::MAX_BUDGET;
 
 /// One run of the study (a model at a budget, builtin on the curve, or the reference) over every seed.
 #[derive(Debug, Clone, PartialEq)]
@@ -163,7 +163,7 @@ pub fn run_seed(
 fn drive(
     spec: &BudgetSpec,
     seed: u64,
-    model: Box<dyn crate::warm::WarmStartModel>,
+    model: Box<dyn sim::warm::WarmStartModel>,
     solve: SolveParams,
     mut split: Option<&mut ErrorSplit>,
 ) -> Result<Vec<StepStats>, SimError> {
@@ -558,7 +558,7 @@ mod tests {
     use super::*;
 
     fn spec(solver: &str, budgets: Vec<u32>, steps: u32) -> BudgetSpec {
-        let setting: crate::SolverSetting = solver.parse().unwrap();
+        let setting: sim::SolverSetting = solver.parse().unwrap();
         let mut params = WorldParams::recommended();
         params.solve = params.solve.with_setting(setting);
         BudgetSpec {

@@ -1,14 +1,14 @@
-//! Solvers side by side (`dc-sim --compare-solvers`): every setting of a menu solves the same
+//! Solvers side by side (`dc study solvers`): every setting of a menu solves the same
 //! states from the same warm start (builtin's) to the same stopping rule, the trajectory driven by
 //! the menu's first setting; the hindsight ceiling (each step's cheapest setting); a learned
 //! per-step choice ([`SolverChooser`]) trained on other seeds and judged on these states; and
 //! optionally whole runs, each setting (and the chooser) driving its own trajectory.
 
-use crate::error::SimError;
-use crate::scene::SceneConfig;
-use crate::solver::SolverSetting;
-use crate::warm::ModelKind;
-use crate::world::{MenuSolve, World, WorldParams};
+use sim::error::SimError;
+use sim::scene::SceneConfig;
+use sim::solver::SolverSetting;
+use sim::warm::ModelKind;
+use sim::world::{MenuSolve, World, WorldParams};
 use std::time::Instant;
 
 /// What the chooser reads: the state a step starts from, i.e. the previous step's outputs, so
@@ -246,7 +246,7 @@ impl SolverChooser {
                 }
             }
             let mut a = gram;
-            let w = crate::warm::probes::coarse::solve_semidefinite(&mut a, &rhs, K)
+            let w = sim::warm::probes::coarse::solve_semidefinite(&mut a, &rhs, K)
                 .ok_or_else(|| bad(format!("the regression of `{setting}` has no solution")))?;
             chooser.weights.push(std::array::from_fn(|i| w[i]));
         }
@@ -316,7 +316,7 @@ pub struct SameStatesRow {
 pub const PHASE_STARTS: [u32; 2] = [100, 150];
 
 /// The phase (index into [`PHASE_STARTS`] plus one) of step `step`.
-pub(crate) fn phase(step: u32) -> usize {
+pub fn phase(step: u32) -> usize {
     PHASE_STARTS.iter().filter(|&&s| step >= s).count()
 }
 
