@@ -10,6 +10,9 @@ pub struct SummaryRow {
     pub cap_hits: u64,
     /// Same states vs builtin within the solver's evaluation (NaN where not measured).
     pub same_states: f64,
+    /// The median critical path (warm start + solve) over the steps with contacts, us (NaN where
+    /// the report predates the column).
+    pub median_critical_us: f64,
     /// Accuracy (NaN where the report predates the columns): the mean RMS natural residual, the
     /// mean largest penetration, the late phase's mean kinetic energy.
     pub natural_rms: f64,
@@ -44,7 +47,8 @@ const COLUMNS: [&str; 5] = ["model", "total_sweeps", "total_solve_ms", "cap_hits
 
 /// Columns read when present (reports written before them lack them; the split's are empty
 /// where not measured).
-const ACCURACY_COLUMNS: [&str; 9] = [
+const ACCURACY_COLUMNS: [&str; 10] = [
+    "median_critical_us",
     "mean_natural_rms",
     "mean_penetration_max",
     "late_kinetic_energy",
@@ -97,15 +101,16 @@ pub fn read_summary(text: &str) -> Result<Vec<SummaryRow>, SummaryError> {
             cap_hits: number(3)? as u64,
             // Empty where not measured (`--same-states false`, or at a budget).
             same_states: if fields[at[4]].is_empty() { f64::NAN } else { number(4)? },
-            natural_rms: accuracy(0)?,
-            penetration_max: accuracy(1)?,
-            late_kinetic_energy: accuracy(2)?,
-            smooth_removed: accuracy(3)?,
-            rough_removed: accuracy(4)?,
-            left_rms: accuracy(5)?,
-            builtin_left_rms: accuracy(6)?,
-            left_natural: accuracy(7)?,
-            builtin_left_natural: accuracy(8)?,
+            median_critical_us: accuracy(0)?,
+            natural_rms: accuracy(1)?,
+            penetration_max: accuracy(2)?,
+            late_kinetic_energy: accuracy(3)?,
+            smooth_removed: accuracy(4)?,
+            rough_removed: accuracy(5)?,
+            left_rms: accuracy(6)?,
+            builtin_left_rms: accuracy(7)?,
+            left_natural: accuracy(8)?,
+            builtin_left_natural: accuracy(9)?,
         });
     }
     Ok(rows)
@@ -149,11 +154,15 @@ pub fn markdown(summaries: &[(&str, Vec<SummaryRow>)]) -> String {
 /// accurate, interpolated log-log; `<`/`>` outside the budgets evaluated).
 pub fn budget_markdown(summaries: &[(u32, Vec<SummaryRow>)]) -> String {
     let mut out = String::from(
-        "| model | budget | RMS natural residual | worth (builtin sweeps) | penetration max (m) | kinetic energy, late (J) | solve time (ms) | total sweeps |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
+        "\"time at equal accuracy\": what a user buys, the model's critical path (warm start, inference included, and solve; median over the steps with contacts) over builtin's at the budget where builtin is as accurate (\"< r\": builtin is never as accurate over these budgets, r at the largest; \"-\": less accurate than builtin at the smallest).\n\n| model | budget | time at equal accuracy | RMS natural residual | worth (builtin sweeps) | critical path, median (us) | penetration max (m) | kinetic energy, late (J) | solve time (ms) | total sweeps |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     let curve: Vec<(f64, f64)> = summaries
         .iter()
         .filter_map(|(k, rows)| rows.iter().find(|r| r.model == "builtin").map(|r| (*k as f64, r.natural_rms)))
+        .collect();
+    let time: Vec<(f64, f64)> = summaries
+        .iter()
+        .filter_map(|(k, rows)| rows.iter().find(|r| r.model == "builtin").map(|r| (*k as f64, r.median_critical_us)))
         .collect();
     let mut models: Vec<&str> = Vec::new();
     for (_, rows) in summaries {
@@ -167,8 +176,12 @@ pub fn budget_markdown(summaries: &[(u32, Vec<SummaryRow>)]) -> String {
     for &model in &models {
         for (k, rows) in summaries {
             let Some(r) = rows.iter().find(|r| r.model == model) else { continue };
+            let buys = msgs::curve::time_ratio(&curve, &time, r.natural_rms, r.median_critical_us);
+            let critical =
+                if r.median_critical_us.is_finite() { format!("{:.1}", r.median_critical_us) } else { "-".into() };
             out += &format!(
-                "| {model} | {k} | {} | {} | {} | {} | {:.1} | {} |\n",
+                "| {model} | {k} | {} | {} | {} | {critical} | {} | {} | {:.1} | {} |\n",
+                msgs::curve::time_ratio_cell(buys),
                 num(r.natural_rms),
                 msgs::curve::worth(&curve, r.natural_rms),
                 num(r.penetration_max),
@@ -231,23 +244,36 @@ mod tests {
 
     #[test]
     fn the_budget_table_places_each_model_on_builtins_curve() {
+        // Builtin's critical path is 10 us a sweep; gnn's is 10 us a sweep plus 5 us of inference.
         let at = |k: u32, builtin: f64, gnn: &str| {
             let text = format!(
-                "model,total_sweeps,cap_hits,same_states_ratio_to_builtin,total_solve_ms,mean_natural_rms,mean_penetration_max,late_kinetic_energy\nbuiltin,{},0,,5.0,{builtin},0.01,8.5\ngnn,{},0,,9.0,{gnn},0.02,\n",
+                "model,total_sweeps,cap_hits,same_states_ratio_to_builtin,total_solve_ms,median_critical_us,mean_natural_rms,mean_penetration_max,late_kinetic_energy\nbuiltin,{},0,,5.0,{},{builtin},0.01,8.5\ngnn,{},0,,9.0,{},{gnn},0.02,\n",
                 k * 100,
-                k * 100
+                k * 10,
+                k * 100,
+                k * 10 + 5,
             );
             (k, read_summary(&text).unwrap())
         };
         // builtin's error halves per doubling: gnn at 4 with 0.5 / sqrt(2) is worth sqrt(32) = 5.7 sweeps.
-        let table = budget_markdown(&[at(4, 0.5, "0.35355339"), at(8, 0.25, "0.1"), at(16, 0.125, "0.3")]);
-        assert!(table.contains("| builtin | 8 | 0.2500 | 8.0 | 0.0100 | 8.5000 | 5.0 | 800 |"), "{table}");
-        assert!(table.contains("| gnn | 4 | 0.3536 | 5.7 | 0.0200 | - | 9.0 | 400 |"), "{table}");
-        assert!(table.contains("| gnn | 8 | 0.1000 | > 16 |"), "{table}");
-        assert!(table.contains("| gnn | 16 | 0.3000 | 6.7 |"), "{table}");
+        let table = budget_markdown(&[at(4, 0.5, "0.35355339"), at(8, 0.25, "0.125"), at(16, 0.125, "0.3")]);
+        assert!(
+            table.contains("| builtin | 8 | 1.00x | 0.2500 | 8.0 | 80.0 | 0.0100 | 8.5000 | 5.0 | 800 |"),
+            "{table}"
+        );
+        // 45 us against builtin's 40 + 0.5 * 40 = 60 us at 5.7 sweeps (linear in log k): 0.75x.
+        assert!(table.contains("| gnn | 4 | 0.75x | 0.3536 | 5.7 | 45.0 | 0.0200 | - | 9.0 | 400 |"), "{table}");
+        // As accurate at 8 as builtin at 16, in 85 us against builtin's 160: what the user buys.
+        assert!(table.contains("| gnn | 8 | 0.53x | 0.1250 | 16.0 | 85.0 |"), "{table}");
+        assert!(table.contains("| gnn | 16 | 2.37x | 0.3000 | 6.7 |"), "{table}");
+        // Better than builtin at the largest budget: at most its time ratio there.
+        let better = budget_markdown(&[at(4, 0.5, "0.2"), at(8, 0.25, "0.3"), at(16, 0.125, "0.01")]);
+        assert!(better.contains("| gnn | 16 | < 1.03x | 0.0100 | > 16 |"), "{better}");
         // A report from before the accuracy columns reads as not measured.
         let old = read_summary(SUMMARY).unwrap();
-        assert!(old[0].natural_rms.is_nan() && old[0].late_kinetic_energy.is_nan());
+        assert!(
+            old[0].natural_rms.is_nan() && old[0].late_kinetic_energy.is_nan() && old[0].median_critical_us.is_nan()
+        );
         assert!(!table.contains("Which part"), "no split measured: no split table\n{table}");
     }
 
@@ -259,7 +285,9 @@ mod tests {
         let table = budget_markdown(&[(8, rows)]);
         assert!(table.contains("| unet-delta | 8 | -15% | -30% | 0.4900 | 0.6300 | 0.0101 | 0.0108 |"), "{table}");
         assert!(table.contains("| builtin | 8 | 0% | 0% | 0.6000 | 0.6000 | 0.0110 | 0.0110 |"), "{table}");
-        assert!(!table.lines().any(|l| l.starts_with("| none | 8 | -") || l.contains("| none | 8 | NaN")), "{table}");
+        let (_, split) = table.split_once("Which part").expect("a split table");
+        assert!(!split.lines().any(|l| l.starts_with("| none |")), "not measured: no split row\n{table}");
+        assert!(!table.contains("NaN"), "{table}");
         assert_eq!(table.lines().filter(|l| l.starts_with("| none |")).count(), 1, "only the accuracy row: {table}");
     }
 

@@ -93,6 +93,49 @@ pub fn along(points: &[(f64, f64)], x: f64) -> f64 {
     points.last().map_or(f64::NAN, |p| p.1)
 }
 
+/// What a user buys with a model at a budget: its time per step (warm start, inference
+/// included, and solve) over builtin's time at the budget where builtin is as accurate (its
+/// [`worth`]), both on builtin's curves of (budget, error) and (budget, time). `None` where the
+/// model is less accurate than builtin at the curve's smallest budget; where it is more accurate
+/// than builtin anywhere on the curve, the ratio to builtin's time at the curve's top (an upper
+/// bound, [`TimeRatio::AtMost`]).
+pub fn time_ratio(
+    accuracy: &[(f64, f64)],
+    time: &[(f64, f64)],
+    model_error: f64,
+    model_time: f64,
+) -> Option<TimeRatio> {
+    let over = |t: f64| (t > 0.0 && t.is_finite() && model_time.is_finite()).then(|| model_time / t);
+    match worth(accuracy, model_error) {
+        Worth::Sweeps(n) => over(along(time, n)).map(TimeRatio::Equal),
+        Worth::Above(top) => over(along(time, top)).map(TimeRatio::AtMost),
+        Worth::Below(_) => None,
+    }
+}
+
+/// A model's time over builtin's at equal accuracy ([`time_ratio`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TimeRatio {
+    /// At the budget where builtin is exactly as accurate.
+    Equal(f64),
+    /// Builtin is never as accurate on the curve: at most this (its time at the curve's top).
+    AtMost(f64),
+}
+
+impl std::fmt::Display for TimeRatio {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TimeRatio::Equal(r) => write!(f, "{r:.2}x"),
+            TimeRatio::AtMost(r) => write!(f, "< {r:.2}x"),
+        }
+    }
+}
+
+/// [`time_ratio`] as a table cell: `-` where there is none.
+pub fn time_ratio_cell(ratio: Option<TimeRatio>) -> String {
+    ratio.map_or_else(|| "-".to_string(), |r| r.to_string())
+}
+
 /// Where a value sits on the blend curve `blend:F` (builtin + F (oracle - builtin)).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub enum BlendPlace {
@@ -180,5 +223,28 @@ mod tests {
         assert_eq!(worth(&one, 0.0125).to_string(), "< 8");
         assert_eq!(along(&[(1.0, 10.0), (4.0, 30.0)], 2.0), 20.0);
         assert_eq!(along(&[(1.0, 10.0), (4.0, 30.0)], 8.0), 30.0);
+    }
+
+    #[test]
+    fn the_time_ratio_at_equal_accuracy_on_a_synthetic_curve() {
+        // Builtin: error 1/k after k sweeps, 10 us a sweep.
+        let budgets = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
+        let accuracy: Vec<(f64, f64)> = budgets.iter().map(|&k| (k, 1.0 / k)).collect();
+        let time: Vec<(f64, f64)> = budgets.iter().map(|&k| (k, 10.0 * k)).collect();
+        // A model as accurate as builtin at 2K = 16 in the time of K = 8 sweeps: half the time.
+        assert_eq!(time_ratio(&accuracy, &time, 1.0 / 16.0, 80.0), Some(TimeRatio::Equal(0.5)));
+        // As accurate as builtin at K, in K's time plus an inference of 20 us: 1.25x.
+        assert_eq!(time_ratio(&accuracy, &time, 1.0 / 8.0, 100.0), Some(TimeRatio::Equal(1.25)));
+        // Between budgets: worth 11.31 sweeps (log-log), builtin's time 10 * 11.31 interpolated
+        // linearly in log(k) between 80 and 160.
+        let r = time_ratio(&accuracy, &time, 1.0 / 11.313_708_5, 80.0).unwrap();
+        let TimeRatio::Equal(r) = r else { panic!("{r:?}") };
+        assert!((r - 80.0 / 120.0).abs() < 1e-6, "{r}");
+        // Better than builtin anywhere on the curve: at most its time at the top.
+        assert_eq!(time_ratio(&accuracy, &time, 1e-3, 80.0), Some(TimeRatio::AtMost(0.25)));
+        assert_eq!(time_ratio_cell(Some(TimeRatio::AtMost(0.25))), "< 0.25x");
+        // Worse than builtin at one sweep: no place.
+        assert_eq!(time_ratio(&accuracy, &time, 2.0, 80.0), None);
+        assert_eq!(time_ratio_cell(None), "-");
     }
 }

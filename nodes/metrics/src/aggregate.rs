@@ -65,6 +65,9 @@ pub struct Totals {
     pub median_solve_us: f64,
     pub median_step_us: f64,
     pub total_solve_ms: f64,
+    /// The median over the steps with contacts of the simulator's critical path: warm start
+    /// (inference included) + solve (what a budget's time at equal accuracy compares).
+    pub median_critical_us: f64,
 }
 
 impl Totals {
@@ -73,6 +76,11 @@ impl Totals {
         let sweeps: Vec<f64> = steps.iter().map(|s| s.sweeps as f64).collect();
         let solve: Vec<f64> = steps.iter().map(|s| s.solve_us as f64).collect();
         let step: Vec<f64> = steps.iter().map(|s| s.step_us as f64).collect();
+        let critical: Vec<f64> = steps
+            .iter()
+            .filter(|s| s.stats.contacts > 0)
+            .map(|s| s.stats.warm_start_us as f64 + s.stats.solve_us as f64)
+            .collect();
         let total: u64 = steps.iter().map(|s| s.sweeps as u64).sum();
         Totals {
             steps: steps.len(),
@@ -84,6 +92,7 @@ impl Totals {
             median_solve_us: median(&solve),
             median_step_us: median(&step),
             total_solve_ms: solve.iter().sum::<f64>() / 1e3,
+            median_critical_us: median(&critical),
         }
     }
 }

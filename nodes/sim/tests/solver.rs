@@ -2,7 +2,7 @@
 //! oracle warm start, and the ordering of warm-start models by total sweeps.
 
 use sim::solver::{natural_residual, relative_velocity, row_masses};
-use sim::{ModelKind, SceneConfig, SolveParams, SolverSetting, StopRule, World, WorldParams};
+use sim::{ModelKind, SceneConfig, SolveParams, StopRule, World, WorldParams};
 
 /// Checks the velocity-level LCP of the last step to tolerance; returns the number of contacts checked.
 ///

@@ -319,7 +319,10 @@ mod carried {
         ahead: Vec<Problem>,
     }
 
-    impl WarmStartModel for std::rc::Rc<std::cell::RefCell<Watch>> {
+    /// The shared watch as a model (a newtype: the trait and `Rc` are both foreign here).
+    struct Watcher(std::rc::Rc<std::cell::RefCell<Watch>>);
+
+    impl WarmStartModel for Watcher {
         fn name(&self) -> &str {
             "builtin"
         }
@@ -327,14 +330,14 @@ mod carried {
             Needs::PROBLEM
         }
         fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
-            self.borrow_mut().actual.push(sim::warm::model::step_problem(input)?.clone());
+            self.0.borrow_mut().actual.push(sim::warm::model::step_problem(input)?.clone());
             input.history.fill_previous(input.contacts, out);
             Ok(())
         }
         fn after_step(&mut self, done: &SolvedStep<'_>) {
             let mut ahead = Problem { header: Default::default(), bodies: Vec::new(), contacts: Vec::new() };
             sim::warm::product::carry_one_step(done, done.problem.expect("asked for"), &mut ahead);
-            self.borrow_mut().ahead.push(ahead);
+            self.0.borrow_mut().ahead.push(ahead);
         }
     }
 
@@ -344,7 +347,7 @@ mod carried {
     #[test]
     fn a_step_carried_on_is_the_next_steps_problem_on_persisting_contacts() {
         let watch = std::rc::Rc::new(std::cell::RefCell::new(Watch::default()));
-        let mut warm = sim::warm::WarmStarter::new(Box::new(watch.clone()), Box::new(sim::warm::Builtin));
+        let mut warm = sim::warm::WarmStarter::new(Box::new(Watcher(watch.clone())), Box::new(sim::warm::Builtin));
         let recommended = WorldParams::recommended();
         // A budget of 8 sweeps: the regime the pipelined model is for.
         let params = WorldParams { solve: sim::SolveParams { max_sweeps: 8, ..recommended.solve }, ..recommended };

@@ -15,7 +15,7 @@
 
 use crate::compare::phase;
 use msgs::curve::figure as num;
-pub use msgs::curve::{along, worth, Worth};
+pub use msgs::curve::{along, time_ratio, time_ratio_cell, worth, TimeRatio, Worth};
 pub use msgs::ErrorSplit;
 use msgs::{Accuracy, StepStats};
 use sim::error::SimError;
@@ -108,7 +108,15 @@ impl BudgetSpec {
                 why: "must be > 0".into(),
             });
         }
-        for m in &self.models {
+        for (i, m) in self.models.iter().enumerate() {
+            if self.models[..i].iter().any(|earlier| earlier.name() == m.name()) {
+                // Its runs would be one row of the report.
+                return Err(SimError::InvalidParameter {
+                    name: "models",
+                    value: m.name(),
+                    why: format!("asked for twice (model {} of the list)", i + 1),
+                });
+            }
             if m.served_on().is_some() {
                 return Err(SimError::InvalidParameter {
                     name: "models",
@@ -406,7 +414,7 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
     }
     for &k in budgets {
         out += &format!(
-            "\n## At {k} sweeps, placed on builtin's curve\n\n\"worth\": the budget at which builtin's RMS natural residual equals the model's at {k} (log-log interpolation); \"builtin's time there\": builtin's critical path at that budget (mean, and median over the steps with contacts); \"blend F\": the fraction of builtin's error an oracle blend must remove to leave the same RMS natural residual at {k} (interpolated between the blends run).\n\n| model | RMS natural residual | worth (sweeps) | critical path (us/step) | builtin's time there (us/step) | critical path, median (us) | builtin's median there (us) | blend F | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | fallbacks |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+            "\n## At {k} sweeps, placed on builtin's curve\n\n\"time at equal accuracy\": what a user buys, the model's critical path (warm start, inference included, and solve; median over the steps with contacts) over builtin's at the budget where builtin is as accurate (\"< r\": builtin is never as accurate on its curve, r at its top; \"-\": less accurate than builtin at one sweep); \"worth\": the budget at which builtin's RMS natural residual equals the model's at {k} (log-log interpolation); \"builtin's time there\": builtin's critical path at that budget (mean, and median over the steps with contacts); \"blend F\": the fraction of builtin's error an oracle blend must remove to leave the same RMS natural residual at {k} (interpolated between the blends run).\n\n| model | time at equal accuracy | RMS natural residual | worth (sweeps) | critical path (us/step) | builtin's time there (us/step) | critical path, median (us) | builtin's median there (us) | blend F | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | fallbacks |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
         );
         let blends: Vec<(f64, f64)> = summaries
             .iter()
@@ -422,8 +430,9 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
                 Worth::Sweeps(n) => (format!("{:.1}", along(&time, n)), format!("{:.1}", along(&median_time, n))),
                 _ => ("-".into(), "-".into()),
             };
+            let buys = time_ratio_cell(time_ratio(&rms, &median_time, s.accuracy.natural_rms, s.critical_median_us));
             out += &format!(
-                "| {} | {} | {w} | {:.1} | {there} | {:.1} | {median_there} | {} | {} | {} | {} | {} |\n",
+                "| {} | {buys} | {} | {w} | {:.1} | {there} | {:.1} | {median_there} | {} | {} | {} | {} | {} |\n",
                 s.model,
                 num(s.accuracy.natural_rms),
                 s.critical_us,
@@ -621,7 +630,9 @@ mod tests {
             at4.critical_median_us
         );
         let row = table.lines().find(|l| l.starts_with("| builtin | ")).unwrap();
-        assert_eq!(row.split('|').count(), 14, "{row}");
+        assert_eq!(row.split('|').count(), 15, "{row}");
+        // Builtin at its own budget buys nothing: 1.00x builtin's time.
+        assert!(row.starts_with("| builtin | 1.00x |"), "{row}");
         assert!(row.contains(&format!("| {:.1} |", at4.critical_median_us)), "{row}");
     }
 

@@ -100,6 +100,7 @@ struct SummaryRow<'a> {
     median_solve_us: Num,
     median_step_us: Num,
     total_solve_ms: Num,
+    median_critical_us: Num,
     mean_natural_rms: Num,
     mean_natural_max: Num,
     mean_penetration_max: Num,
@@ -146,6 +147,7 @@ impl<'a> From<&'a ModelSummary> for SummaryRow<'a> {
             median_solve_us: Num(m.all.median_solve_us),
             median_step_us: Num(m.all.median_step_us),
             total_solve_ms: Num(m.all.total_solve_ms),
+            median_critical_us: Num(m.all.median_critical_us),
             mean_natural_rms: Num(m.accuracy.natural_rms),
             mean_natural_max: Num(m.accuracy.natural_max),
             mean_penetration_max: Num(m.accuracy.penetration_max),
@@ -348,6 +350,6 @@ mod tests {
                 && text.ends_with(",blend_placed_on_same_states\n")
         );
         assert_eq!(text.lines().count(), 1);
-        assert_eq!(header::<SummaryRow>().unwrap().len(), 40);
+        assert_eq!(header::<SummaryRow>().unwrap().len(), 41);
     }
 }
