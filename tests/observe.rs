@@ -94,6 +94,22 @@ fn finish(child: Child, limit: Duration, what: &str) -> Output {
     out
 }
 
+/// A zenoh session of our own on a graph's router, as a foreign peer opens one (no TLS).
+fn foreign_session(endpoint: &str) -> runtime::zenoh::Session {
+    use runtime::zenoh::Wait;
+    let mut config = runtime::zenoh::Config::default();
+    let settings = [
+        ("mode", "\"peer\"".to_string()),
+        ("connect/endpoints", format!("[\"{endpoint}\"]")),
+        ("listen/endpoints", "[\"tcp/127.0.0.1:0\"]".to_string()),
+        ("scouting/multicast/enabled", "false".to_string()),
+    ];
+    for (k, v) in settings {
+        config.insert_json5(k, &v).unwrap();
+    }
+    runtime::zenoh::open(config).wait().unwrap()
+}
+
 /// Waits until `dc topic list` shows `topic` written in `namespace` (the graph is up).
 fn wait_for_writer(namespace: &str, topic: &str, zenoh: Option<&str>) {
     let started = Instant::now();
@@ -315,18 +331,8 @@ fn over_zenoh_list_and_echo_see_the_graph_and_count_a_garbage_frame() {
     );
 
     // A session of our own on the graph, to put a garbage payload on the topic's key.
-    let mut config = runtime::zenoh::Config::default();
-    let settings = [
-        ("mode", "\"peer\"".to_string()),
-        ("connect/endpoints", format!("[\"{endpoint}\"]")),
-        ("listen/endpoints", "[\"tcp/127.0.0.1:0\"]".to_string()),
-        ("scouting/multicast/enabled", "false".to_string()),
-    ];
-    for (k, v) in settings {
-        config.insert_json5(k, &v).unwrap();
-    }
     use runtime::zenoh::Wait;
-    let session = runtime::zenoh::open(config).wait().unwrap();
+    let session = foreign_session(&endpoint);
     let args = ["topic", "echo", "stats/solve", "--zenoh", &endpoint, "--namespace", ns, "--count", "60", "--json"];
     let mut echo = dc(&args).spawn().unwrap();
     let mut stdout = BufReader::new(echo.stdout.take().unwrap());
@@ -428,18 +434,8 @@ fn a_forged_frame_from_a_foreign_session_is_counted_and_the_graph_completes() {
     let (endpoint, log) = router_endpoint(&mut graph_run);
     wait_for_writer(&namespace, "bodies", None);
 
-    let mut config = runtime::zenoh::Config::default();
-    let settings = [
-        ("mode", "\"peer\"".to_string()),
-        ("connect/endpoints", format!("[\"{endpoint}\"]")),
-        ("listen/endpoints", "[\"tcp/127.0.0.1:0\"]".to_string()),
-        ("scouting/multicast/enabled", "false".to_string()),
-    ];
-    for (k, v) in settings {
-        config.insert_json5(k, &v).unwrap();
-    }
     use runtime::zenoh::Wait;
-    let session = runtime::zenoh::open(config).wait().unwrap();
+    let session = foreign_session(&endpoint);
     let forged = forged_control_frame();
     for _ in 0..3 {
         session.put(format!("dc/{namespace}/control"), forged.clone()).wait().unwrap();
