@@ -598,11 +598,12 @@ fn topic_list_shows_a_running_graphs_topics_with_their_writers_and_readers() {
     let listed = loop {
         let out = list();
         let stdout = String::from_utf8_lossy(&out.stdout).to_string();
-        // Up once the recorder reads bodies.
+        // Up once the recorder reads bodies and both writers of control (the simulator's and the
+        // launcher's) have registered: under load they show up one after the other.
+        let has = |row: [&str; 5]| stdout.lines().any(|l| l.split_whitespace().collect::<Vec<_>>()[1..] == row);
         if out.status.success()
-            && stdout
-                .lines()
-                .any(|l| l.split_whitespace().collect::<Vec<_>>()[1..] == ["bodies", "Bodies", "1", "1", "reliable"])
+            && has(["bodies", "Bodies", "1", "1", "reliable"])
+            && has(["control", "Control", "2", "1", "reliable"])
         {
             break stdout;
         }
