@@ -515,15 +515,6 @@ impl<'a> Supervisor<'a> {
             None => return Err(RunError::NoNodes(host.to_string())),
         };
         let lock = runtime::lock::NamespaceLock::acquire(&graph.namespace, host, &format!("graph `{}`", graph.name))?;
-        // A recording played into the namespace (`dc play`) would mix its runs with ours.
-        let players = runtime::lock::NamespaceLock::holders(&graph.namespace);
-        if let Some((_, holder)) = players.into_iter().find(|(h, _)| h == runtime::lock::PLAYER_HOST) {
-            return Err(RunError::NamespaceInUse {
-                namespace: graph.namespace.clone(),
-                host: host.to_string(),
-                holder,
-            });
-        }
         match runtime::cleanup_stale_resources() {
             Ok(0) => {}
             Ok(n) => tracing::info!("cleaned shared-memory resources of {n} dead iceoryx2 nodes"),

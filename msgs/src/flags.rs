@@ -14,40 +14,50 @@ fn outside(min: f64, max: f64, closed: bool) -> String {
     format!("must be a finite number in {}{min}, {max}]", if closed { '[' } else { '(' })
 }
 
-fn check_f64(s: &str, min: f64, max: f64, closed: bool) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && (v > min || (closed && v == min)) && v <= max => Ok(v),
-        Ok(_) => Err(outside(min, max, closed)),
-        Err(_) => Err(format!("not a number; {}", outside(min, max, closed))),
+/// A number `ok` accepts, or an error saying what it `must` be (`must be a finite number > 0,
+/// got -1`): the one parser behind every range below and the simulator's own ranges.
+pub fn number_where<T>(s: &str, ok: impl Fn(T) -> bool, must: &str) -> Result<T, String>
+where
+    T: std::str::FromStr + Copy + std::fmt::Display,
+    T::Err: std::fmt::Display,
+{
+    match s.parse::<T>() {
+        Ok(v) if ok(v) => Ok(v),
+        Ok(v) => Err(format!("must be {must}, got {v}")),
+        Err(e) => Err(e.to_string()),
     }
 }
 
-fn check_f32(s: &str, min: f32, max: f32, closed: bool) -> Result<f32, String> {
-    match s.trim().parse::<f32>() {
-        Ok(v) if v.is_finite() && (v > min || (closed && v == min)) && v <= max => Ok(v),
-        Ok(_) => Err(outside(min as f64, max as f64, closed)),
-        Err(_) => Err(format!("not a number; {}", outside(min as f64, max as f64, closed))),
+/// A finite number in `[min, max]` (`closed`) or `(min, max]`.
+fn check<T>(s: &str, min: T, max: T, closed: bool) -> Result<T, String>
+where
+    T: std::str::FromStr + Copy + PartialOrd + Into<f64> + std::fmt::Display,
+{
+    match s.trim().parse::<T>() {
+        Ok(v) if v.into().is_finite() && (v > min || (closed && v == min)) && v <= max => Ok(v),
+        Ok(_) => Err(outside(min.into(), max.into(), closed)),
+        Err(_) => Err(format!("not a number; {}", outside(min.into(), max.into(), closed))),
     }
 }
 
 /// A finite `f64` in `[min, max]`.
 pub fn f64_in(min: f64, max: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
-    move |s: &str| check_f64(s, min, max, true)
+    move |s: &str| check(s, min, max, true)
 }
 
 /// A finite `f64` in `(min, max]` (above `min`: `f64_above(0.0, ...)` is a positive number).
 pub fn f64_above(min: f64, max: f64) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
-    move |s: &str| check_f64(s, min, max, false)
+    move |s: &str| check(s, min, max, false)
 }
 
 /// A finite `f32` in `[min, max]`.
 pub fn f32_in(min: f32, max: f32) -> impl Fn(&str) -> Result<f32, String> + Clone + Send + Sync + 'static {
-    move |s: &str| check_f32(s, min, max, true)
+    move |s: &str| check(s, min, max, true)
 }
 
 /// A finite `f32` in `(min, max]`.
 pub fn f32_above(min: f32, max: f32) -> impl Fn(&str) -> Result<f32, String> + Clone + Send + Sync + 'static {
-    move |s: &str| check_f32(s, min, max, false)
+    move |s: &str| check(s, min, max, false)
 }
 
 #[cfg(test)]
@@ -72,5 +82,7 @@ mod tests {
         assert!(scale("1e39").is_err() && scale("nan").is_err());
         assert_eq!(f32_in(0.0, 1.0)("0"), Ok(0.0));
         assert!(f32_in(0.0, 1.0)("-0.1").is_err());
+        assert_eq!(number_where::<f32>("-1", |v| v > 0.0, "> 0").unwrap_err(), "must be > 0, got -1");
+        assert!(number_where::<f32>("x", |v| v > 0.0, "> 0").is_err());
     }
 }

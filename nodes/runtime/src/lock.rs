@@ -138,6 +138,13 @@ impl NamespaceLock {
                 .open(&path)
                 .map_err(|e| err(e.to_string()))?;
             let locked = try_flock(&file).map_err(|e| err(e.to_string()))?;
+            // Held by someone who has not said who: another process's scan of the folder (stale
+            // files, holders) tests each lock for a moment, or a holder is about to write its
+            // name. Either way it is gone in a moment: try again before calling it in use.
+            if !locked && tries < 100 && file.metadata().is_ok_and(|m| m.len() == 0) {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+                continue;
+            }
             if !locked || is_file_at(&file, &path) {
                 break (file, locked);
             }
@@ -158,7 +165,18 @@ impl NamespaceLock {
         let said = format!("{holder}, pid {}", std::process::id());
         let wrote = file.set_len(0).and_then(|_| file.rewind()).and_then(|_| file.write_all(said.as_bytes()));
         wrote.map_err(|e| err(e.to_string()))?;
-        Ok(NamespaceLock { _file: file, path })
+        let lock = NamespaceLock { _file: file, path };
+        // A recording played into a namespace (`dc play`) shares it with no graph, and a graph
+        // none with a player: their runs would mix. Checked once our own lock is held, so two
+        // that start together cannot both miss each other.
+        let crossing = Self::holders(namespace)
+            .into_iter()
+            .find(|(other, _)| other != host && (other == PLAYER_HOST || host == PLAYER_HOST));
+        if let Some((other, holder)) = crossing {
+            drop(lock);
+            return Err(LockError::InUse { namespace: namespace.to_string(), host: other, holder });
+        }
+        Ok(lock)
     }
 }
 
@@ -204,18 +222,27 @@ mod tests {
     }
 
     #[test]
-    fn the_holders_of_a_namespace_are_listed_by_host() {
+    fn the_holders_of_a_namespace_are_listed_by_host_and_a_player_shares_with_no_graph() {
         let ns = format!("lock-holders-{}", std::process::id());
         assert!(NamespaceLock::holders(&ns).is_empty());
-        let a = NamespaceLock::acquire(&ns, "local", "graph `g`").unwrap();
         let b = NamespaceLock::acquire(&ns, PLAYER_HOST, "dc play x.mcap").unwrap();
+        let e = NamespaceLock::acquire(&ns, "local", "graph `g`").err().expect("a player holds it");
+        assert!(e.to_string().contains("dc play x.mcap"), "{e}");
+        drop(b);
+        let a = NamespaceLock::acquire(&ns, "local", "graph `g`").unwrap();
+        let e = NamespaceLock::acquire(&ns, PLAYER_HOST, "dc play y.mcap").err().expect("a graph holds it");
+        assert!(e.to_string().contains("graph `g`"), "{e}");
+        // The refused player left nothing behind; the graph's lock is untouched.
+        assert_eq!(NamespaceLock::holders(&ns).len(), 1);
+        // Two hosts of one graph on one machine (as the two-host tests run) are both listed.
+        let b = NamespaceLock::acquire(&ns, "b", "graph `g`").unwrap();
         // Another namespace that starts with this one's name is not this one.
         let c = NamespaceLock::acquire(&format!("{ns}x"), "local", "graph `h`").unwrap();
         let pid = std::process::id();
         assert_eq!(
             NamespaceLock::holders(&ns),
             [
-                (PLAYER_HOST.to_string(), format!("dc play x.mcap, pid {pid}")),
+                ("b".to_string(), format!("graph `g`, pid {pid}")),
                 ("local".to_string(), format!("graph `g`, pid {pid}"))
             ]
         );

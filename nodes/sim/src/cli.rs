@@ -10,11 +10,7 @@ use std::time::Duration;
 
 /// A number `ok` accepts, or an error saying what it `must` be.
 fn f32_where(s: &str, ok: fn(f32) -> bool, must: &str) -> Result<f32, String> {
-    match s.parse::<f32>() {
-        Ok(v) if ok(v) => Ok(v),
-        Ok(v) => Err(format!("must be {must}, got {v}")),
-        Err(e) => Err(e.to_string()),
-    }
+    msgs::flags::number_where(s, ok, must)
 }
 
 /// A finite number > 0 (tolerances, sizes).

@@ -148,10 +148,9 @@ fn publisher(node: &runtime::Node, kind: FrameKind, topic: &str, mark: bool) -> 
 /// Takes `namespace` for the player, or (with `--into-live`) joins the graph that holds it; a
 /// namespace a graph holds without `--into-live` is refused, naming the graph.
 fn hold_namespace(namespace: &str, args: &Args) -> anyhow::Result<Option<runtime::lock::NamespaceLock>> {
-    use runtime::lock::{NamespaceLock, PLAYER_HOST};
-    let holders = NamespaceLock::holders(namespace);
+    use runtime::lock::{LockError, NamespaceLock, PLAYER_HOST};
     if args.into_live {
-        if holders.is_empty() {
+        if NamespaceLock::holders(namespace).is_empty() {
             tracing::warn!(
                 namespace,
                 "--into-live: no graph runs in this namespace; publishing marked as replayed anyway"
@@ -159,13 +158,13 @@ fn hold_namespace(namespace: &str, args: &Args) -> anyhow::Result<Option<runtime
         }
         return Ok(None);
     }
-    if let Some((host, holder)) = holders.first() {
-        anyhow::bail!(
+    match NamespaceLock::acquire(namespace, PLAYER_HOST, &format!("dc play {}", args.input.display())) {
+        Ok(lock) => Ok(Some(lock)),
+        Err(LockError::InUse { host, holder, .. }) => anyhow::bail!(
             "namespace `{namespace}` is in use by {holder} (host `{host}`): its metrics and recorder would take the recording's runs for their own; give another --namespace, or pass --into-live to publish into it with every run marked as replayed"
-        );
+        ),
+        Err(e) => Err(e.into()),
     }
-    let holder = format!("dc play {}", args.input.display());
-    Ok(Some(NamespaceLock::acquire(namespace, PLAYER_HOST, &holder)?))
 }
 
 fn main() -> std::process::ExitCode {
