@@ -103,8 +103,12 @@ fn resolve_every_step(file: &std::path::Path, compliance: f32, relaxation: f32) 
         let warm = sim::problem::builtin_warm_start(&problem.contacts);
         let mut solver_bodies = sim::problem::bodies_of(&problem.bodies);
         let mut solver = sim::ContactSolver::new();
-        let report =
-            solver.solve(&sim::problem::rows_of(&problem.contacts), &mut solver_bodies, &warm, &problem.params());
+        let report = solver.solve(
+            &sim::problem::rows_of(&problem.contacts, problem.params().friction),
+            &mut solver_bodies,
+            &warm,
+            &problem.params(),
+        );
         assert_eq!(report.sweeps, stats.header.sweeps, "step {:?}", step.key);
         assert_eq!(solver.residuals(), &stats.items[..], "step {:?}: residuals differ", step.key);
         // The final impulses are the recorded contacts' (same order: sorted by key).

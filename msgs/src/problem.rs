@@ -95,6 +95,15 @@ pub struct ProblemHeader {
     /// recordings: the change rule, the only one then).
     #[serde(default)]
     pub stop: u32,
+    /// How it was solved: 0 sweeps (the fields above), 1 Newton, 2 Newton from 200 dynamic
+    /// bodies (absent in older recordings: sweeps).
+    #[serde(default)]
+    pub method: u32,
+    /// The friction law of its rows: 0 Box2D's (`|t| <= mu n`), 1 the per-step bound
+    /// (`mu` times the previous step's normal impulse for a contact that existed then; absent in
+    /// older recordings: Box2D's).
+    #[serde(default)]
+    pub friction: u32,
 }
 
 /// A step's bodies of the problem.

@@ -4,7 +4,7 @@
 
 use crate::error::SimError;
 use crate::scene::{SamplerKind, SceneConfig, SceneKind};
-use crate::solver::{RowOrder, SolveParams, SolverSetting, StopRule};
+use crate::solver::{FrictionModel, RowOrder, SolveParams, SolverSetting, StopRule};
 use crate::world::WorldParams;
 use std::time::Duration;
 
@@ -140,6 +140,12 @@ pub struct SolveArgs {
     /// evaluation seeds (docs/solvers.md); `--solver pgs --stop change` is the thesis's solver.
     #[arg(long, default_value_t = SolverSetting::RECOMMENDED, value_parser = |s: &str| s.parse::<SolverSetting>())]
     pub solver: SolverSetting,
+    /// The friction law: box (Box2D's, `|t| <= mu n` of the step's own normal impulse) or
+    /// per-step (the bound frozen at `mu` times the contact's previous normal impulse: each
+    /// step's problem a convex QP; a new contact takes Box2D's law). docs/solvers.md says
+    /// what each costs.
+    #[arg(long, default_value_t = FrictionModel::Box, value_parser = |s: &str| s.parse::<FrictionModel>())]
+    pub friction: FrictionModel,
     /// Row order of the solver's sweeps: recorded (contact keys) or down (by contact height, top
     /// first, every step); overrides the order --solver names.
     #[arg(long, value_parser = |s: &str| s.parse::<RowOrder>())]
@@ -192,6 +198,7 @@ impl SolveArgs {
             max_sweeps: budget.unwrap_or(self.max_sweeps),
             compliance: self.compliance,
             stop: if budget.is_some() { StopRule::Natural } else { self.stop },
+            friction: self.friction,
             ..SolveParams::default()
         }
         .with_setting(setting);

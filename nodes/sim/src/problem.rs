@@ -4,7 +4,8 @@
 //! start trains on, and the solver it can be judged by in the loop.
 
 use crate::solver::{
-    ContactRow, ContactSolver, Impulse, Momentum, RowOrder, SolveParams, SolveReport, SolverBody, StopRule,
+    ContactRow, ContactSolver, FrictionModel, Impulse, Method, Momentum, RowOrder, SolveParams, SolveReport,
+    SolverBody, StopRule,
 };
 use msgs::{ProblemBody, ProblemContact, ProblemHeader, StepHeader};
 use rapier2d::math::Vec2;
@@ -17,8 +18,8 @@ pub struct Problem {
     pub contacts: Vec<ProblemContact>,
 }
 
-/// The solver's rows of a problem's contacts.
-pub fn rows_of(contacts: &[ProblemContact]) -> Vec<ContactRow> {
+/// The solver's rows of a problem's contacts under `friction`.
+pub fn rows_of(contacts: &[ProblemContact], friction: FrictionModel) -> Vec<ContactRow> {
     contacts
         .iter()
         .map(|c| ContactRow {
@@ -29,8 +30,15 @@ pub fn rows_of(contacts: &[ProblemContact]) -> Vec<ContactRow> {
             normal: Vec2::from(c.normal),
             friction: c.friction,
             height: c.height,
+            friction_bound: per_step_bound(friction, c.age > 0, c.friction, c.previous[0]),
         })
         .collect()
+}
+
+/// A row's fixed friction bound under `friction`: the per-step model's `mu * max(previous
+/// normal, 0)` for a contact that existed in the previous step; `None` (the Box2D law) otherwise.
+pub fn per_step_bound(friction: FrictionModel, existed: bool, mu: f32, previous_normal: f32) -> Option<f32> {
+    (friction == FrictionModel::PerStep && existed).then(|| mu * previous_normal.max(0.0))
 }
 
 /// The solver's bodies of a problem.
@@ -55,7 +63,7 @@ pub fn solve(
 ) -> (SolveReport, Vec<Impulse>) {
     let mut solver_bodies = bodies_of(bodies);
     let mut solver = ContactSolver::new();
-    let report = solver.solve(&rows_of(contacts), &mut solver_bodies, warm, params);
+    let report = solver.solve(&rows_of(contacts, params.friction), &mut solver_bodies, warm, params);
     (report, solver.impulses().to_vec())
 }
 
@@ -76,6 +84,12 @@ pub fn header_of(step: StepHeader, bodies: u32, solve: &SolveParams) -> ProblemH
         restart,
         order: (solve.order == RowOrder::Down) as u32,
         stop: (solve.stop == StopRule::Natural) as u32,
+        method: match solve.method {
+            Method::Sweeps => 0,
+            Method::Newton => 1,
+            Method::Auto => 2,
+        },
+        friction: (solve.friction == FrictionModel::PerStep) as u32,
         ..ProblemHeader::default()
     }
 }
@@ -92,6 +106,12 @@ impl Problem {
             momentum: if h.momentum == 1 { Momentum::Nncg { restart: h.restart } } else { Momentum::None },
             order: if h.order == 1 { RowOrder::Down } else { RowOrder::Recorded },
             stop: if h.stop == 1 { StopRule::Natural } else { StopRule::Change },
+            method: match h.method {
+                1 => Method::Newton,
+                2 => Method::Auto,
+                _ => Method::Sweeps,
+            },
+            friction: if h.friction == 1 { FrictionModel::PerStep } else { FrictionModel::Box },
         }
     }
 

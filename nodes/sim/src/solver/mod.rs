@@ -6,19 +6,25 @@
 //! - [`pgs`]: the velocity phase, the projected Gauss-Seidel family (PGS, SOR, NNCG; recorded or
 //!   top-down row order) iterated from any warm start to a stopping rule, its sweeps counted
 //!   ([`ContactSolver::solve`]);
+//! - [`newton`]: Newton's method with a sparse Cholesky per iteration (proximal augmented
+//!   Lagrangian in body velocities): iterations that do not grow with the pile's depth;
 //! - [`setting`]: which member of the family ([`SolverSetting`]) and which stopping rule, spelled
 //!   as the command lines spell them;
 //! - [`position`]: Box2D 2.3's position pass after integration ([`correct_positions`]).
 
+pub mod newton;
 pub mod pgs;
 pub mod position;
 pub mod rows;
 pub mod setting;
 
+pub use newton::{NewtonError, NewtonParams, NewtonSolver, NewtonStats};
 pub use pgs::{
     convergence_rate, natural_residual, ContactSolver, NaturalResidual, SolveParams, SolveReport, RATE_WINDOW,
     TRAIL_SWEEPS,
 };
 pub use position::{correct_positions, measure, PoseBody, PositionGeometry, PositionParams, PositionRow};
 pub use rows::{relative_velocity, row_masses, tangent_of, ContactRow, Impulse, SolverBody};
-pub use setting::{parse_settings, Momentum, RowOrder, SolverSetting, StopRule};
+pub use setting::{
+    parse_settings, FrictionModel, Method, Momentum, RowOrder, SolverSetting, StopRule, AUTO_NEWTON_FROM,
+};

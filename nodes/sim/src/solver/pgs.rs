@@ -23,8 +23,12 @@
 //! iteration count comparable across warm-start models and the complementarity check simple.
 //! The solver owns only reusable buffers; bodies and contact rows are passed in.
 
+use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver};
 use super::rows::{cross, cross_sv, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
-use super::setting::{valid_relaxation, Momentum, RowOrder, SolverSetting, StopRule, RELAXATION_LIMIT};
+use super::setting::AUTO_NEWTON_FROM;
+use super::setting::{
+    valid_relaxation, FrictionModel, Method, Momentum, RowOrder, SolverSetting, StopRule, RELAXATION_LIMIT,
+};
 use rapier2d::math::Vec2;
 
 /// The velocity solve's iteration and stopping rule.
@@ -50,6 +54,11 @@ pub struct SolveParams {
     pub order: RowOrder,
     /// What "converged" means.
     pub stop: StopRule,
+    /// Sweeps or Newton ([`Method`]).
+    pub method: Method,
+    /// The friction law the rows were built with (the rows carry their bounds; this says which
+    /// law made them, for the problem's header and the solver's checks).
+    pub friction: FrictionModel,
 }
 
 impl Default for SolveParams {
@@ -62,6 +71,8 @@ impl Default for SolveParams {
             momentum: Momentum::None,
             order: RowOrder::Recorded,
             stop: StopRule::Change,
+            method: Method::Sweeps,
+            friction: FrictionModel::Box,
         }
     }
 }
@@ -89,12 +100,18 @@ impl SolveParams {
 
     /// The solver these parameters pick.
     pub fn setting(&self) -> SolverSetting {
-        SolverSetting { relaxation: self.relaxation, momentum: self.momentum, order: self.order }
+        SolverSetting { method: self.method, relaxation: self.relaxation, momentum: self.momentum, order: self.order }
     }
 
     /// These parameters with `setting`'s iteration and row order.
     pub fn with_setting(self, setting: SolverSetting) -> SolveParams {
-        SolveParams { relaxation: setting.relaxation, momentum: setting.momentum, order: setting.order, ..self }
+        SolveParams {
+            method: setting.method,
+            relaxation: setting.relaxation,
+            momentum: setting.momentum,
+            order: setting.order,
+            ..self
+        }
     }
 
     /// What a compliance must be, in words: `in [0, 10]`.
@@ -130,6 +147,8 @@ pub struct SolveReport {
     pub final_residual: f32,
     /// The natural residual of the final impulses (whatever the stopping rule).
     pub natural: NaturalResidual,
+    /// Sparse Cholesky factorisations (Newton: one per iteration, counted in `sweeps` too).
+    pub factorisations: u32,
 }
 
 /// A row with its precomputed effective masses.
@@ -141,12 +160,21 @@ struct Prepared {
     rb: Vec2,
     n: Vec2,
     t: Vec2,
+    /// The tangent bound is `mu * normal + fixed_bound`: the Box2D law (`fixed_bound` 0) or the
+    /// per-step model's fixed bound (`mu` 0), without a branch in the sweep.
     mu: f32,
+    fixed_bound: f32,
     normal_mass: f32,
     tangent_mass: f32,
 }
 
 impl Prepared {
+    /// The largest tangent impulse with normal impulse `normal`.
+    #[inline(always)]
+    fn bound(&self, normal: f32) -> f32 {
+        self.mu * normal + self.fixed_bound
+    }
+
     fn of(r: &ContactRow, bodies: &[SolverBody]) -> Prepared {
         let (a, b) = (r.body_a as usize, r.body_b as usize);
         let t = tangent_of(r.normal);
@@ -157,7 +185,8 @@ impl Prepared {
             rb: r.rb,
             n: r.normal,
             t,
-            mu: r.friction,
+            mu: if r.friction_bound.is_some() { 0.0 } else { r.friction },
+            fixed_bound: r.friction_bound.unwrap_or(0.0),
             normal_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, r.normal),
             tangent_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, t),
         }
@@ -180,6 +209,8 @@ pub struct ContactSolver {
     /// Each row's impulse changes in the last [`TRAIL_SWEEPS`] sweeps (the directions the
     /// iteration was still moving in: its slowest modes), most recent first, in row order.
     trail: Vec<[Impulse; TRAIL_SWEEPS]>,
+    /// The Newton method's state (pattern, symbolic factorisation), kept across steps.
+    newton: NewtonSolver,
 }
 
 /// How many of a solve's last sweeps [`ContactSolver::trail`] keeps per row.
@@ -208,6 +239,18 @@ impl ContactSolver {
         params: &SolveParams,
     ) -> SolveReport {
         assert_eq!(rows.len(), warm_start.len(), "one warm-start impulse per contact row");
+        let newton = match params.method {
+            Method::Newton => true,
+            Method::Auto => dynamic_bodies(bodies) >= AUTO_NEWTON_FROM,
+            Method::Sweeps => false,
+        };
+        if newton && !rows.is_empty() {
+            match self.solve_newton(rows, bodies, warm_start, params) {
+                Ok(report) => return report,
+                // The bodies are untouched: the sweeps solve the same problem.
+                Err(e) => tracing::warn!("newton solver: {e}; this step is solved by {}", params.setting().sweeps()),
+            }
+        }
         self.visit.clear();
         self.visit.extend(0..rows.len() as u32);
         if params.order == RowOrder::Down {
@@ -222,7 +265,7 @@ impl ContactSolver {
         self.work.extend(self.prepared.iter().zip(&self.visit).map(|(c, &i)| {
             let w = warm_start[i as usize];
             let normal = if w.normal.is_finite() { w.normal.max(0.0) } else { 0.0 };
-            let max_t = c.mu * normal;
+            let max_t = c.bound(normal);
             let tangent = if w.tangent.is_finite() { w.tangent.clamp(-max_t, max_t) } else { 0.0 };
             Impulse { normal, tangent }
         }));
@@ -293,6 +336,39 @@ impl ContactSolver {
         report
     }
 
+    /// The Newton solve ([`super::newton`]); its iterations are the report's sweeps.
+    fn solve_newton(
+        &mut self,
+        rows: &[ContactRow],
+        bodies: &mut [SolverBody],
+        warm_start: &[Impulse],
+        params: &SolveParams,
+    ) -> Result<SolveReport, NewtonError> {
+        let problem =
+            NewtonProblem { rows, bodies, warm_start, compliance: params.compliance, tolerance: params.tolerance };
+        let newton = NewtonParams {
+            max_iterations: params.max_sweeps.min(NewtonParams::default().max_iterations),
+            ..NewtonParams::default()
+        };
+        let mut solved = bodies.to_vec();
+        let stats = self.newton.solve(&problem, &newton, &mut self.impulses, &mut solved)?;
+        bodies.copy_from_slice(&solved);
+        self.prepared.clear();
+        self.prepared.extend(rows.iter().map(|r| Prepared::of(r, bodies)));
+        let natural = natural_residual_of(&self.prepared, &self.impulses, bodies, 1.0 / (1.0 + params.compliance));
+        self.residuals.clear();
+        self.residuals.extend_from_slice(self.newton.residuals());
+        self.trail.clear();
+        self.trail.resize(rows.len(), [Impulse::default(); TRAIL_SWEEPS]);
+        Ok(SolveReport {
+            sweeps: stats.iterations,
+            converged: natural.max <= params.tolerance,
+            final_residual: natural.max,
+            natural,
+            factorisations: stats.iterations,
+        })
+    }
+
     /// The final impulses and trail back in row order, the trail's last sweep first.
     fn finish(&mut self, report: &SolveReport) {
         let newest = (report.sweeps as usize + TRAIL_SWEEPS - 1) % TRAIL_SWEEPS;
@@ -320,7 +396,7 @@ impl ContactSolver {
             // Tangent first, bounded by the current normal impulse (Box2D's order).
             let dv = relative(bodies, c);
             let vt = dv.dot(c.t);
-            let max_t = c.mu * l.normal;
+            let max_t = c.bound(l.normal);
             let new_t = relax(l.tangent, (l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t);
             let dt = new_t - l.tangent;
             l.tangent = new_t;
@@ -354,7 +430,7 @@ impl ContactSolver {
         {
             if beta > 0.0 {
                 let normal = (l.normal + beta * p.normal).max(0.0);
-                let max_t = c.mu * normal;
+                let max_t = c.bound(normal);
                 let tangent = (l.tangent + beta * p.tangent).clamp(-max_t, max_t);
                 let (dn, dt) = (normal - l.normal, tangent - l.tangent);
                 *l = Impulse { normal, tangent };
@@ -424,13 +500,18 @@ fn natural_residual_of(
         let dv = relative(bodies, c);
         let (vn, vt) = (dv.dot(c.n), dv.dot(c.t));
         let rn = (l.normal - ((l.normal - c.normal_mass * vn) * softness).max(0.0)).abs();
-        let max_t = c.mu * l.normal;
+        let max_t = c.bound(l.normal);
         let rt = (l.tangent - ((l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t)).abs();
         max = max.max(rn).max(rt);
         squared += (rn as f64).powi(2) + (rt as f64).powi(2);
     }
     let parts = 2 * prepared.len().max(1);
     NaturalResidual { max, rms: (squared / parts as f64).sqrt() as f32 }
+}
+
+/// Bodies that move under impulses (a positive inverse mass or inertia).
+fn dynamic_bodies(bodies: &[SolverBody]) -> usize {
+    bodies.iter().filter(|b| b.inv_mass > 0.0 || b.inv_inertia > 0.0).count()
 }
 
 /// How many of the last sweeps [`ContactSolver::convergence_rate`] averages over.
@@ -554,6 +635,7 @@ mod tests {
             normal: Vec2::Y,
             friction: 0.5,
             height: 0.0,
+            friction_bound: None,
         };
         let mut s = ContactSolver::new();
         let rep = s.solve(&[row], &mut bodies, &[Impulse::default()], &SolveParams::default());
@@ -613,6 +695,7 @@ mod tests {
                 normal: Vec2::Y,
                 friction: 0.5,
                 height: i as f32,
+                friction_bound: None,
             })
             .collect();
         (bodies, rows)

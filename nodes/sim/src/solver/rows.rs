@@ -63,6 +63,18 @@ pub struct ContactRow {
     pub friction: f32,
     /// Height of the contact point (world y): the top-down row order's key.
     pub height: f32,
+    /// The per-step friction model's bound: `|tangent| <= bound` whatever this step's normal
+    /// impulse (`friction` times the contact's normal impulse of the previous step). `None`:
+    /// the Box2D law, `|tangent| <= friction * normal` of this step's own normal impulse.
+    pub friction_bound: Option<f32>,
+}
+
+impl ContactRow {
+    /// The largest tangent impulse the row allows with normal impulse `normal`.
+    #[inline]
+    pub fn tangent_bound(&self, normal: f32) -> f32 {
+        self.friction_bound.unwrap_or(self.friction * normal)
+    }
 }
 
 /// Effective mass `1 / (J M^-1 J^T)` of a row with direction `d` (0 when both bodies are fixed).
@@ -160,6 +172,7 @@ pub(crate) mod fixtures {
             normal: Vec2::Y,
             friction: 0.5,
             height: 0.0,
+            friction_bound: None,
         }
     }
 }

@@ -23,6 +23,60 @@ pub enum Momentum {
     Nncg { restart: f32 },
 }
 
+/// How a step's problem is solved.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Method {
+    /// Sweeps over the rows: the projected Gauss-Seidel family.
+    #[default]
+    Sweeps,
+    /// Newton's method on the problem's proximal augmented Lagrangian in body velocities, a
+    /// sparse Cholesky per iteration ([`super::newton`]).
+    Newton,
+    /// Newton from [`AUTO_NEWTON_FROM`] dynamic bodies on, the sweeps below.
+    Auto,
+}
+
+/// The problem size (dynamic bodies) from which `auto` solves with Newton.
+pub const AUTO_NEWTON_FROM: usize = 200;
+
+/// Which law bounds the friction impulse of a step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FrictionModel {
+    /// Box2D's law: `|tangent| <= mu * normal` of the step's own normal impulse (the
+    /// complementarity problem is not convex; friction and normal load are coupled).
+    #[default]
+    Box,
+    /// The bound frozen per step at `mu` times the contact's normal impulse of the previous
+    /// step (a contact on its first step takes the Box2D law): each step's problem is a convex
+    /// quadratic program with box constraints.
+    PerStep,
+}
+
+impl Keyword for FrictionModel {
+    const WHAT: &'static str = "friction model";
+    const KEYWORDS: &'static [(Self, &'static str)] =
+        &[(FrictionModel::Box, "box"), (FrictionModel::PerStep, "per-step")];
+}
+
+impl FrictionModel {
+    pub fn name(self) -> &'static str {
+        self.keyword()
+    }
+}
+
+impl fmt::Display for FrictionModel {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for FrictionModel {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::from_keyword(s)
+    }
+}
+
 /// The order the rows are visited in within a sweep.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum RowOrder {
@@ -115,6 +169,8 @@ impl FromStr for RowOrder {
 /// `/down` for the top-down row order (`sor:1.4/down`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SolverSetting {
+    /// Sweeps, Newton, or by size; Newton falls back to the sweeps below if it fails.
+    pub method: Method,
     pub relaxation: f32,
     pub momentum: Momentum,
     pub order: RowOrder,
@@ -129,16 +185,31 @@ impl Default for SolverSetting {
 impl SolverSetting {
     /// The thesis's solver: projected Gauss-Seidel in the recorded order.
     pub const PGS: SolverSetting =
-        SolverSetting { relaxation: 1.0, momentum: Momentum::None, order: RowOrder::Recorded };
+        SolverSetting { method: Method::Sweeps, relaxation: 1.0, momentum: Momentum::None, order: RowOrder::Recorded };
 
     /// The solver `dc-sim` uses unless told otherwise: NNCG restarting above 1.2, rows top-down
     /// (0.34x PGS's sweeps and 0.36x its time to the same natural residual on the evaluation
     /// seeds; chosen on validation seeds, docs/research/solver-study.md).
-    pub const RECOMMENDED: SolverSetting =
-        SolverSetting { relaxation: 1.0, momentum: Momentum::Nncg { restart: 1.2 }, order: RowOrder::Down };
+    pub const RECOMMENDED: SolverSetting = SolverSetting {
+        method: Method::Sweeps,
+        relaxation: 1.0,
+        momentum: Momentum::Nncg { restart: 1.2 },
+        order: RowOrder::Down,
+    };
+
+    /// Newton ([`Method::Newton`]), the recommended sweeps behind it.
+    pub const NEWTON: SolverSetting = SolverSetting { method: Method::Newton, ..SolverSetting::RECOMMENDED };
+
+    /// Newton from [`AUTO_NEWTON_FROM`] dynamic bodies, the recommended sweeps below.
+    pub const AUTO: SolverSetting = SolverSetting { method: Method::Auto, ..SolverSetting::RECOMMENDED };
 
     /// What `--solver` accepts, in words.
-    pub const SPELLING: &'static str = "pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down) or /recorded";
+    pub const SPELLING: &'static str = "newton, auto (newton from 200 bodies, nncg:1.2/down below), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down) or /recorded";
+
+    /// The sweeps of this setting (what Newton falls back to; itself for the sweeps).
+    pub fn sweeps(self) -> SolverSetting {
+        SolverSetting { method: Method::Sweeps, ..self }
+    }
 
     /// Whether the setting is one the solver accepts (a relaxation in (0, 2), a finite restart
     /// threshold >= 0).
@@ -153,6 +224,11 @@ impl SolverSetting {
 
 impl fmt::Display for SolverSetting {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.method {
+            Method::Newton => return f.write_str("newton"),
+            Method::Auto => return f.write_str("auto"),
+            Method::Sweeps => {}
+        }
         match (self.momentum, self.relaxation) {
             (Momentum::None, 1.0) => write!(f, "pgs")?,
             (Momentum::None, w) => write!(f, "sor:{w}")?,
@@ -178,6 +254,11 @@ impl FromStr for SolverSetting {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         let bad = |why: String| format!("solver `{s}`: {why} (expected {})", Self::SPELLING);
+        match s {
+            "newton" => return Ok(SolverSetting::NEWTON),
+            "auto" => return Ok(SolverSetting::AUTO),
+            _ => {}
+        }
         let (method, order) = match s.split_once('/') {
             Some((m, o)) => (m, o.parse::<RowOrder>().map_err(bad)?),
             None => (s, RowOrder::Recorded),
@@ -205,7 +286,7 @@ impl FromStr for SolverSetting {
                 None => return Err(bad(format!("unknown method `{r}`"))),
             },
         };
-        let setting = SolverSetting { relaxation, momentum, order };
+        let setting = SolverSetting { method: Method::Sweeps, relaxation, momentum, order };
         if !setting.is_valid() {
             return Err(bad("out of range".to_string()));
         }
@@ -235,9 +316,19 @@ mod tests {
 
     #[test]
     fn settings_read_back_what_they_print() {
-        for s in
-            ["pgs", "sor:1.4", "nncg", "nncg:0", "nncg:2.5", "pgs/down", "sor:1.2/down", "nncg/down", "nncg+sor:1.3"]
-        {
+        for s in [
+            "newton",
+            "auto",
+            "pgs",
+            "sor:1.4",
+            "nncg",
+            "nncg:0",
+            "nncg:2.5",
+            "pgs/down",
+            "sor:1.2/down",
+            "nncg/down",
+            "nncg+sor:1.3",
+        ] {
             let setting: SolverSetting = s.parse().unwrap();
             assert_eq!(setting.to_string(), s);
             assert_eq!(setting.to_string().parse::<SolverSetting>().unwrap(), setting);
@@ -263,5 +354,7 @@ mod tests {
         assert!(parse_settings("pgs,sor:1.4,pgs").unwrap_err().contains("twice"));
         assert!(parse_settings(" , ").unwrap_err().contains("no solver"));
         assert!("natural".parse::<StopRule>().is_ok() && "tight".parse::<StopRule>().is_err());
+        assert_eq!("per-step".parse::<FrictionModel>(), Ok(FrictionModel::PerStep));
+        assert!("coulomb".parse::<FrictionModel>().unwrap_err().contains("box, per-step"));
     }
 }

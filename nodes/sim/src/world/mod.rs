@@ -28,7 +28,7 @@ pub use params::WorldParams;
 
 use crate::contact::{ContactPoint, ImpulseHistory, SolveTrail};
 use crate::error::SimError;
-use crate::problem::Problem;
+use crate::problem::{per_step_bound, Problem};
 use crate::scene::{BodyKind, Scene, SceneConfig};
 use crate::solver::position::rotate;
 use crate::solver::{
@@ -343,8 +343,11 @@ impl World {
             self.solver_bodies.push(SolverBody { v, w: b.w, inv_mass: b.inv_mass(), inv_inertia: b.inv_inertia() });
         }
         self.rows.clear();
-        for (c, pr) in self.contacts.iter().zip(&self.position_rows) {
+        let friction = self.params.solve.friction;
+        let pasts = self.history.pasts(self.contacts.iter().map(|c| &c.key));
+        for ((c, pr), past) in self.contacts.iter().zip(&self.position_rows).zip(pasts) {
             let (a, b) = (&self.bodies[pr.body_a as usize], &self.bodies[pr.body_b as usize]);
+            let previous = past.previous;
             self.rows.push(ContactRow {
                 body_a: pr.body_a,
                 body_b: pr.body_b,
@@ -353,6 +356,12 @@ impl World {
                 normal: c.normal,
                 friction: c.friction,
                 height: c.point.y,
+                friction_bound: per_step_bound(
+                    friction,
+                    previous.is_some(),
+                    c.friction,
+                    previous.map_or(0.0, |p| p.normal),
+                ),
             });
         }
     }

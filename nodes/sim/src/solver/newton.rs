@@ -1,0 +1,912 @@
+//! The Newton solver: a step's contact problem solved with a sparse Cholesky factorisation per
+//! iteration, so that its iterations do not grow with the pile's depth as sweeps do.
+//!
+//! **Formulation** (the proximal point method on the contact impulses, i.e. the augmented
+//! Lagrangian in body velocities; MuJoCo's primal Newton solver and Drake's SAP are this family).
+//! The contact problem is the dual of `min_v 1/2 |v - v0|_M^2` under the rows' constraints. With
+//! the outer iterate `lk` fixed, each row part's impulse is the projection
+//! `l(u) = proj_K((lk - rho u) / (1 + rho R))` of a trial value (u the row's relative velocity,
+//! `K` its interval: `[0, inf)` for a normal, `[-c, c]` for a tangent, `R` the compliance
+//! `gamma / m`), and `v` minimises the convex, piecewise-quadratic, C^1 function
+//! `L(v) = 1/2 |v - v0|_M^2 + sum psi(J v)` with `psi' = -l`. Newton on `L`: gradient
+//! `M (v - v0) - J^T l(J v)`, Hessian `M + sum_free w J^T J` (w = rho / (1 + rho R) on each row part
+//! whose trial value lies inside its interval) — symmetric positive definite however redundant
+//! the contacts, so a jammed pile never makes it singular — and an exact line search on `L`
+//! (its derivative along the step is monotone and piecewise linear). When `L`'s minimiser is
+//! reached, `lk` moves to `l(J v)`: one outer iteration of the proximal point method, which
+//! converges at a rate `1 / (1 + rho a)` on a mode of stiffness `a`, so a large `rho` (scaled by
+//! each row's effective mass) takes the pile-wide modes that sweeps diffuse slowly in a few
+//! outer iterations.
+//!
+//! **Friction.** Under the per-step model every row's tangent interval is fixed: the problem is a
+//! convex QP and the method converges to it. Under the Box2D law the tangent interval
+//! `mu * normal` follows the normal impulse, which the outer iteration updates (staggered): the
+//! fixed point is the Box2D law's solution, but the coupling is not second order (the issue's
+//! prototype stalled near 1e-3 at 400 bodies and more).
+//!
+//! **Work.** Everything inside is f64. The Hessian's pattern (blocks of body pairs in contact) is
+//! the same for every iteration of a step, and across steps while the contact graph keeps its
+//! body pairs: the symbolic factorisation (ordering, elimination tree, supernodes) is kept and
+//! reused then ([`NewtonStats::symbolic_reused`]). The stopping rule is the PGS family's natural
+//! residual of the unregularised problem (no regularisation is left at the solution: the
+//! proximal term vanishes as the outer iteration converges).
+
+use super::rows::{cross, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, SymbolicCholesky};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{ColMut, Conj, Par, Side};
+use rapier2d::math::Vec2;
+
+/// Why a Newton solve was refused or failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NewtonError {
+    #[error("contact row {row}: {what} is not finite")]
+    NonFiniteRow { row: usize, what: &'static str },
+    #[error("contact row {row}: body {body} is not one of the {bodies} bodies")]
+    NoSuchBody { row: usize, body: u32, bodies: usize },
+    #[error("body {body}: {what} is not finite")]
+    NonFiniteBody { body: usize, what: &'static str },
+    #[error("the sparse Cholesky factorisation failed: {0}")]
+    Factorisation(String),
+}
+
+/// The Newton solver's tuning.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NewtonParams {
+    /// The proximal weight `rho` per unit of a row's effective mass (a dimensionless stiffness:
+    /// the outer iteration contracts a mode of relative stiffness `a` by `1 / (1 + rho a)`).
+    pub rho: f64,
+    /// Newton iterations (factorisations) per solve at most.
+    pub max_iterations: u32,
+    /// Newton iterations per outer iteration at most.
+    pub max_inner: u32,
+}
+
+impl Default for NewtonParams {
+    fn default() -> Self {
+        NewtonParams { rho: 1e4, max_iterations: 100, max_inner: 8 }
+    }
+}
+
+/// What one Newton solve did.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct NewtonStats {
+    /// Newton iterations: one factorisation and one line search each.
+    pub iterations: u32,
+    /// Outer (proximal) iterations.
+    pub outer: u32,
+    /// Whether the step's symbolic factorisation was the previous step's.
+    pub symbolic_reused: bool,
+    /// Whether the natural residual reached the tolerance.
+    pub converged: bool,
+    /// The natural residual's max over rows at the end (f64 arithmetic).
+    pub natural_max: f64,
+}
+
+/// A row in f64: its bodies, Jacobians (normal, tangent; per body `(x, y, angular)`, body a's
+/// negated), effective masses and friction law.
+#[derive(Debug, Clone, Copy)]
+struct Row {
+    a: usize,
+    b: usize,
+    /// Jacobian rows: `[normal, tangent]`, each `[body a (3), body b (3)]`.
+    j: [[f64; 6]; 2],
+    /// Effective masses `[normal, tangent]` (0 when both bodies are fixed).
+    mass: [f64; 2],
+    mu: f64,
+    fixed_bound: Option<f64>,
+    /// Where the row's three Hessian blocks live in the block list: (a, a), (b, b), (a, b);
+    /// `NONE` when a body is not a variable.
+    blocks: [u32; 3],
+    /// Whether body a's block comes first in the (a, b) block (it is the upper one).
+    a_first: bool,
+}
+
+const NONE: u32 = u32::MAX;
+
+/// The Newton solver's reusable state: the Hessian's pattern and symbolic factorisation, and
+/// every work vector.
+#[derive(Default)]
+pub struct NewtonSolver {
+    rows: Vec<Row>,
+    /// Per body: its block (`NONE`: not a variable), mass per dof (`0`: that dof is fixed).
+    block_of: Vec<u32>,
+    mass: Vec<[f64; 3]>,
+    /// The block pairs `(row block, column block)` of the Hessian's upper triangle, sorted by
+    /// column then row: the pattern.
+    pairs: Vec<(u32, u32)>,
+    /// The previous step's pattern, to reuse its symbolic factorisation.
+    symbolic_pairs: Vec<(u32, u32)>,
+    symbolic_blocks: usize,
+    symbolic: Option<SymbolicCholesky<usize>>,
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    /// Per stored entry: its block pair and the element `p * 3 + q` in it.
+    scatter: Vec<(u32, u8)>,
+    values: Vec<f64>,
+    block_values: Vec<[f64; 9]>,
+    l_values: Vec<f64>,
+    /// Scratch of the numeric factorisation and the solve, sized for the symbolic one.
+    stack: Option<MemBuffer>,
+    stack_bytes: usize,
+    v0: Vec<[f64; 3]>,
+    v: Vec<[f64; 3]>,
+    direction: Vec<[f64; 3]>,
+    rhs: Vec<f64>,
+    /// The outer iterate and the trial impulses.
+    lambda: Vec<[f64; 2]>,
+    trial: Vec<[f64; 2]>,
+    u: Vec<[f64; 2]>,
+    jd: Vec<[f64; 2]>,
+    /// Per row part: `rho * m`.
+    rho: Vec<[f64; 2]>,
+    /// The natural residual (max) after each outer iteration.
+    residuals: Vec<f32>,
+}
+
+impl std::fmt::Debug for NewtonSolver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NewtonSolver").field("rows", &self.rows.len()).field("pairs", &self.pairs.len()).finish()
+    }
+}
+
+impl Clone for NewtonSolver {
+    /// A clone starts with empty buffers (they are only a cache).
+    fn clone(&self) -> Self {
+        NewtonSolver::default()
+    }
+}
+
+/// The problem a solve is given, in the solver's terms.
+pub struct NewtonProblem<'a> {
+    pub rows: &'a [ContactRow],
+    pub bodies: &'a [SolverBody],
+    pub warm_start: &'a [Impulse],
+    /// Relative compliance `gamma` of every row (see `SolveParams::compliance`).
+    pub compliance: f32,
+    /// Natural residual (max over rows) to reach.
+    pub tolerance: f32,
+}
+
+impl NewtonSolver {
+    pub fn new() -> NewtonSolver {
+        NewtonSolver::default()
+    }
+
+    /// Solves `problem` from its warm start; the impulses go to `impulses` (row order) and the
+    /// bodies' velocities to `bodies`. Refuses a problem with a non-finite value or a row naming
+    /// a body that is not there, before touching anything.
+    pub fn solve(
+        &mut self,
+        problem: &NewtonProblem<'_>,
+        params: &NewtonParams,
+        impulses: &mut Vec<Impulse>,
+        bodies: &mut [SolverBody],
+    ) -> Result<NewtonStats, NewtonError> {
+        check(problem)?;
+        let mut stats = NewtonStats::default();
+        self.setup(problem, params.rho);
+        stats.symbolic_reused = self.prepare_pattern()?;
+        let softness = 1.0 / (1.0 + problem.compliance as f64);
+        let compliance = problem.compliance as f64;
+        self.residuals.clear();
+        let tolerance = problem.tolerance as f64;
+        // The start: the projected warm start and the velocities it gives.
+        self.velocities_of_lambda();
+        let mut residual = self.natural_residual(softness);
+        self.residuals.push(residual as f32);
+        // An outer iteration without a Newton step (the velocities already minimise L) still
+        // moves the impulses; bounded all the same.
+        let max_outer = 2 * params.max_iterations;
+        while residual > tolerance && stats.iterations < params.max_iterations && stats.outer < max_outer {
+            stats.outer += 1;
+            // Inner: Newton on L for this outer iterate.
+            for _ in 0..params.max_inner {
+                if stats.iterations >= params.max_iterations {
+                    break;
+                }
+                let gradient_max = self.gradient(compliance);
+                // Momentum units (impulse): a hundredth of the tolerance leaves the outer step exact
+                // enough.
+                if gradient_max <= 0.01 * tolerance {
+                    break;
+                }
+                self.factorise_and_solve(compliance)?;
+                stats.iterations += 1;
+                let alpha = self.line_search(compliance);
+                for (v, d) in self.v.iter_mut().zip(&self.direction) {
+                    for k in 0..3 {
+                        v[k] += alpha * d[k];
+                    }
+                }
+            }
+            // Outer: the impulses move to the trial values at the minimiser.
+            self.relative_velocities();
+            self.trial_impulses(compliance);
+            std::mem::swap(&mut self.lambda, &mut self.trial);
+            self.velocities_of_lambda();
+            residual = self.natural_residual(softness);
+            self.residuals.push(residual as f32);
+        }
+        stats.converged = residual <= tolerance;
+        stats.natural_max = residual;
+        impulses.clear();
+        impulses.extend(self.lambda.iter().map(|l| Impulse { normal: l[0] as f32, tangent: l[1] as f32 }));
+        // The velocities of the f32 impulses the caller gets, so that its residual is theirs.
+        for (l, out) in self.lambda.iter_mut().zip(impulses.iter()) {
+            *l = [out.normal as f64, out.tangent as f64];
+        }
+        self.velocities_of_lambda();
+        for (b, v) in bodies.iter_mut().zip(&self.v) {
+            b.v = Vec2::new(v[0] as f32, v[1] as f32);
+            b.w = v[2] as f32;
+        }
+        Ok(stats)
+    }
+
+    /// The natural residual after each outer iteration of the last solve (the start first).
+    pub fn residuals(&self) -> &[f32] {
+        &self.residuals
+    }
+
+    /// Rows, bodies, masses and the projected warm start in f64.
+    fn setup(&mut self, problem: &NewtonProblem<'_>, rho: f64) {
+        let bodies = problem.bodies;
+        self.block_of.clear();
+        self.mass.clear();
+        self.v0.clear();
+        let mut blocks = 0u32;
+        for b in bodies {
+            let inv = [b.inv_mass as f64, b.inv_mass as f64, b.inv_inertia as f64];
+            self.mass.push(inv.map(|i| if i > 0.0 { 1.0 / i } else { 0.0 }));
+            if inv.iter().any(|&i| i > 0.0) {
+                self.block_of.push(blocks);
+                blocks += 1;
+            } else {
+                self.block_of.push(NONE);
+            }
+            self.v0.push([b.v.x as f64, b.v.y as f64, b.w as f64]);
+        }
+        self.rows.clear();
+        for r in problem.rows {
+            let (a, b) = (r.body_a as usize, r.body_b as usize);
+            let t = tangent_of(r.normal);
+            let jac = |d: Vec2| {
+                let (ca, cb) = (cross(r.ra, d) as f64, cross(r.rb, d) as f64);
+                [-d.x as f64, -d.y as f64, -ca, d.x as f64, d.y as f64, cb]
+            };
+            let (ba, bb) = (&bodies[a], &bodies[b]);
+            self.rows.push(Row {
+                a,
+                b,
+                j: [jac(r.normal), jac(t)],
+                mass: [
+                    effective_mass(ba, bb, r.ra, r.rb, r.normal) as f64,
+                    effective_mass(ba, bb, r.ra, r.rb, t) as f64,
+                ],
+                mu: r.friction as f64,
+                fixed_bound: r.friction_bound.map(|c| c as f64),
+                blocks: [NONE; 3],
+                a_first: true,
+            });
+        }
+        self.rho.clear();
+        self.rho.extend(self.rows.iter().map(|r| r.mass.map(|m| rho * m)));
+        // The warm start projected onto the rows' intervals (a learned guess may be outside).
+        self.lambda.clear();
+        for (r, w) in self.rows.iter().zip(problem.warm_start) {
+            let n = if w.normal.is_finite() { (w.normal as f64).max(0.0) } else { 0.0 };
+            let c = r.bound(n);
+            let t = if w.tangent.is_finite() { (w.tangent as f64).clamp(-c, c) } else { 0.0 };
+            self.lambda.push([n, t]);
+        }
+        let dofs = blocks as usize;
+        self.v.clear();
+        self.v.extend_from_slice(&self.v0);
+        self.direction.clear();
+        self.direction.resize(bodies.len(), [0.0; 3]);
+        self.rhs.clear();
+        self.rhs.resize(3 * dofs, 0.0);
+        let n = self.rows.len();
+        for buf in [&mut self.trial, &mut self.u, &mut self.jd] {
+            buf.clear();
+            buf.resize(n, [0.0; 2]);
+        }
+    }
+
+    /// The Hessian's block pattern; builds the CSC structure and, unless the pattern is the
+    /// previous one, a new symbolic factorisation. Returns whether the symbolic one was reused.
+    fn prepare_pattern(&mut self) -> Result<bool, NewtonError> {
+        let blocks = self.mass.iter().zip(&self.block_of).filter(|(_, &b)| b != NONE).count();
+        self.pairs.clear();
+        self.pairs.extend((0..blocks as u32).map(|k| (k, k)));
+        for r in &self.rows {
+            let (ka, kb) = (self.block_of[r.a], self.block_of[r.b]);
+            if ka != NONE && kb != NONE && ka != kb {
+                self.pairs.push((ka.min(kb), ka.max(kb)));
+            }
+        }
+        // Sorted by column block, then row block: the CSC order.
+        self.pairs.sort_unstable_by_key(|&(i, j)| (j, i));
+        self.pairs.dedup();
+        let find = |pairs: &[(u32, u32)], i: u32, j: u32| {
+            pairs.binary_search_by_key(&(j, i), |&(r, c)| (c, r)).map(|k| k as u32).unwrap_or(NONE)
+        };
+        for r in self.rows.iter_mut() {
+            let (ka, kb) = (self.block_of[r.a], self.block_of[r.b]);
+            let diag = |k: u32| if k == NONE { NONE } else { find(&self.pairs, k, k) };
+            let off =
+                if ka != NONE && kb != NONE && ka != kb { find(&self.pairs, ka.min(kb), ka.max(kb)) } else { NONE };
+            r.blocks = [diag(ka), diag(kb), off];
+            r.a_first = ka < kb;
+        }
+        // CSC of the upper triangle: column (block j, q) holds rows (block i, p) for every pair
+        // (i, j), all three p for i < j and p <= q on the diagonal block.
+        let dofs = 3 * blocks;
+        self.col_ptr.clear();
+        self.row_idx.clear();
+        self.scatter.clear();
+        self.col_ptr.push(0);
+        let mut start = 0;
+        for j in 0..blocks as u32 {
+            let end = start + self.pairs[start..].iter().take_while(|p| p.1 == j).count();
+            for q in 0..3u8 {
+                for (k, &(i, _)) in self.pairs[start..end].iter().enumerate() {
+                    let rows = if i == j { q + 1 } else { 3 };
+                    for p in 0..rows {
+                        self.row_idx.push(3 * i as usize + p as usize);
+                        self.scatter.push(((start + k) as u32, p * 3 + q));
+                    }
+                }
+                self.col_ptr.push(self.row_idx.len());
+            }
+            start = end;
+        }
+        self.values.clear();
+        self.values.resize(self.row_idx.len(), 0.0);
+        self.block_values.clear();
+        self.block_values.resize(self.pairs.len(), [0.0; 9]);
+        if self.symbolic.is_some() && self.symbolic_blocks == blocks && self.symbolic_pairs == self.pairs {
+            return Ok(true);
+        }
+        let structure = SymbolicSparseColMatRef::new_checked(dofs, dofs, &self.col_ptr, None, &self.row_idx);
+        let symbolic = factorize_symbolic_cholesky(structure, Side::Upper, Default::default(), Default::default())
+            .map_err(|e| NewtonError::Factorisation(format!("{e:?}")))?;
+        let need = symbolic
+            .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default())
+            .or(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
+        let bytes = need.unaligned_bytes_required();
+        if self.stack.is_none() || self.stack_bytes < bytes {
+            self.stack = Some(MemBuffer::try_new(need).map_err(|e| NewtonError::Factorisation(format!("{e:?}")))?);
+            self.stack_bytes = bytes;
+        }
+        self.l_values.clear();
+        self.l_values.resize(symbolic.len_val(), 0.0);
+        self.symbolic = Some(symbolic);
+        self.symbolic_pairs.clone_from(&self.pairs);
+        self.symbolic_blocks = blocks;
+        Ok(false)
+    }
+
+    /// `v = v0 + M^-1 J^T lambda`.
+    fn velocities_of_lambda(&mut self) {
+        self.v.copy_from_slice(&self.v0);
+        for (r, l) in self.rows.iter().zip(&self.lambda) {
+            for (body, offset) in [(r.a, 0), (r.b, 3)] {
+                let m = self.mass[body];
+                for k in 0..3 {
+                    if m[k] > 0.0 {
+                        self.v[body][k] += (r.j[0][offset + k] * l[0] + r.j[1][offset + k] * l[1]) / m[k];
+                    }
+                }
+            }
+        }
+    }
+
+    /// Each row's relative velocity `J v`.
+    fn relative_velocities(&mut self) {
+        for (r, u) in self.rows.iter().zip(self.u.iter_mut()) {
+            *u = r.apply(&self.v);
+        }
+    }
+
+    /// The trial impulses `l(u)` at the current relative velocities, with the intervals of the
+    /// current outer iterate.
+    fn trial_impulses(&mut self, compliance: f64) {
+        for ((((r, l), u), rho), out) in
+            self.rows.iter().zip(&self.lambda).zip(&self.u).zip(&self.rho).zip(self.trial.iter_mut())
+        {
+            *out = r.trial(l, u, rho, compliance).0;
+        }
+    }
+
+    /// The gradient `M (v - v0) - J^T l(J v)` into `rhs` (negated: the Newton system's right
+    /// side), fixed dofs zero; returns its largest absolute entry.
+    fn gradient(&mut self, compliance: f64) -> f64 {
+        self.relative_velocities();
+        self.trial_impulses(compliance);
+        self.rhs.iter_mut().for_each(|x| *x = 0.0);
+        for (body, (&k, m)) in self.block_of.iter().zip(&self.mass).enumerate() {
+            if k == NONE {
+                continue;
+            }
+            for c in 0..3 {
+                if m[c] > 0.0 {
+                    self.rhs[3 * k as usize + c] = -m[c] * (self.v[body][c] - self.v0[body][c]);
+                }
+            }
+        }
+        for (r, l) in self.rows.iter().zip(&self.trial) {
+            for (body, offset) in [(r.a, 0), (r.b, 3)] {
+                let k = self.block_of[body];
+                if k == NONE {
+                    continue;
+                }
+                for c in 0..3 {
+                    if self.mass[body][c] > 0.0 {
+                        self.rhs[3 * k as usize + c] += r.j[0][offset + c] * l[0] + r.j[1][offset + c] * l[1];
+                    }
+                }
+            }
+        }
+        self.rhs.iter().fold(0.0f64, |m, x| m.max(x.abs()))
+    }
+
+    /// Assembles the Hessian at the current trial values, factorises it on the kept symbolic
+    /// factorisation and solves for the Newton direction (from `rhs`, the negated gradient).
+    fn factorise_and_solve(&mut self, compliance: f64) -> Result<(), NewtonError> {
+        self.block_values.iter_mut().for_each(|b| *b = [0.0; 9]);
+        for (&k, m) in self.block_of.iter().zip(&self.mass) {
+            if k == NONE {
+                continue;
+            }
+            // A fixed dof keeps 1 on the diagonal and nothing else: its row reads `d = 0`.
+            let diag = self.pairs.binary_search_by_key(&(k, k), |&(r, c)| (c, r)).expect("every block has a diagonal");
+            for c in 0..3 {
+                self.block_values[diag][c * 3 + c] = if m[c] > 0.0 { m[c] } else { 1.0 };
+            }
+        }
+        for (((r, l), u), rho) in self.rows.iter().zip(&self.lambda).zip(&self.u).zip(&self.rho) {
+            let (_, free) = r.trial(l, u, rho, compliance);
+            for part in 0..2 {
+                if !free[part] {
+                    continue;
+                }
+                let w = rho[part] / (1.0 + rho[part] * compliance / r.mass[part].max(f64::MIN_POSITIVE));
+                let ja = self.masked(r.a, &r.j[part][0..3]);
+                let jb = self.masked(r.b, &r.j[part][3..6]);
+                if r.blocks[0] != NONE {
+                    add_outer(&mut self.block_values[r.blocks[0] as usize], w, &ja, &ja);
+                }
+                if r.blocks[1] != NONE {
+                    add_outer(&mut self.block_values[r.blocks[1] as usize], w, &jb, &jb);
+                }
+                if r.blocks[2] != NONE {
+                    let (upper, lower) = if r.a_first { (&ja, &jb) } else { (&jb, &ja) };
+                    add_outer(&mut self.block_values[r.blocks[2] as usize], w, upper, lower);
+                }
+            }
+        }
+        for (value, &(pair, element)) in self.values.iter_mut().zip(&self.scatter) {
+            *value = self.block_values[pair as usize][element as usize];
+        }
+        let symbolic = self.symbolic.as_ref().expect("prepare_pattern made it");
+        let dofs = self.rhs.len();
+        let structure = SymbolicSparseColMatRef::new_checked(dofs, dofs, &self.col_ptr, None, &self.row_idx);
+        let matrix = SparseColMatRef::new(structure, &self.values);
+        let stack = MemStack::new(self.stack.as_mut().expect("prepare_pattern made it"));
+        let llt = symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut self.l_values,
+                matrix,
+                Side::Upper,
+                Default::default(),
+                Par::Seq,
+                stack,
+                Default::default(),
+            )
+            .map_err(|e| NewtonError::Factorisation(format!("{e:?}")))?;
+        llt.solve_in_place_with_conj(Conj::No, ColMut::from_slice_mut(&mut self.rhs).as_mat_mut(), Par::Seq, stack);
+        for (body, &k) in self.block_of.iter().enumerate() {
+            self.direction[body] = if k == NONE {
+                [0.0; 3]
+            } else {
+                let at = 3 * k as usize;
+                let m = self.mass[body];
+                std::array::from_fn(|c| if m[c] > 0.0 { self.rhs[at + c] } else { 0.0 })
+            };
+        }
+        Ok(())
+    }
+
+    /// A body's Jacobian part with its fixed dofs zeroed.
+    fn masked(&self, body: usize, j: &[f64]) -> [f64; 3] {
+        let m = self.mass[body];
+        std::array::from_fn(|c| if m[c] > 0.0 { j[c] } else { 0.0 })
+    }
+
+    /// The exact line search along the direction: the root of `L`'s derivative along it
+    /// (monotone, piecewise linear) by safeguarded Newton steps from the full step.
+    fn line_search(&mut self, compliance: f64) -> f64 {
+        for (r, jd) in self.rows.iter().zip(self.jd.iter_mut()) {
+            *jd = r.apply(&self.direction);
+        }
+        // dT M (v - v0) and dT M d.
+        let (mut dm_dv, mut dmd) = (0.0, 0.0);
+        for ((v, v0), (d, m)) in self.v.iter().zip(&self.v0).zip(self.direction.iter().zip(&self.mass)) {
+            for c in 0..3 {
+                dm_dv += d[c] * m[c] * (v[c] - v0[c]);
+                dmd += d[c] * m[c] * d[c];
+            }
+        }
+        // The derivative and the second derivative at step `alpha`.
+        let slope = |alpha: f64| {
+            let (mut first, mut second) = (dm_dv + alpha * dmd, dmd);
+            for ((((r, l), u), jd), rho) in self.rows.iter().zip(&self.lambda).zip(&self.u).zip(&self.jd).zip(&self.rho)
+            {
+                let at = [u[0] + alpha * jd[0], u[1] + alpha * jd[1]];
+                let (trial, free) = r.trial(l, &at, rho, compliance);
+                for part in 0..2 {
+                    first -= jd[part] * trial[part];
+                    if free[part] {
+                        let w = rho[part] / (1.0 + rho[part] * compliance / r.mass[part].max(f64::MIN_POSITIVE));
+                        second += w * jd[part] * jd[part];
+                    }
+                }
+            }
+            (first, second)
+        };
+        let (start, _) = slope(0.0);
+        if start >= 0.0 {
+            // Not a descent direction (rounding at the minimiser): no step.
+            return 0.0;
+        }
+        let (mut lo, mut hi) = (0.0f64, f64::INFINITY);
+        let mut alpha = 1.0;
+        for _ in 0..40 {
+            let (first, second) = slope(alpha);
+            if first.abs() <= 1e-12 * start.abs() {
+                return alpha;
+            }
+            if first < 0.0 {
+                lo = alpha;
+            } else {
+                hi = alpha;
+            }
+            let newton = alpha - first / second;
+            alpha = if newton > lo && newton < hi {
+                newton
+            } else if hi.is_finite() {
+                0.5 * (lo + hi)
+            } else {
+                2.0 * lo.max(1.0)
+            };
+            if hi.is_finite() && hi - lo <= 1e-14 * hi {
+                break;
+            }
+        }
+        alpha
+    }
+
+    /// The natural residual (max over rows) of the current impulses and velocities, with the
+    /// rows' own law (the Box2D law's bound from each row's current normal impulse).
+    fn natural_residual(&mut self, softness: f64) -> f64 {
+        self.relative_velocities();
+        let mut max = 0.0f64;
+        for ((r, l), u) in self.rows.iter().zip(&self.lambda).zip(&self.u) {
+            let rn = (l[0] - ((l[0] - r.mass[0] * u[0]) * softness).max(0.0)).abs();
+            let c = r.bound(l[0]);
+            let rt = (l[1] - ((l[1] - r.mass[1] * u[1]) * softness).clamp(-c, c)).abs();
+            max = max.max(rn).max(rt);
+        }
+        max
+    }
+}
+
+impl Row {
+    /// `J x` of per-body vectors `x`: `[normal, tangent]`.
+    #[inline]
+    fn apply(&self, x: &[[f64; 3]]) -> [f64; 2] {
+        let (xa, xb) = (&x[self.a], &x[self.b]);
+        self.j.map(|j| j[0] * xa[0] + j[1] * xa[1] + j[2] * xa[2] + j[3] * xb[0] + j[4] * xb[1] + j[5] * xb[2])
+    }
+
+    /// The tangent bound with normal impulse `normal`.
+    #[inline]
+    fn bound(&self, normal: f64) -> f64 {
+        self.fixed_bound.unwrap_or(self.mu * normal.max(0.0))
+    }
+
+    /// The trial impulses at relative velocity `u` for outer iterate `l`, and whether each part
+    /// lies strictly inside its interval (where `L` curves).
+    #[inline]
+    fn trial(&self, l: &[f64; 2], u: &[f64; 2], rho: &[f64; 2], compliance: f64) -> ([f64; 2], [bool; 2]) {
+        let s = |part: usize| {
+            let r = compliance / self.mass[part].max(f64::MIN_POSITIVE);
+            (l[part] - rho[part] * u[part]) / (1.0 + rho[part] * r)
+        };
+        let (sn, st) = (s(0), s(1));
+        let normal = sn.max(0.0);
+        // The tangent interval of this outer iterate: fixed, or the Box2D law's from its normal.
+        let c = self.bound(l[0]);
+        let tangent = st.clamp(-c, c);
+        ([normal, tangent], [sn > 0.0 && self.mass[0] > 0.0, st.abs() < c && self.mass[1] > 0.0])
+    }
+}
+
+/// `block += w a b^T` (row-major 3x3).
+#[inline]
+fn add_outer(block: &mut [f64; 9], w: f64, a: &[f64; 3], b: &[f64; 3]) {
+    for p in 0..3 {
+        for q in 0..3 {
+            block[p * 3 + q] += w * a[p] * b[q];
+        }
+    }
+}
+
+/// Refuses a problem with a non-finite value or a row naming a missing body.
+fn check(problem: &NewtonProblem<'_>) -> Result<(), NewtonError> {
+    let bodies = problem.bodies.len();
+    for (i, b) in problem.bodies.iter().enumerate() {
+        for (what, x) in [
+            ("velocity", b.v.x),
+            ("velocity", b.v.y),
+            ("angular velocity", b.w),
+            ("inverse mass", b.inv_mass),
+            ("inverse inertia", b.inv_inertia),
+        ] {
+            if !x.is_finite() {
+                return Err(NewtonError::NonFiniteBody { body: i, what });
+            }
+        }
+    }
+    for (row, r) in problem.rows.iter().enumerate() {
+        for body in [r.body_a, r.body_b] {
+            if body as usize >= bodies {
+                return Err(NewtonError::NoSuchBody { row, body, bodies });
+            }
+        }
+        for (what, x) in [
+            ("ra", r.ra.x),
+            ("ra", r.ra.y),
+            ("rb", r.rb.x),
+            ("rb", r.rb.y),
+            ("normal", r.normal.x),
+            ("normal", r.normal.y),
+            ("friction", r.friction),
+            ("friction bound", r.friction_bound.unwrap_or(0.0)),
+        ] {
+            if !x.is_finite() {
+                return Err(NewtonError::NonFiniteRow { row, what });
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::pgs::{natural_residual, ContactSolver, SolveParams};
+    use crate::solver::rows::fixtures::{ball, floor_row};
+    use crate::solver::rows::relative_velocity;
+    use crate::solver::{SolverSetting, StopRule};
+
+    fn params(setting: SolverSetting) -> SolveParams {
+        SolveParams { tolerance: 1e-6, max_sweeps: 20_000, stop: StopRule::Natural, ..SolveParams::default() }
+            .with_setting(setting)
+    }
+
+    /// Solves with Newton alone (no fallback) and returns the stats, impulses and bodies.
+    fn newton(
+        rows: &[ContactRow],
+        bodies: &[SolverBody],
+        warm: &[Impulse],
+    ) -> (NewtonStats, Vec<Impulse>, Vec<SolverBody>) {
+        let mut solver = NewtonSolver::new();
+        let (mut impulses, mut out) = (Vec::new(), bodies.to_vec());
+        let problem = NewtonProblem { rows, bodies, warm_start: warm, compliance: 0.0, tolerance: 1e-6 };
+        let stats = solver.solve(&problem, &NewtonParams::default(), &mut impulses, &mut out).expect("solves");
+        (stats, impulses, out)
+    }
+
+    /// Solves with the PGS family's recommended sweeps to 1e-6.
+    fn sweeps(rows: &[ContactRow], bodies: &[SolverBody], warm: &[Impulse]) -> (Vec<Impulse>, Vec<SolverBody>) {
+        let mut out = bodies.to_vec();
+        let mut s = ContactSolver::new();
+        let rep = s.solve(rows, &mut out, warm, &params(SolverSetting::RECOMMENDED));
+        assert!(rep.converged, "{rep:?}");
+        (s.impulses().to_vec(), out)
+    }
+
+    fn close(a: &[Impulse], b: &[Impulse], tol: f32) -> bool {
+        a.iter().zip(b).all(|(x, y)| (x.normal - y.normal).abs() <= tol && (x.tangent - y.tangent).abs() <= tol)
+    }
+
+    #[test]
+    fn a_sliding_ball_on_the_floor_stops_falling_and_slides_on_the_cone() {
+        let rows = [floor_row(1)];
+        let bodies = [SolverBody::default(), ball(Vec2::new(-5.0, -1.0))];
+        let (stats, l, out) = newton(&rows, &bodies, &[Impulse::default()]);
+        assert!(stats.converged, "{stats:?}");
+        assert!((l[0].normal - 1.0).abs() < 1e-4 && (l[0].tangent.abs() - 0.5 * l[0].normal).abs() < 1e-5, "{l:?}");
+        let (vn, _) = relative_velocity(&rows[0], &out);
+        assert!(vn.abs() < 1e-4, "vn {vn}");
+        let (reference, _) = sweeps(&rows, &bodies, &[Impulse::default()]);
+        assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
+    }
+
+    #[test]
+    fn a_stack_of_three_gets_the_sweeps_loads() {
+        let mut bodies = vec![SolverBody::default()];
+        bodies.extend((0..3).map(|_| ball(Vec2::new(0.0, -0.1))));
+        let rows: Vec<ContactRow> = (0..3u32)
+            .map(|i| ContactRow {
+                body_a: i,
+                body_b: i + 1,
+                ra: if i == 0 { Vec2::ZERO } else { Vec2::new(0.0, 0.5) },
+                rb: Vec2::new(0.0, -0.5),
+                normal: Vec2::Y,
+                friction: 0.5,
+                height: i as f32,
+                friction_bound: None,
+            })
+            .collect();
+        let (stats, l, out) = newton(&rows, &bodies, &[Impulse::default(); 3]);
+        assert!(stats.converged && stats.natural_max <= 1e-6, "{stats:?}");
+        for (i, li) in l.iter().enumerate() {
+            assert!((li.normal - 0.1 * (3 - i) as f32).abs() < 1e-5 && li.tangent.abs() < 1e-6, "row {i}: {li:?}");
+        }
+        assert!(out[1..].iter().all(|b| b.v.length() < 1e-5), "{out:?}");
+        // A chain: the Hessian's pattern is the pile's, and a few iterations do it.
+        assert!(stats.iterations <= 10, "{stats:?}");
+    }
+
+    /// A ball driven into the corner of the floor (body 0) and a wall (body 2, at its left).
+    fn corner() -> (Vec<ContactRow>, Vec<SolverBody>) {
+        let rows = vec![
+            floor_row(1),
+            ContactRow {
+                body_a: 2,
+                body_b: 1,
+                ra: Vec2::ZERO,
+                rb: Vec2::new(-0.5, 0.0),
+                normal: Vec2::X,
+                friction: 0.5,
+                height: 0.5,
+                friction_bound: None,
+            },
+        ];
+        let bodies = vec![SolverBody::default(), ball(Vec2::new(-2.0, -1.0)), SolverBody::default()];
+        (rows, bodies)
+    }
+
+    #[test]
+    fn a_ball_in_a_corner_with_friction_reaches_the_sweeps_solution() {
+        let (rows, bodies) = corner();
+        let warm = [Impulse::default(); 2];
+        let (stats, l, out) = newton(&rows, &bodies, &warm);
+        assert!(stats.converged, "{stats:?}");
+        let (reference, reference_bodies) = sweeps(&rows, &bodies, &warm);
+        // Neither contact lets the ball in; friction within its cone.
+        for r in &rows {
+            assert!(relative_velocity(r, &out).0 > -1e-4);
+        }
+        for li in &l {
+            assert!(li.normal >= 0.0 && li.tangent.abs() <= 0.5 * li.normal + 1e-6, "{li:?}");
+        }
+        assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
+        let dv = (out[1].v - reference_bodies[1].v).length() + (out[1].w - reference_bodies[1].w).abs();
+        assert!(dv < 1e-4, "{:?} vs {:?}", out[1], reference_bodies[1]);
+        assert!(natural_residual(&rows, &out, &l, 0.0).max <= 1e-5);
+    }
+
+    /// A box (unit mass, side 1) resting on the floor at two corners, each contact given twice,
+    /// under a second box: four redundant rows per interface (rank-deficient `J M^-1 J^T`).
+    fn jammed() -> (Vec<ContactRow>, Vec<SolverBody>) {
+        let body = |v: f32| SolverBody { v: Vec2::new(0.1, v), w: 0.0, inv_mass: 1.0, inv_inertia: 6.0 };
+        let bodies = vec![SolverBody::default(), body(-0.2), body(-0.4)];
+        let mut rows = Vec::new();
+        for (a, b) in [(0u32, 1u32), (1, 2)] {
+            for x in [-0.5f32, 0.5, -0.5, 0.5] {
+                rows.push(ContactRow {
+                    body_a: a,
+                    body_b: b,
+                    ra: if a == 0 { Vec2::new(x, 0.0) } else { Vec2::new(x, 0.5) },
+                    rb: Vec2::new(x, -0.5),
+                    normal: Vec2::Y,
+                    friction: 0.6,
+                    height: a as f32,
+                    friction_bound: None,
+                });
+            }
+        }
+        (rows, bodies)
+    }
+
+    #[test]
+    fn a_jammed_stack_with_redundant_contacts_is_solved_without_a_singular_matrix() {
+        let (rows, bodies) = jammed();
+        let warm = vec![Impulse::default(); rows.len()];
+        let (stats, l, out) = newton(&rows, &bodies, &warm);
+        assert!(stats.converged, "{stats:?}");
+        // The impulses are not unique, the velocities are: both boxes at rest.
+        assert!(out[1..].iter().all(|b| b.v.length() < 1e-4 && b.w.abs() < 1e-4), "{out:?}");
+        // The floor carries both boxes' momentum, the upper interface the top box's.
+        let load = |range: std::ops::Range<usize>| l[range].iter().map(|x| x.normal).sum::<f32>();
+        assert!((load(0..4) - 0.6).abs() < 1e-4 && (load(4..8) - 0.4).abs() < 1e-4, "{l:?}");
+        assert!(natural_residual(&rows, &out, &l, 0.0).max <= 1e-5);
+    }
+
+    #[test]
+    fn the_reused_symbolic_factorisation_gives_the_fresh_ones_result() {
+        let (rows, bodies) = jammed();
+        let warm = vec![Impulse::default(); rows.len()];
+        let problem =
+            NewtonProblem { rows: &rows, bodies: &bodies, warm_start: &warm, compliance: 0.0, tolerance: 1e-6 };
+        let mut kept = NewtonSolver::new();
+        let (mut first, mut second) = (Vec::new(), Vec::new());
+        let (mut b1, mut b2) = (bodies.clone(), bodies.clone());
+        let s1 = kept.solve(&problem, &NewtonParams::default(), &mut first, &mut b1).unwrap();
+        let s2 = kept.solve(&problem, &NewtonParams::default(), &mut second, &mut b2).unwrap();
+        assert!(!s1.symbolic_reused && s2.symbolic_reused, "{s1:?} {s2:?}");
+        assert_eq!(first, second);
+        assert_eq!(b1, b2);
+        // A different pattern (the top box gone) is not mistaken for the kept one.
+        let problem = NewtonProblem { rows: &rows[..4], warm_start: &warm[..4], ..problem };
+        let s3 = kept.solve(&problem, &NewtonParams::default(), &mut first, &mut b1.clone()).unwrap();
+        assert!(!s3.symbolic_reused && s3.converged, "{s3:?}");
+    }
+
+    #[test]
+    fn a_row_with_a_non_finite_value_is_refused_naming_it() {
+        let (mut rows, bodies) = corner();
+        rows[1].normal.x = f32::NAN;
+        let problem = NewtonProblem {
+            rows: &rows,
+            bodies: &bodies,
+            warm_start: &[Impulse::default(); 2],
+            compliance: 0.0,
+            tolerance: 1e-6,
+        };
+        let err = NewtonSolver::new()
+            .solve(&problem, &NewtonParams::default(), &mut Vec::new(), &mut bodies.clone())
+            .unwrap_err();
+        assert_eq!(err, NewtonError::NonFiniteRow { row: 1, what: "normal" });
+        assert!(err.to_string().contains("contact row 1: normal is not finite"));
+        // The solver the simulator calls falls back to its sweeps, which clamp what they can.
+        let mut bad_body = bodies.clone();
+        bad_body[1].v.y = f32::INFINITY;
+        let (good_rows, _) = corner();
+        let problem = NewtonProblem { rows: &good_rows, bodies: &bad_body, ..problem };
+        let err = NewtonSolver::new()
+            .solve(&problem, &NewtonParams::default(), &mut Vec::new(), &mut bad_body.clone())
+            .unwrap_err();
+        assert_eq!(err, NewtonError::NonFiniteBody { body: 1, what: "velocity" });
+    }
+
+    #[test]
+    fn the_per_step_bound_caps_friction_whatever_the_normal_impulse() {
+        // Sliding fast on the floor, the per-step bound 0.1 (the Box2D law would allow 0.5).
+        let mut rows = [floor_row(1)];
+        rows[0].friction_bound = Some(0.1);
+        let bodies = [SolverBody::default(), ball(Vec2::new(-5.0, -1.0))];
+        let (stats, l, _) = newton(&rows, &bodies, &[Impulse::default()]);
+        assert!(stats.converged, "{stats:?}");
+        assert!((l[0].tangent.abs() - 0.1).abs() < 1e-5, "{l:?}");
+        let (reference, _) = sweeps(&rows, &bodies, &[Impulse::default()]);
+        assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
+    }
+
+    #[test]
+    fn the_contact_solver_runs_newton_and_counts_its_factorisations() {
+        let (rows, bodies) = jammed();
+        let warm = vec![Impulse::default(); rows.len()];
+        let mut out = bodies.clone();
+        let mut s = ContactSolver::new();
+        let rep = s.solve(&rows, &mut out, &warm, &params(SolverSetting::NEWTON));
+        assert!(rep.converged && rep.factorisations > 0 && rep.factorisations == rep.sweeps, "{rep:?}");
+        assert_eq!(rep.natural, natural_residual(&rows, &out, s.impulses(), 0.0));
+    }
+}
