@@ -31,6 +31,9 @@
 //! residual of the unregularised problem (no regularisation is left at the solution: the
 //! proximal term vanishes as the outer iteration converges).
 
+// The per-dof loops index several parallel `[f64; 3]` arrays (velocity, mass, Jacobian) at once.
+#![allow(clippy::needless_range_loop)]
+
 use super::rows::{cross, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, SymbolicCholesky};
