@@ -692,7 +692,7 @@ fn check(problem: &NewtonProblem<'_>) -> Result<(), NewtonError> {
 mod tests {
     use super::*;
     use crate::solver::pgs::{natural_residual, ContactSolver, SolveParams};
-    use crate::solver::rows::fixtures::{ball, floor_row};
+    use crate::solver::rows::fixtures::{ball, floor_row, stack};
     use crate::solver::rows::relative_velocity;
     use crate::solver::{SolverSetting, StopRule};
 
@@ -742,20 +742,7 @@ mod tests {
 
     #[test]
     fn a_stack_of_three_gets_the_sweeps_loads() {
-        let mut bodies = vec![SolverBody::default()];
-        bodies.extend((0..3).map(|_| ball(Vec2::new(0.0, -0.1))));
-        let rows: Vec<ContactRow> = (0..3u32)
-            .map(|i| ContactRow {
-                body_a: i,
-                body_b: i + 1,
-                ra: if i == 0 { Vec2::ZERO } else { Vec2::new(0.0, 0.5) },
-                rb: Vec2::new(0.0, -0.5),
-                normal: Vec2::Y,
-                friction: 0.5,
-                height: i as f32,
-                friction_bound: None,
-            })
-            .collect();
+        let (bodies, rows) = stack(3, -0.1);
         let (stats, l, out) = newton(&rows, &bodies, &[Impulse::default(); 3]);
         assert!(stats.converged && stats.natural_max <= 1e-6, "{stats:?}");
         for (i, li) in l.iter().enumerate() {

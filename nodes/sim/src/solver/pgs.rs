@@ -553,7 +553,7 @@ fn apply(bodies: &mut [SolverBody], c: &Prepared, p: Vec2) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solver::rows::fixtures::{ball, floor_row};
+    use crate::solver::rows::fixtures::{ball, floor_row, stack};
     use crate::solver::rows::relative_velocity;
 
     /// A ball (mass 1, falling at 1 after gravity) on two contact rows at the same point: the
@@ -679,26 +679,6 @@ mod tests {
         assert!(rep.converged);
         assert_eq!(s.impulses()[0], Impulse::default());
         assert!((bodies[1].v.y - 2.0).abs() < 1e-5);
-    }
-
-    /// Body `i` (1-based) of a stack of unit balls on the floor (body 0), all falling at `v`.
-    fn stack(n: usize, v: f32) -> (Vec<SolverBody>, Vec<ContactRow>) {
-        let mut bodies = vec![SolverBody::default()];
-        bodies.extend((0..n).map(|_| ball(Vec2::new(0.0, v))));
-        let rows = (0..n as u32)
-            .map(|i| ContactRow {
-                body_a: i,
-                body_b: i + 1,
-                // The floor's point is its own origin; a ball's top is 0.5 above its centre.
-                ra: if i == 0 { Vec2::ZERO } else { Vec2::new(0.0, 0.5) },
-                rb: Vec2::new(0.0, -0.5),
-                normal: Vec2::Y,
-                friction: 0.5,
-                height: i as f32,
-                friction_bound: None,
-            })
-            .collect();
-        (bodies, rows)
     }
 
     /// Every member of the family the issue names, each under the natural rule.

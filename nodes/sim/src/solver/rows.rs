@@ -69,14 +69,6 @@ pub struct ContactRow {
     pub friction_bound: Option<f32>,
 }
 
-impl ContactRow {
-    /// The largest tangent impulse the row allows with normal impulse `normal`.
-    #[inline]
-    pub fn tangent_bound(&self, normal: f32) -> f32 {
-        self.friction_bound.unwrap_or(self.friction * normal)
-    }
-}
-
 /// Effective mass `1 / (J M^-1 J^T)` of a row with direction `d` (0 when both bodies are fixed).
 #[inline]
 pub(crate) fn effective_mass(a: &SolverBody, b: &SolverBody, ra: Vec2, rb: Vec2, d: Vec2) -> f32 {
@@ -174,5 +166,25 @@ pub(crate) mod fixtures {
             height: 0.0,
             friction_bound: None,
         }
+    }
+
+    /// Body `i` (1-based) of a stack of unit balls on the floor (body 0), all falling at `v`.
+    pub(crate) fn stack(n: usize, v: f32) -> (Vec<SolverBody>, Vec<ContactRow>) {
+        let mut bodies = vec![SolverBody::default()];
+        bodies.extend((0..n).map(|_| ball(Vec2::new(0.0, v))));
+        let rows = (0..n as u32)
+            .map(|i| ContactRow {
+                body_a: i,
+                body_b: i + 1,
+                // The floor's point is its own origin; a ball's top is 0.5 above its centre.
+                ra: if i == 0 { Vec2::ZERO } else { Vec2::new(0.0, 0.5) },
+                rb: Vec2::new(0.0, -0.5),
+                normal: Vec2::Y,
+                friction: 0.5,
+                height: i as f32,
+                friction_bound: None,
+            })
+            .collect();
+        (bodies, rows)
     }
 }
