@@ -13,6 +13,8 @@
 //! - [`position`]: Box2D 2.3's position pass after integration ([`correct_positions`]).
 
 pub mod newton;
+#[cfg(test)]
+mod newton_tests;
 pub mod pgs;
 pub mod position;
 pub mod rows;

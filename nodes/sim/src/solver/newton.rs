@@ -64,11 +64,14 @@ pub struct NewtonParams {
     pub max_iterations: u32,
     /// Newton iterations per outer iteration at most.
     pub max_inner: u32,
+    /// The inner iteration stops when the gradient (momentum units) is below this fraction of the
+    /// tolerance.
+    pub inner_tolerance: f64,
 }
 
 impl Default for NewtonParams {
     fn default() -> Self {
-        NewtonParams { rho: 1e4, max_iterations: 100, max_inner: 8 }
+        NewtonParams { rho: 1e4, max_iterations: 100, max_inner: 8, inner_tolerance: 0.01 }
     }
 }
 
@@ -210,9 +213,7 @@ impl NewtonSolver {
                     break;
                 }
                 let gradient_max = self.gradient(compliance);
-                // Momentum units (impulse): a hundredth of the tolerance leaves the outer step exact
-                // enough.
-                if gradient_max <= 0.01 * tolerance {
+                if gradient_max <= params.inner_tolerance * tolerance {
                     break;
                 }
                 self.factorise_and_solve(compliance)?;
@@ -686,217 +687,4 @@ fn check(problem: &NewtonProblem<'_>) -> Result<(), NewtonError> {
         }
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::solver::pgs::{natural_residual, ContactSolver, SolveParams};
-    use crate::solver::rows::fixtures::{ball, floor_row, stack};
-    use crate::solver::rows::relative_velocity;
-    use crate::solver::{SolverSetting, StopRule};
-
-    fn params(setting: SolverSetting) -> SolveParams {
-        SolveParams { tolerance: 1e-6, max_sweeps: 20_000, stop: StopRule::Natural, ..SolveParams::default() }
-            .with_setting(setting)
-    }
-
-    /// Solves with Newton alone (no fallback) and returns the stats, impulses and bodies.
-    fn newton(
-        rows: &[ContactRow],
-        bodies: &[SolverBody],
-        warm: &[Impulse],
-    ) -> (NewtonStats, Vec<Impulse>, Vec<SolverBody>) {
-        let mut solver = NewtonSolver::new();
-        let (mut impulses, mut out) = (Vec::new(), bodies.to_vec());
-        let problem = NewtonProblem { rows, bodies, warm_start: warm, compliance: 0.0, tolerance: 1e-6 };
-        let stats = solver.solve(&problem, &NewtonParams::default(), &mut impulses, &mut out).expect("solves");
-        (stats, impulses, out)
-    }
-
-    /// Solves with the PGS family's recommended sweeps to 1e-6.
-    fn sweeps(rows: &[ContactRow], bodies: &[SolverBody], warm: &[Impulse]) -> (Vec<Impulse>, Vec<SolverBody>) {
-        let mut out = bodies.to_vec();
-        let mut s = ContactSolver::new();
-        let rep = s.solve(rows, &mut out, warm, &params(SolverSetting::RECOMMENDED));
-        assert!(rep.converged, "{rep:?}");
-        (s.impulses().to_vec(), out)
-    }
-
-    fn close(a: &[Impulse], b: &[Impulse], tol: f32) -> bool {
-        a.iter().zip(b).all(|(x, y)| (x.normal - y.normal).abs() <= tol && (x.tangent - y.tangent).abs() <= tol)
-    }
-
-    #[test]
-    fn a_sliding_ball_on_the_floor_stops_falling_and_slides_on_the_cone() {
-        let rows = [floor_row(1)];
-        let bodies = [SolverBody::default(), ball(Vec2::new(-5.0, -1.0))];
-        let (stats, l, out) = newton(&rows, &bodies, &[Impulse::default()]);
-        assert!(stats.converged, "{stats:?}");
-        assert!((l[0].normal - 1.0).abs() < 1e-4 && (l[0].tangent.abs() - 0.5 * l[0].normal).abs() < 1e-5, "{l:?}");
-        let (vn, _) = relative_velocity(&rows[0], &out);
-        assert!(vn.abs() < 1e-4, "vn {vn}");
-        let (reference, _) = sweeps(&rows, &bodies, &[Impulse::default()]);
-        assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
-    }
-
-    #[test]
-    fn a_stack_of_three_gets_the_sweeps_loads() {
-        let (bodies, rows) = stack(3, -0.1);
-        let (stats, l, out) = newton(&rows, &bodies, &[Impulse::default(); 3]);
-        assert!(stats.converged && stats.natural_max <= 1e-6, "{stats:?}");
-        for (i, li) in l.iter().enumerate() {
-            assert!((li.normal - 0.1 * (3 - i) as f32).abs() < 1e-5 && li.tangent.abs() < 1e-6, "row {i}: {li:?}");
-        }
-        assert!(out[1..].iter().all(|b| b.v.length() < 1e-5), "{out:?}");
-        // A chain: the Hessian's pattern is the pile's, and a few iterations do it.
-        assert!(stats.iterations <= 10, "{stats:?}");
-    }
-
-    /// A ball driven into the corner of the floor (body 0) and a wall (body 2, at its left).
-    fn corner() -> (Vec<ContactRow>, Vec<SolverBody>) {
-        let rows = vec![
-            floor_row(1),
-            ContactRow {
-                body_a: 2,
-                body_b: 1,
-                ra: Vec2::ZERO,
-                rb: Vec2::new(-0.5, 0.0),
-                normal: Vec2::X,
-                friction: 0.5,
-                height: 0.5,
-                friction_bound: None,
-            },
-        ];
-        let bodies = vec![SolverBody::default(), ball(Vec2::new(-2.0, -1.0)), SolverBody::default()];
-        (rows, bodies)
-    }
-
-    #[test]
-    fn a_ball_in_a_corner_with_friction_reaches_the_sweeps_solution() {
-        let (rows, bodies) = corner();
-        let warm = [Impulse::default(); 2];
-        let (stats, l, out) = newton(&rows, &bodies, &warm);
-        assert!(stats.converged, "{stats:?}");
-        let (reference, reference_bodies) = sweeps(&rows, &bodies, &warm);
-        // Neither contact lets the ball in; friction within its cone.
-        for r in &rows {
-            assert!(relative_velocity(r, &out).0 > -1e-4);
-        }
-        for li in &l {
-            assert!(li.normal >= 0.0 && li.tangent.abs() <= 0.5 * li.normal + 1e-6, "{li:?}");
-        }
-        assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
-        let dv = (out[1].v - reference_bodies[1].v).length() + (out[1].w - reference_bodies[1].w).abs();
-        assert!(dv < 1e-4, "{:?} vs {:?}", out[1], reference_bodies[1]);
-        assert!(natural_residual(&rows, &out, &l, 0.0).max <= 1e-5);
-    }
-
-    /// A box (unit mass, side 1) resting on the floor at two corners, each contact given twice,
-    /// under a second box: four redundant rows per interface (rank-deficient `J M^-1 J^T`).
-    fn jammed() -> (Vec<ContactRow>, Vec<SolverBody>) {
-        let body = |v: f32| SolverBody { v: Vec2::new(0.1, v), w: 0.0, inv_mass: 1.0, inv_inertia: 6.0 };
-        let bodies = vec![SolverBody::default(), body(-0.2), body(-0.4)];
-        let mut rows = Vec::new();
-        for (a, b) in [(0u32, 1u32), (1, 2)] {
-            for x in [-0.5f32, 0.5, -0.5, 0.5] {
-                rows.push(ContactRow {
-                    body_a: a,
-                    body_b: b,
-                    ra: if a == 0 { Vec2::new(x, 0.0) } else { Vec2::new(x, 0.5) },
-                    rb: Vec2::new(x, -0.5),
-                    normal: Vec2::Y,
-                    friction: 0.6,
-                    height: a as f32,
-                    friction_bound: None,
-                });
-            }
-        }
-        (rows, bodies)
-    }
-
-    #[test]
-    fn a_jammed_stack_with_redundant_contacts_is_solved_without_a_singular_matrix() {
-        let (rows, bodies) = jammed();
-        let warm = vec![Impulse::default(); rows.len()];
-        let (stats, l, out) = newton(&rows, &bodies, &warm);
-        assert!(stats.converged, "{stats:?}");
-        // The impulses are not unique, the velocities are: both boxes at rest.
-        assert!(out[1..].iter().all(|b| b.v.length() < 1e-4 && b.w.abs() < 1e-4), "{out:?}");
-        // The floor carries both boxes' momentum, the upper interface the top box's.
-        let load = |range: std::ops::Range<usize>| l[range].iter().map(|x| x.normal).sum::<f32>();
-        assert!((load(0..4) - 0.6).abs() < 1e-4 && (load(4..8) - 0.4).abs() < 1e-4, "{l:?}");
-        assert!(natural_residual(&rows, &out, &l, 0.0).max <= 1e-5);
-    }
-
-    #[test]
-    fn the_reused_symbolic_factorisation_gives_the_fresh_ones_result() {
-        let (rows, bodies) = jammed();
-        let warm = vec![Impulse::default(); rows.len()];
-        let problem =
-            NewtonProblem { rows: &rows, bodies: &bodies, warm_start: &warm, compliance: 0.0, tolerance: 1e-6 };
-        let mut kept = NewtonSolver::new();
-        let (mut first, mut second) = (Vec::new(), Vec::new());
-        let (mut b1, mut b2) = (bodies.clone(), bodies.clone());
-        let s1 = kept.solve(&problem, &NewtonParams::default(), &mut first, &mut b1).unwrap();
-        let s2 = kept.solve(&problem, &NewtonParams::default(), &mut second, &mut b2).unwrap();
-        assert!(!s1.symbolic_reused && s2.symbolic_reused, "{s1:?} {s2:?}");
-        assert_eq!(first, second);
-        assert_eq!(b1, b2);
-        // A different pattern (the top box gone) is not mistaken for the kept one.
-        let problem = NewtonProblem { rows: &rows[..4], warm_start: &warm[..4], ..problem };
-        let s3 = kept.solve(&problem, &NewtonParams::default(), &mut first, &mut b1.clone()).unwrap();
-        assert!(!s3.symbolic_reused && s3.converged, "{s3:?}");
-    }
-
-    #[test]
-    fn a_row_with_a_non_finite_value_is_refused_naming_it() {
-        let (mut rows, bodies) = corner();
-        rows[1].normal.x = f32::NAN;
-        let problem = NewtonProblem {
-            rows: &rows,
-            bodies: &bodies,
-            warm_start: &[Impulse::default(); 2],
-            compliance: 0.0,
-            tolerance: 1e-6,
-        };
-        let err = NewtonSolver::new()
-            .solve(&problem, &NewtonParams::default(), &mut Vec::new(), &mut bodies.clone())
-            .unwrap_err();
-        assert_eq!(err, NewtonError::NonFiniteRow { row: 1, what: "normal" });
-        assert!(err.to_string().contains("contact row 1: normal is not finite"));
-        // The solver the simulator calls falls back to its sweeps, which clamp what they can.
-        let mut bad_body = bodies.clone();
-        bad_body[1].v.y = f32::INFINITY;
-        let (good_rows, _) = corner();
-        let problem = NewtonProblem { rows: &good_rows, bodies: &bad_body, ..problem };
-        let err = NewtonSolver::new()
-            .solve(&problem, &NewtonParams::default(), &mut Vec::new(), &mut bad_body.clone())
-            .unwrap_err();
-        assert_eq!(err, NewtonError::NonFiniteBody { body: 1, what: "velocity" });
-    }
-
-    #[test]
-    fn the_per_step_bound_caps_friction_whatever_the_normal_impulse() {
-        // Sliding fast on the floor, the per-step bound 0.1 (the Box2D law would allow 0.5).
-        let mut rows = [floor_row(1)];
-        rows[0].friction_bound = Some(0.1);
-        let bodies = [SolverBody::default(), ball(Vec2::new(-5.0, -1.0))];
-        let (stats, l, _) = newton(&rows, &bodies, &[Impulse::default()]);
-        assert!(stats.converged, "{stats:?}");
-        assert!((l[0].tangent.abs() - 0.1).abs() < 1e-5, "{l:?}");
-        let (reference, _) = sweeps(&rows, &bodies, &[Impulse::default()]);
-        assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
-    }
-
-    #[test]
-    fn the_contact_solver_runs_newton_and_counts_its_factorisations() {
-        let (rows, bodies) = jammed();
-        let warm = vec![Impulse::default(); rows.len()];
-        let mut out = bodies.clone();
-        let mut s = ContactSolver::new();
-        let rep = s.solve(&rows, &mut out, &warm, &params(SolverSetting::NEWTON));
-        assert!(rep.converged && rep.factorisations > 0 && rep.factorisations == rep.sweeps, "{rep:?}");
-        assert_eq!(rep.natural, natural_residual(&rows, &out, s.impulses(), 0.0));
-    }
 }

@@ -1,0 +1,105 @@
+//! `dc-newton-probe`: the Newton solver's convergence on recorded step problems of one ball-box
+//! simulation, for several tunings side by side: per sampled step, its Newton iterations, outer
+//! iterations and final natural residual, and (with `--trace`) the residual after each outer
+//! iteration. Backs the choice of `NewtonParams`' defaults in docs/research/solver-study.md.
+//! Hand-run, e.g. `cargo run -p experiments --bin dc-newton-probe -- --n 400 --steps 300`.
+
+use anyhow::Result;
+use clap::Parser;
+use sim::problem::{bodies_of, builtin_warm_start, rows_of};
+use sim::solver::{FrictionModel, NewtonParams, NewtonProblem, NewtonSolver, SolveParams};
+use sim::{ModelKind, SceneConfig, World, WorldParams};
+
+#[derive(Parser, Debug)]
+#[command(name = "dc-newton-probe", about = "The Newton solver's convergence on one simulation's step problems")]
+struct Args {
+    #[arg(long, default_value_t = 2000)]
+    seed: u64,
+    #[arg(long, default_value_t = 100)]
+    n: usize,
+    #[arg(long, default_value_t = 250)]
+    steps: u32,
+    /// Probe steps from this one, every `--every`.
+    #[arg(long, default_value_t = 150)]
+    from: u32,
+    #[arg(long, default_value_t = 10)]
+    every: u32,
+    #[arg(long, default_value = "box")]
+    friction: String,
+    /// Tunings `rho/max_inner/inner_tolerance`, comma separated.
+    #[arg(long, default_value = "1e4/8/0.01")]
+    tunings: String,
+    #[arg(long, default_value_t = 100)]
+    max_iterations: u32,
+    /// Print the residual after each outer iteration.
+    #[arg(long)]
+    trace: bool,
+}
+
+fn main() -> std::process::ExitCode {
+    runtime::exit(probe(Args::parse()))
+}
+
+fn probe(args: Args) -> Result<()> {
+    let friction = match args.friction.as_str() {
+        "per-step" => FrictionModel::PerStep,
+        _ => FrictionModel::Box,
+    };
+    let tunings: Vec<NewtonParams> = args
+        .tunings
+        .split(',')
+        .map(|t| {
+            let p: Vec<f64> = t.split('/').map(|x| x.parse().expect("a number")).collect();
+            NewtonParams {
+                rho: p[0],
+                max_inner: p[1] as u32,
+                inner_tolerance: p[2],
+                max_iterations: args.max_iterations,
+            }
+        })
+        .collect();
+    let params =
+        WorldParams { solve: SolveParams { friction, ..WorldParams::default().solve }, ..WorldParams::default() };
+    let mut world = World::new(&SceneConfig { seed: args.seed, n: args.n, ..Default::default() }, params)?;
+    let mut warm = ModelKind::Builtin.starter(0)?;
+    warm.begin_simulation(args.seed as u32, args.seed);
+    world.capture_problems(None);
+    let mut solvers: Vec<NewtonSolver> = tunings.iter().map(|_| NewtonSolver::new()).collect();
+    let mut totals = vec![(0u32, 0u32, 0u32); tunings.len()];
+    for _ in 0..args.steps {
+        let report = world.step(&mut warm).clone();
+        let step = report.step;
+        let problem = world.problem().expect("capturing").clone();
+        if step < args.from || (step - args.from) % args.every != 0 {
+            continue;
+        }
+        let rows = rows_of(&problem.contacts, friction);
+        let bodies = bodies_of(&problem.bodies);
+        let warm_start = builtin_warm_start(&problem.contacts);
+        let np = NewtonProblem {
+            rows: &rows,
+            bodies: &bodies,
+            warm_start: &warm_start,
+            compliance: problem.header.compliance,
+            tolerance: problem.header.tolerance,
+        };
+        print!("step {step:3} rows {:4} sweeps {:5}", rows.len(), report.sweeps);
+        for ((t, solver), total) in tunings.iter().zip(&mut solvers).zip(&mut totals) {
+            let (mut impulses, mut out) = (Vec::new(), bodies.clone());
+            let stats = solver.solve(&np, t, &mut impulses, &mut out)?;
+            print!(" | it {:3} outer {:3} res {:.1e}", stats.iterations, stats.outer, stats.natural_max);
+            total.0 += stats.iterations;
+            total.1 += stats.converged as u32;
+            total.2 += 1;
+            if args.trace {
+                let r: Vec<String> = solver.residuals().iter().map(|x| format!("{x:.1e}")).collect();
+                print!("\n    {}", r.join(" "));
+            }
+        }
+        println!();
+    }
+    for (t, (it, conv, n)) in tunings.iter().zip(&totals) {
+        println!("{t:?}: {conv}/{n} converged, {:.1} iterations per step", *it as f64 / *n as f64);
+    }
+    Ok(())
+}
