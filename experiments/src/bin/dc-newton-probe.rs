@@ -7,7 +7,7 @@
 use anyhow::Result;
 use clap::Parser;
 use sim::problem::{bodies_of, builtin_warm_start, rows_of};
-use sim::solver::{FrictionModel, NewtonParams, NewtonProblem, NewtonSolver, SolveParams};
+use sim::solver::{FrictionModel, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder, SolveParams};
 use sim::{ModelKind, SceneConfig, World, WorldParams};
 
 #[derive(Parser, Debug)]
@@ -26,7 +26,8 @@ struct Args {
     every: u32,
     #[arg(long, default_value = "box")]
     friction: String,
-    /// Tunings `rho/max_inner/inner_tolerance`, comma separated.
+    /// Tunings `rho/max_inner/inner_tolerance[/rho_start/rho_growth]` (the proximal method) or
+    /// `ipm` (the interior-point method), comma separated.
     #[arg(long, default_value = "1e4/8/0.01")]
     tunings: String,
     #[arg(long, default_value_t = 100)]
@@ -49,11 +50,20 @@ fn probe(args: Args) -> Result<()> {
         .tunings
         .split(',')
         .map(|t| {
-            let p: Vec<f64> = t.split('/').map(|x| x.parse().expect("a number")).collect();
+            let p: Vec<f64> = t
+                .trim_start_matches("ipm")
+                .split('/')
+                .filter(|x| !x.is_empty())
+                .map(|x| x.parse().expect("a number"))
+                .collect();
+            let p = if p.is_empty() { vec![1e4, 8.0, 0.01] } else { p };
             NewtonParams {
+                method: if t.starts_with("ipm") { SecondOrder::InteriorPoint } else { SecondOrder::Proximal },
                 rho: p[0],
                 max_inner: p[1] as u32,
                 inner_tolerance: p[2],
+                rho_start: p.get(3).copied().unwrap_or(p[0]),
+                rho_growth: p.get(4).copied().unwrap_or(1.0),
                 max_iterations: args.max_iterations,
             }
         })

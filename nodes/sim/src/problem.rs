@@ -88,6 +88,7 @@ pub fn header_of(step: StepHeader, bodies: u32, solve: &SolveParams) -> ProblemH
             Method::Sweeps => 0,
             Method::Newton => 1,
             Method::Auto => 2,
+            Method::InteriorPoint => 3,
         },
         friction: (solve.friction == FrictionModel::PerStep) as u32,
         ..ProblemHeader::default()
@@ -109,6 +110,7 @@ impl Problem {
             method: match h.method {
                 1 => Method::Newton,
                 2 => Method::Auto,
+                3 => Method::InteriorPoint,
                 _ => Method::Sweeps,
             },
             friction: if h.friction == 1 { FrictionModel::PerStep } else { FrictionModel::Box },

@@ -20,7 +20,7 @@ pub mod position;
 pub mod rows;
 pub mod setting;
 
-pub use newton::{NewtonError, NewtonParams, NewtonSolver, NewtonStats};
+pub use newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, SecondOrder};
 pub use pgs::{
     convergence_rate, natural_residual, ContactSolver, NaturalResidual, SolveParams, SolveReport, RATE_WINDOW,
     TRAIL_SWEEPS,

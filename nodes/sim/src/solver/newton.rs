@@ -36,7 +36,7 @@
 
 use super::rows::{cross, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, SymbolicCholesky};
+use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{ColMut, Conj, Par, Side};
 use rapier2d::math::Vec2;
@@ -54,9 +54,21 @@ pub enum NewtonError {
     Factorisation(String),
 }
 
+/// Which second-order method solves the step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SecondOrder {
+    /// Newton on the proximal augmented Lagrangian in body velocities (outer proximal
+    /// iterations, inner Newton steps with an exact line search).
+    Proximal,
+    /// A primal-dual interior-point method (Mehrotra's predictor-corrector) on the step's
+    /// box-constrained QP in impulses, each iteration's system reduced to body velocities.
+    InteriorPoint,
+}
+
 /// The Newton solver's tuning.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewtonParams {
+    pub method: SecondOrder,
     /// The proximal weight `rho` per unit of a row's effective mass (a dimensionless stiffness:
     /// the outer iteration contracts a mode of relative stiffness `a` by `1 / (1 + rho a)`).
     pub rho: f64,
@@ -67,11 +79,23 @@ pub struct NewtonParams {
     /// The inner iteration stops when the gradient (momentum units) is below this fraction of the
     /// tolerance.
     pub inner_tolerance: f64,
+    /// The first outer iteration's `rho`; each outer iteration multiplies it by `rho_growth` up
+    /// to `rho` (continuation: a soft problem first, whose Newton steps cross few kinks).
+    pub rho_start: f64,
+    pub rho_growth: f64,
 }
 
 impl Default for NewtonParams {
     fn default() -> Self {
-        NewtonParams { rho: 1e4, max_iterations: 100, max_inner: 8, inner_tolerance: 0.01 }
+        NewtonParams {
+            method: SecondOrder::InteriorPoint,
+            rho: 1e4,
+            max_iterations: 100,
+            max_inner: 8,
+            inner_tolerance: 0.01,
+            rho_start: 1e4,
+            rho_growth: 1.0,
+        }
     }
 }
 
@@ -145,6 +169,10 @@ pub struct NewtonSolver {
     trial: Vec<[f64; 2]>,
     u: Vec<[f64; 2]>,
     jd: Vec<[f64; 2]>,
+    /// Per row part: its weight in the Hessian (0: not in it).
+    weights: Vec<[f64; 2]>,
+    /// The interior-point method's bounds, dual slacks and steps, per row part.
+    interior: Interior,
     /// Per row part: `rho * m`.
     rho: Vec<[f64; 2]>,
     /// The natural residual (max) after each outer iteration.
@@ -194,6 +222,11 @@ impl NewtonSolver {
         let mut stats = NewtonStats::default();
         self.setup(problem, params.rho);
         stats.symbolic_reused = self.prepare_pattern()?;
+        if params.method == SecondOrder::InteriorPoint {
+            self.interior_point(problem, params, &mut stats)?;
+            self.finish(impulses, bodies);
+            return Ok(stats);
+        }
         let softness = 1.0 / (1.0 + problem.compliance as f64);
         let compliance = problem.compliance as f64;
         self.residuals.clear();
@@ -205,8 +238,11 @@ impl NewtonSolver {
         // An outer iteration without a Newton step (the velocities already minimise L) still
         // moves the impulses; bounded all the same.
         let max_outer = 2 * params.max_iterations;
+        let mut rho = params.rho_start.min(params.rho);
         while residual > tolerance && stats.iterations < params.max_iterations && stats.outer < max_outer {
             stats.outer += 1;
+            self.set_rho(rho);
+            rho = (rho * params.rho_growth).min(params.rho);
             // Inner: Newton on L for this outer iterate.
             for _ in 0..params.max_inner {
                 if stats.iterations >= params.max_iterations {
@@ -235,6 +271,12 @@ impl NewtonSolver {
         }
         stats.converged = residual <= tolerance;
         stats.natural_max = residual;
+        self.finish(impulses, bodies);
+        Ok(stats)
+    }
+
+    /// Hands the impulses (f32) and the velocities they give to the caller.
+    fn finish(&mut self, impulses: &mut Vec<Impulse>, bodies: &mut [SolverBody]) {
         impulses.clear();
         impulses.extend(self.lambda.iter().map(|l| Impulse { normal: l[0] as f32, tangent: l[1] as f32 }));
         // The velocities of the f32 impulses the caller gets, so that its residual is theirs.
@@ -246,7 +288,12 @@ impl NewtonSolver {
             b.v = Vec2::new(v[0] as f32, v[1] as f32);
             b.w = v[2] as f32;
         }
-        Ok(stats)
+    }
+
+    /// Each row part's proximal weight: `rho` times its effective mass.
+    fn set_rho(&mut self, rho: f64) {
+        self.rho.clear();
+        self.rho.extend(self.rows.iter().map(|r| r.mass.map(|m| rho * m)));
     }
 
     /// The natural residual after each outer iteration of the last solve (the start first).
@@ -295,8 +342,7 @@ impl NewtonSolver {
                 a_first: true,
             });
         }
-        self.rho.clear();
-        self.rho.extend(self.rows.iter().map(|r| r.mass.map(|m| rho * m)));
+        self.set_rho(rho);
         // The warm start projected onto the rows' intervals (a learned guess may be outside).
         self.lambda.clear();
         for (r, w) in self.rows.iter().zip(problem.warm_start) {
@@ -313,7 +359,7 @@ impl NewtonSolver {
         self.rhs.clear();
         self.rhs.resize(3 * dofs, 0.0);
         let n = self.rows.len();
-        for buf in [&mut self.trial, &mut self.u, &mut self.jd] {
+        for buf in [&mut self.trial, &mut self.u, &mut self.jd, &mut self.weights] {
             buf.clear();
             buf.resize(n, [0.0; 2]);
         }
@@ -460,6 +506,20 @@ impl NewtonSolver {
     /// Assembles the Hessian at the current trial values, factorises it on the kept symbolic
     /// factorisation and solves for the Newton direction (from `rhs`, the negated gradient).
     fn factorise_and_solve(&mut self, compliance: f64) -> Result<(), NewtonError> {
+        for ((((r, l), u), rho), w) in
+            self.rows.iter().zip(&self.lambda).zip(&self.u).zip(&self.rho).zip(self.weights.iter_mut())
+        {
+            let (_, free) = r.trial(l, u, rho, compliance);
+            *w = std::array::from_fn(|part| if free[part] { r.weight(rho[part], compliance, part) } else { 0.0 });
+        }
+        self.factorise()?;
+        self.solve_direction();
+        Ok(())
+    }
+
+    /// Assembles `M + sum w J^T J` (`w` from `weights`, per row part) and factorises it on the
+    /// kept symbolic factorisation.
+    fn factorise(&mut self) -> Result<(), NewtonError> {
         self.block_values.iter_mut().for_each(|b| *b = [0.0; 9]);
         for (&k, m) in self.block_of.iter().zip(&self.mass) {
             if k == NONE {
@@ -471,13 +531,12 @@ impl NewtonSolver {
                 self.block_values[diag][c * 3 + c] = if m[c] > 0.0 { m[c] } else { 1.0 };
             }
         }
-        for (((r, l), u), rho) in self.rows.iter().zip(&self.lambda).zip(&self.u).zip(&self.rho) {
-            let (_, free) = r.trial(l, u, rho, compliance);
+        for (r, weights) in self.rows.iter().zip(&self.weights) {
             for part in 0..2 {
-                if !free[part] {
+                let w = weights[part];
+                if w == 0.0 {
                     continue;
                 }
-                let w = rho[part] / (1.0 + rho[part] * compliance / r.mass[part].max(f64::MIN_POSITIVE));
                 let ja = self.masked(r.a, &r.j[part][0..3]);
                 let jb = self.masked(r.b, &r.j[part][3..6]);
                 if r.blocks[0] != NONE {
@@ -500,7 +559,7 @@ impl NewtonSolver {
         let structure = SymbolicSparseColMatRef::new_checked(dofs, dofs, &self.col_ptr, None, &self.row_idx);
         let matrix = SparseColMatRef::new(structure, &self.values);
         let stack = MemStack::new(self.stack.as_mut().expect("prepare_pattern made it"));
-        let llt = symbolic
+        symbolic
             .factorize_numeric_llt::<f64>(
                 &mut self.l_values,
                 matrix,
@@ -511,7 +570,19 @@ impl NewtonSolver {
                 Default::default(),
             )
             .map_err(|e| NewtonError::Factorisation(format!("{e:?}")))?;
-        llt.solve_in_place_with_conj(Conj::No, ColMut::from_slice_mut(&mut self.rhs).as_mat_mut(), Par::Seq, stack);
+        Ok(())
+    }
+
+    /// Solves the last factorisation for `rhs` (per dof) into `direction` (per body).
+    fn solve_direction(&mut self) {
+        let symbolic = self.symbolic.as_ref().expect("prepare_pattern made it");
+        let stack = MemStack::new(self.stack.as_mut().expect("prepare_pattern made it"));
+        LltRef::new(symbolic, &self.l_values).solve_in_place_with_conj(
+            Conj::No,
+            ColMut::from_slice_mut(&mut self.rhs).as_mat_mut(),
+            Par::Seq,
+            stack,
+        );
         for (body, &k) in self.block_of.iter().enumerate() {
             self.direction[body] = if k == NONE {
                 [0.0; 3]
@@ -521,7 +592,6 @@ impl NewtonSolver {
                 std::array::from_fn(|c| if m[c] > 0.0 { self.rhs[at + c] } else { 0.0 })
             };
         }
-        Ok(())
     }
 
     /// A body's Jacobian part with its fixed dofs zeroed.
@@ -554,8 +624,7 @@ impl NewtonSolver {
                 for part in 0..2 {
                     first -= jd[part] * trial[part];
                     if free[part] {
-                        let w = rho[part] / (1.0 + rho[part] * compliance / r.mass[part].max(f64::MIN_POSITIVE));
-                        second += w * jd[part] * jd[part];
+                        second += r.weight(rho[part], compliance, part) * jd[part] * jd[part];
                     }
                 }
             }
@@ -608,12 +677,323 @@ impl NewtonSolver {
     }
 }
 
+/// The interior-point method's state per row part: bounds `lo <= x <= hi` (a normal's `hi` is
+/// infinite), the dual slacks of each bound, the steps, and whether the part is a variable (a
+/// tangent whose bound is zero, or a part with no effective mass, stays at zero).
+#[derive(Debug, Default)]
+struct Interior {
+    lo: Vec<[f64; 2]>,
+    hi: Vec<[f64; 2]>,
+    z_lo: Vec<[f64; 2]>,
+    z_hi: Vec<[f64; 2]>,
+    active: Vec<[bool; 2]>,
+    /// The dual residual `J v + R x - z_lo + z_hi`.
+    dual: Vec<[f64; 2]>,
+    dx: Vec<[f64; 2]>,
+    dz_lo: Vec<[f64; 2]>,
+    dz_hi: Vec<[f64; 2]>,
+    rhs: Vec<[f64; 2]>,
+}
+
+/// Bound passes at most: each fixes the Box-law rows' friction bounds at `mu` times the
+/// previous pass's normal impulse (the per-step model's rows keep theirs).
+const MAX_BOUND_PASSES: u32 = 8;
+/// The fraction of the way to the boundary a step may go.
+const TO_BOUNDARY: f64 = 0.995;
+
+impl NewtonSolver {
+    /// The primal-dual interior-point method on the step's QP
+    /// `min 1/2 x^T (A + R) x + x^T J v0` over `x_n >= 0, |x_t| <= c` (`A = J M^-1 J^T`): each
+    /// iteration's system `(A + E) dx = r` (`E` diagonal and positive) is solved as
+    /// `(M + J^T E^-1 J) dv = J^T E^-1 r`, `dx = E^-1 (r - J dv)`: the same sparse SPD pattern as
+    /// Newton's Hessian, symmetric positive definite however redundant the contacts. Mehrotra's
+    /// predictor-corrector: two solves per factorisation. Under the Box2D law the bound `c` is
+    /// fixed per pass at `mu` times the last pass's normal impulse (a staggered fixed point);
+    /// under the per-step model it is the row's own and one pass solves the problem.
+    fn interior_point(
+        &mut self,
+        problem: &NewtonProblem<'_>,
+        params: &NewtonParams,
+        stats: &mut NewtonStats,
+    ) -> Result<(), NewtonError> {
+        let softness = 1.0 / (1.0 + problem.compliance as f64);
+        let compliance = problem.compliance as f64;
+        let tolerance = problem.tolerance as f64;
+        self.residuals.clear();
+        self.velocities_of_lambda();
+        let mut residual = self.natural_residual(softness);
+        self.residuals.push(residual as f32);
+        let n = self.rows.len();
+        let ip = &mut self.interior;
+        for buf in [
+            &mut ip.lo,
+            &mut ip.hi,
+            &mut ip.z_lo,
+            &mut ip.z_hi,
+            &mut ip.dual,
+            &mut ip.dx,
+            &mut ip.dz_lo,
+            &mut ip.dz_hi,
+            &mut ip.rhs,
+        ] {
+            buf.clear();
+            buf.resize(n, [0.0; 2]);
+        }
+        ip.active.clear();
+        ip.active.resize(n, [false; 2]);
+        while residual > tolerance && stats.iterations < params.max_iterations && stats.outer < MAX_BOUND_PASSES {
+            stats.outer += 1;
+            self.interior_start();
+            loop {
+                // The own problem's residual: this pass's bounds.
+                let own = self.interior_residual(softness);
+                residual = self.natural_residual(softness);
+                if residual <= tolerance || stats.iterations >= params.max_iterations {
+                    break;
+                }
+                if own <= 0.5 * tolerance {
+                    // This pass's problem is solved; only the Box2D law's bounds moved.
+                    break;
+                }
+                stats.iterations += 1;
+                if !self.interior_iteration(compliance)? {
+                    break;
+                }
+            }
+            self.residuals.push(residual as f32);
+        }
+        stats.converged = residual <= tolerance;
+        stats.natural_max = residual;
+        Ok(())
+    }
+
+    /// A pass's start: the bounds (the Box2D law's from the current normal impulses), the
+    /// impulses pushed strictly inside them and dual slacks from the relative velocities.
+    fn interior_start(&mut self) {
+        let scale = self.lambda.iter().fold(0.0f64, |m, l| m.max(l[0])).max(1e-6);
+        // How far inside the bounds a start lies, in impulse and in velocity units.
+        let inside = 1e-2 * scale;
+        let speed = 1e-3;
+        let ip = &mut self.interior;
+        for (k, (r, l)) in self.rows.iter().zip(self.lambda.iter_mut()).enumerate() {
+            let c = r.bound(l[0]);
+            ip.lo[k] = [0.0, -c];
+            ip.hi[k] = [f64::INFINITY, c];
+            ip.active[k] = [r.mass[0] > 0.0, r.mass[1] > 0.0 && c > 1e-12 * scale];
+            l[0] = if ip.active[k][0] { l[0].max(inside) } else { 0.0 };
+            l[1] = if ip.active[k][1] { l[1].clamp(-0.99 * c, 0.99 * c) } else { 0.0 };
+        }
+        self.velocities_of_lambda();
+        self.relative_velocities();
+        let ip = &mut self.interior;
+        for k in 0..self.rows.len() {
+            for part in 0..2 {
+                let u = self.u[k][part];
+                ip.z_lo[k][part] = u.max(0.0) + speed;
+                ip.z_hi[k][part] = if part == 1 { (-u).max(0.0) + speed } else { 0.0 };
+            }
+        }
+    }
+
+    /// The natural residual (max) of the pass's own problem: its fixed bounds.
+    fn interior_residual(&mut self, softness: f64) -> f64 {
+        self.relative_velocities();
+        let ip = &self.interior;
+        let mut max = 0.0f64;
+        for (k, (r, l)) in self.rows.iter().zip(&self.lambda).enumerate() {
+            let u = self.u[k];
+            let rn = (l[0] - ((l[0] - r.mass[0] * u[0]) * softness).max(0.0)).abs();
+            let c = ip.hi[k][1];
+            let rt = (l[1] - ((l[1] - r.mass[1] * u[1]) * softness).clamp(-c, c)).abs();
+            max = max.max(rn).max(rt);
+        }
+        max
+    }
+
+    /// One predictor-corrector iteration from the current `lambda` (x), `u` and slacks; returns
+    /// whether it moved.
+    fn interior_iteration(&mut self, compliance: f64) -> Result<bool, NewtonError> {
+        let n = self.rows.len();
+        // Dual residual, duality measure and the diagonal E (as weights 1 / E).
+        let (mut gap_sum, mut count) = (0.0, 0usize);
+        for k in 0..n {
+            let r = &self.rows[k];
+            for part in 0..2 {
+                let ip = &mut self.interior;
+                if !ip.active[k][part] {
+                    self.weights[k][part] = 0.0;
+                    continue;
+                }
+                let x = self.lambda[k][part];
+                let stiffness = compliance / r.mass[part].max(f64::MIN_POSITIVE);
+                ip.dual[k][part] = self.u[k][part] + stiffness * x - ip.z_lo[k][part] + ip.z_hi[k][part];
+                let (g_lo, g_hi) = (x - ip.lo[k][part], ip.hi[k][part] - x);
+                let mut e = stiffness + ip.z_lo[k][part] / g_lo;
+                gap_sum += g_lo * ip.z_lo[k][part];
+                count += 1;
+                if g_hi.is_finite() {
+                    e += ip.z_hi[k][part] / g_hi;
+                    gap_sum += g_hi * ip.z_hi[k][part];
+                    count += 1;
+                }
+                // A part far inside its bounds is nearly an equality: its weight is capped so the
+                // factorisation stays well conditioned.
+                self.weights[k][part] = (1.0 / e).min(1e10 * r.mass[part]);
+            }
+        }
+        let mu = gap_sum / count.max(1) as f64;
+        self.factorise()?;
+        // Predictor (affine scaling, sigma = 0).
+        self.interior_rhs(0.0, false);
+        self.interior_direction();
+        let alpha_aff = self.interior_step_length();
+        let mut gap_aff = 0.0;
+        {
+            let ip = &self.interior;
+            for k in 0..n {
+                for part in 0..2 {
+                    if !ip.active[k][part] {
+                        continue;
+                    }
+                    let x = self.lambda[k][part] + alpha_aff * ip.dx[k][part];
+                    gap_aff += (x - ip.lo[k][part]) * (ip.z_lo[k][part] + alpha_aff * ip.dz_lo[k][part]);
+                    if ip.hi[k][part].is_finite() {
+                        gap_aff += (ip.hi[k][part] - x) * (ip.z_hi[k][part] + alpha_aff * ip.dz_hi[k][part]);
+                    }
+                }
+            }
+        }
+        let sigma = (gap_aff / count.max(1) as f64 / mu.max(f64::MIN_POSITIVE)).clamp(0.0, 1.0).powi(3);
+        // Corrector: centring and the predictor's second-order term.
+        self.interior_rhs(sigma * mu, true);
+        self.interior_direction();
+        let alpha = (TO_BOUNDARY * self.interior_step_length()).min(1.0);
+        if alpha <= 0.0 {
+            return Ok(false);
+        }
+        let ip = &mut self.interior;
+        for k in 0..n {
+            for part in 0..2 {
+                if ip.active[k][part] {
+                    self.lambda[k][part] += alpha * ip.dx[k][part];
+                    ip.z_lo[k][part] += alpha * ip.dz_lo[k][part];
+                    ip.z_hi[k][part] += alpha * ip.dz_hi[k][part];
+                }
+            }
+        }
+        self.velocities_of_lambda();
+        Ok(true)
+    }
+
+    /// The right side `r` of `(A + E) dx = r` per row part, with centring target `target`; with
+    /// `correct`, Mehrotra's second-order term from the current (predictor) steps.
+    fn interior_rhs(&mut self, target: f64, correct: bool) {
+        let ip = &mut self.interior;
+        for k in 0..self.rows.len() {
+            for part in 0..2 {
+                if !ip.active[k][part] {
+                    ip.rhs[k][part] = 0.0;
+                    continue;
+                }
+                let x = self.lambda[k][part];
+                let (g_lo, g_hi) = (x - ip.lo[k][part], ip.hi[k][part] - x);
+                let (c_lo, c_hi) = if correct {
+                    let (dx, dzl, dzh) = (ip.dx[k][part], ip.dz_lo[k][part], ip.dz_hi[k][part]);
+                    (target - dx * dzl, target + dx * dzh)
+                } else {
+                    (target, target)
+                };
+                let mut r = -ip.dual[k][part] + c_lo / g_lo - ip.z_lo[k][part];
+                if g_hi.is_finite() {
+                    r += -c_hi / g_hi + ip.z_hi[k][part];
+                }
+                ip.rhs[k][part] = r;
+                // Kept for the slacks' steps below.
+                ip.dz_lo[k][part] = c_lo;
+                ip.dz_hi[k][part] = c_hi;
+            }
+        }
+    }
+
+    /// Solves `(A + E) dx = rhs` through the body-space factorisation and the slacks' steps.
+    fn interior_direction(&mut self) {
+        self.rhs.iter_mut().for_each(|x| *x = 0.0);
+        for (k, r) in self.rows.iter().enumerate() {
+            let wr = [0, 1].map(|part| self.weights[k][part] * self.interior.rhs[k][part]);
+            for (body, offset) in [(r.a, 0), (r.b, 3)] {
+                let b = self.block_of[body];
+                if b == NONE {
+                    continue;
+                }
+                for c in 0..3 {
+                    if self.mass[body][c] > 0.0 {
+                        self.rhs[3 * b as usize + c] += r.j[0][offset + c] * wr[0] + r.j[1][offset + c] * wr[1];
+                    }
+                }
+            }
+        }
+        self.solve_direction();
+        let ip = &mut self.interior;
+        for (k, r) in self.rows.iter().enumerate() {
+            let jdv = r.apply(&self.direction);
+            for part in 0..2 {
+                if !ip.active[k][part] {
+                    ip.dx[k][part] = 0.0;
+                    ip.dz_lo[k][part] = 0.0;
+                    ip.dz_hi[k][part] = 0.0;
+                    continue;
+                }
+                let dx = self.weights[k][part] * (ip.rhs[k][part] - jdv[part]);
+                let x = self.lambda[k][part];
+                let (g_lo, g_hi) = (x - ip.lo[k][part], ip.hi[k][part] - x);
+                let (c_lo, c_hi) = (ip.dz_lo[k][part], ip.dz_hi[k][part]);
+                ip.dx[k][part] = dx;
+                ip.dz_lo[k][part] = (c_lo - ip.z_lo[k][part] * dx) / g_lo - ip.z_lo[k][part];
+                ip.dz_hi[k][part] =
+                    if g_hi.is_finite() { (c_hi + ip.z_hi[k][part] * dx) / g_hi - ip.z_hi[k][part] } else { 0.0 };
+            }
+        }
+    }
+
+    /// The largest step in `[0, 1]` keeping every variable part and slack inside its bounds.
+    fn interior_step_length(&self) -> f64 {
+        let ip = &self.interior;
+        let mut alpha = 1.0f64;
+        let mut limit = |value: f64, step: f64| {
+            if step < 0.0 {
+                alpha = alpha.min(-value / step);
+            }
+        };
+        for k in 0..self.rows.len() {
+            for part in 0..2 {
+                if !ip.active[k][part] {
+                    continue;
+                }
+                let (x, dx) = (self.lambda[k][part], ip.dx[k][part]);
+                limit(x - ip.lo[k][part], dx);
+                limit(ip.z_lo[k][part], ip.dz_lo[k][part]);
+                if ip.hi[k][part].is_finite() {
+                    limit(ip.hi[k][part] - x, -dx);
+                    limit(ip.z_hi[k][part], ip.dz_hi[k][part]);
+                }
+            }
+        }
+        alpha.max(0.0)
+    }
+}
+
 impl Row {
     /// `J x` of per-body vectors `x`: `[normal, tangent]`.
     #[inline]
     fn apply(&self, x: &[[f64; 3]]) -> [f64; 2] {
         let (xa, xb) = (&x[self.a], &x[self.b]);
         self.j.map(|j| j[0] * xa[0] + j[1] * xa[1] + j[2] * xa[2] + j[3] * xb[0] + j[4] * xb[1] + j[5] * xb[2])
+    }
+
+    /// The Hessian weight `rho / (1 + rho R)` of a free row part (`R` its compliance).
+    #[inline]
+    fn weight(&self, rho: f64, compliance: f64, part: usize) -> f64 {
+        rho / (1.0 + rho * compliance / self.mass[part].max(f64::MIN_POSITIVE))
     }
 
     /// The tangent bound with normal impulse `normal`.

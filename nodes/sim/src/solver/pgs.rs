@@ -23,7 +23,7 @@
 //! iteration count comparable across warm-start models and the complementarity check simple.
 //! The solver owns only reusable buffers; bodies and contact rows are passed in.
 
-use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver};
+use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder};
 use super::rows::{cross, cross_sv, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use super::setting::AUTO_NEWTON_FROM;
 use super::setting::{
@@ -211,6 +211,8 @@ pub struct ContactSolver {
     trail: Vec<[Impulse; TRAIL_SWEEPS]>,
     /// The Newton method's state (pattern, symbolic factorisation), kept across steps.
     newton: NewtonSolver,
+    /// The impulses a second-order method hands the sweeps that finish its solve.
+    handed: Vec<Impulse>,
 }
 
 /// How many of a solve's last sweeps [`ContactSolver::trail`] keeps per row.
@@ -239,16 +241,34 @@ impl ContactSolver {
         params: &SolveParams,
     ) -> SolveReport {
         assert_eq!(rows.len(), warm_start.len(), "one warm-start impulse per contact row");
-        let newton = match params.method {
-            Method::Newton => true,
-            Method::Auto => dynamic_bodies(bodies) >= AUTO_NEWTON_FROM,
-            Method::Sweeps => false,
+        let second_order = match params.method {
+            Method::Newton => Some(SecondOrder::Proximal),
+            Method::InteriorPoint => Some(SecondOrder::InteriorPoint),
+            Method::Auto => (dynamic_bodies(bodies) >= AUTO_NEWTON_FROM).then_some(SecondOrder::InteriorPoint),
+            Method::Sweeps => None,
         };
-        if newton && !rows.is_empty() {
-            match self.solve_newton(rows, bodies, warm_start, params) {
-                Ok(report) => return report,
+        if let (Some(method), false) = (second_order, rows.is_empty()) {
+            let start = bodies.to_vec();
+            match self.solve_newton(rows, bodies, warm_start, params, method) {
+                Ok(report) if report.converged => return report,
+                Ok(report) => {
+                    // Short of the tolerance: the sweeps finish from its impulses, on the step's
+                    // own velocities; both counts are reported.
+                    bodies.copy_from_slice(&start);
+                    let mut handed = std::mem::take(&mut self.handed);
+                    handed.clear();
+                    handed.extend_from_slice(&self.impulses);
+                    let sweeps = params.with_setting(params.setting().sweeps());
+                    let mut finished = self.solve(rows, bodies, &handed, &sweeps);
+                    self.handed = handed;
+                    finished.sweeps += report.sweeps;
+                    finished.factorisations = report.factorisations;
+                    return finished;
+                }
                 // The bodies are untouched: the sweeps solve the same problem.
-                Err(e) => tracing::warn!("newton solver: {e}; this step is solved by {}", params.setting().sweeps()),
+                Err(e) => {
+                    tracing::warn!("{method:?} solver: {e}; this step is solved by {}", params.setting().sweeps())
+                }
             }
         }
         self.visit.clear();
@@ -343,10 +363,12 @@ impl ContactSolver {
         bodies: &mut [SolverBody],
         warm_start: &[Impulse],
         params: &SolveParams,
+        method: SecondOrder,
     ) -> Result<SolveReport, NewtonError> {
         let problem =
             NewtonProblem { rows, bodies, warm_start, compliance: params.compliance, tolerance: params.tolerance };
         let newton = NewtonParams {
+            method,
             max_iterations: params.max_sweeps.min(NewtonParams::default().max_iterations),
             ..NewtonParams::default()
         };

@@ -32,11 +32,14 @@ pub enum Method {
     /// Newton's method on the problem's proximal augmented Lagrangian in body velocities, a
     /// sparse Cholesky per iteration ([`super::newton`]).
     Newton,
-    /// Newton from [`AUTO_NEWTON_FROM`] dynamic bodies on, the sweeps below.
+    /// The primal-dual interior-point method on the step's QP, a sparse Cholesky per
+    /// iteration ([`super::newton`]).
+    InteriorPoint,
+    /// The interior-point method from [`AUTO_NEWTON_FROM`] dynamic bodies on, the sweeps below.
     Auto,
 }
 
-/// The problem size (dynamic bodies) from which `auto` solves with Newton.
+/// The problem size (dynamic bodies) from which `auto` solves with the interior-point method.
 pub const AUTO_NEWTON_FROM: usize = 200;
 
 /// Which law bounds the friction impulse of a step.
@@ -169,7 +172,8 @@ impl FromStr for RowOrder {
 /// `/down` for the top-down row order (`sor:1.4/down`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SolverSetting {
-    /// Sweeps, Newton, or by size; Newton falls back to the sweeps below if it fails.
+    /// Sweeps, a second-order method, or by size; a second-order method falls back to the
+    /// sweeps below if it fails and hands them its impulses if it stops short of the tolerance.
     pub method: Method,
     pub relaxation: f32,
     pub momentum: Momentum,
@@ -200,13 +204,19 @@ impl SolverSetting {
     /// Newton ([`Method::Newton`]), the recommended sweeps behind it.
     pub const NEWTON: SolverSetting = SolverSetting { method: Method::Newton, ..SolverSetting::RECOMMENDED };
 
-    /// Newton from [`AUTO_NEWTON_FROM`] dynamic bodies, the recommended sweeps below.
+    /// The interior-point method ([`Method::InteriorPoint`]), the recommended sweeps behind it.
+    pub const INTERIOR_POINT: SolverSetting =
+        SolverSetting { method: Method::InteriorPoint, ..SolverSetting::RECOMMENDED };
+
+    /// The interior-point method from [`AUTO_NEWTON_FROM`] dynamic bodies, the recommended
+    /// sweeps below.
     pub const AUTO: SolverSetting = SolverSetting { method: Method::Auto, ..SolverSetting::RECOMMENDED };
 
     /// What `--solver` accepts, in words.
-    pub const SPELLING: &'static str = "newton, auto (newton from 200 bodies, nncg:1.2/down below), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down) or /recorded";
+    pub const SPELLING: &'static str = "ipm (interior point), newton (proximal Newton), auto (ipm from 200 bodies, nncg:1.2/down below), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down) or /recorded";
 
-    /// The sweeps of this setting (what Newton falls back to; itself for the sweeps).
+    /// The sweeps of this setting (what a second-order method falls back to and finishes with;
+    /// itself for the sweeps).
     pub fn sweeps(self) -> SolverSetting {
         SolverSetting { method: Method::Sweeps, ..self }
     }
@@ -226,6 +236,7 @@ impl fmt::Display for SolverSetting {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.method {
             Method::Newton => return f.write_str("newton"),
+            Method::InteriorPoint => return f.write_str("ipm"),
             Method::Auto => return f.write_str("auto"),
             Method::Sweeps => {}
         }
@@ -256,6 +267,7 @@ impl FromStr for SolverSetting {
         let bad = |why: String| format!("solver `{s}`: {why} (expected {})", Self::SPELLING);
         match s {
             "newton" => return Ok(SolverSetting::NEWTON),
+            "ipm" => return Ok(SolverSetting::INTERIOR_POINT),
             "auto" => return Ok(SolverSetting::AUTO),
             _ => {}
         }
@@ -318,6 +330,7 @@ mod tests {
     fn settings_read_back_what_they_print() {
         for s in [
             "newton",
+            "ipm",
             "auto",
             "pgs",
             "sor:1.4",
