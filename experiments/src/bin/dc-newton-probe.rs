@@ -75,7 +75,7 @@ fn probe(args: Args) -> Result<()> {
     warm.begin_simulation(args.seed as u32, args.seed);
     world.capture_problems(None);
     let mut solvers: Vec<NewtonSolver> = tunings.iter().map(|_| NewtonSolver::new()).collect();
-    let mut totals = vec![(0u32, 0u32, 0u32); tunings.len()];
+    let mut totals = vec![(0u32, 0u32, 0u32, 0.0f64); tunings.len()];
     for _ in 0..args.steps {
         let report = world.step(&mut warm).clone();
         let step = report.step;
@@ -96,7 +96,9 @@ fn probe(args: Args) -> Result<()> {
         print!("step {step:3} rows {:4} sweeps {:5}", rows.len(), report.sweeps);
         for ((t, solver), total) in tunings.iter().zip(&mut solvers).zip(&mut totals) {
             let (mut impulses, mut out) = (Vec::new(), bodies.clone());
+            let clock = std::time::Instant::now();
             let stats = solver.solve(&np, t, &mut impulses, &mut out)?;
+            total.3 += clock.elapsed().as_secs_f64();
             print!(" | it {:3} outer {:3} res {:.1e}", stats.iterations, stats.outer, stats.natural_max);
             total.0 += stats.iterations;
             total.1 += stats.converged as u32;
@@ -108,8 +110,13 @@ fn probe(args: Args) -> Result<()> {
         }
         println!();
     }
-    for (t, (it, conv, n)) in tunings.iter().zip(&totals) {
-        println!("{t:?}: {conv}/{n} converged, {:.1} iterations per step", *it as f64 / *n as f64);
+    for (t, (it, conv, n, seconds)) in tunings.iter().zip(&totals) {
+        println!(
+            "{t:?}: {conv}/{n} converged, {:.1} iterations per step, {:.3} ms per step, {:.1} us per iteration",
+            *it as f64 / *n as f64,
+            1e3 * seconds / *n as f64,
+            1e6 * seconds / *it as f64
+        );
     }
     Ok(())
 }

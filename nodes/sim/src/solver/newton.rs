@@ -743,7 +743,11 @@ impl NewtonSolver {
         ip.active.resize(n, [false; 2]);
         while residual > tolerance && stats.iterations < params.max_iterations && stats.outer < MAX_BOUND_PASSES {
             stats.outer += 1;
-            self.interior_start();
+            if stats.outer == 1 {
+                self.interior_start();
+            } else {
+                self.interior_rebound();
+            }
             loop {
                 // The own problem's residual: this pass's bounds.
                 let own = self.interior_residual(softness);
@@ -793,6 +797,33 @@ impl NewtonSolver {
                 ip.z_hi[k][part] = if part == 1 { (-u).max(0.0) + speed } else { 0.0 };
             }
         }
+    }
+
+    /// A later pass's start: only the Box2D law's rows take new bounds (`mu` times their normal
+    /// impulse now) and restart their tangent inside them; every other part keeps its iterate
+    /// and slacks, so the pass starts near the last one's solution.
+    fn interior_rebound(&mut self) {
+        let ip = &mut self.interior;
+        for (k, (r, l)) in self.rows.iter().zip(self.lambda.iter_mut()).enumerate() {
+            if r.fixed_bound.is_some() {
+                continue;
+            }
+            let c = r.bound(l[0]);
+            let was = ip.active[k][1];
+            ip.lo[k][1] = -c;
+            ip.hi[k][1] = c;
+            ip.active[k][1] = r.mass[1] > 0.0 && c > 0.0;
+            if !ip.active[k][1] {
+                l[1] = 0.0;
+                continue;
+            }
+            l[1] = l[1].clamp(-0.99 * c, 0.99 * c);
+            if !was || ip.z_lo[k][1] <= 0.0 || ip.z_hi[k][1] <= 0.0 {
+                ip.z_lo[k][1] = 1e-3;
+                ip.z_hi[k][1] = 1e-3;
+            }
+        }
+        self.velocities_of_lambda();
     }
 
     /// The natural residual (max) of the pass's own problem: its fixed bounds.

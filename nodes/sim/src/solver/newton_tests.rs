@@ -14,17 +14,27 @@ fn params(setting: SolverSetting) -> SolveParams {
         .with_setting(setting)
 }
 
-/// Solves with Newton alone (no fallback) and returns the stats, impulses and bodies.
+/// Both second-order methods.
+const METHODS: [SecondOrder; 2] = [SecondOrder::InteriorPoint, SecondOrder::Proximal];
+
+/// Solves with each second-order method alone (no fallback) and returns, per method, the stats,
+/// impulses and bodies.
 fn newton(
     rows: &[ContactRow],
     bodies: &[SolverBody],
     warm: &[Impulse],
-) -> (NewtonStats, Vec<Impulse>, Vec<SolverBody>) {
-    let mut solver = NewtonSolver::new();
-    let (mut impulses, mut out) = (Vec::new(), bodies.to_vec());
-    let problem = NewtonProblem { rows, bodies, warm_start: warm, compliance: 0.0, tolerance: 1e-6 };
-    let stats = solver.solve(&problem, &NewtonParams::default(), &mut impulses, &mut out).expect("solves");
-    (stats, impulses, out)
+) -> Vec<(NewtonStats, Vec<Impulse>, Vec<SolverBody>)> {
+    METHODS
+        .iter()
+        .map(|&method| {
+            let mut solver = NewtonSolver::new();
+            let (mut impulses, mut out) = (Vec::new(), bodies.to_vec());
+            let problem = NewtonProblem { rows, bodies, warm_start: warm, compliance: 0.0, tolerance: 1e-6 };
+            let params = NewtonParams { method, ..NewtonParams::default() };
+            let stats = solver.solve(&problem, &params, &mut impulses, &mut out).expect("solves");
+            (stats, impulses, out)
+        })
+        .collect()
 }
 
 /// Solves with the PGS family's recommended sweeps to 1e-6.
@@ -44,26 +54,28 @@ fn close(a: &[Impulse], b: &[Impulse], tol: f32) -> bool {
 fn a_sliding_ball_on_the_floor_stops_falling_and_slides_on_the_cone() {
     let rows = [floor_row(1)];
     let bodies = [SolverBody::default(), ball(Vec2::new(-5.0, -1.0))];
-    let (stats, l, out) = newton(&rows, &bodies, &[Impulse::default()]);
-    assert!(stats.converged, "{stats:?}");
-    assert!((l[0].normal - 1.0).abs() < 1e-4 && (l[0].tangent.abs() - 0.5 * l[0].normal).abs() < 1e-5, "{l:?}");
-    let (vn, _) = relative_velocity(&rows[0], &out);
-    assert!(vn.abs() < 1e-4, "vn {vn}");
-    let (reference, _) = sweeps(&rows, &bodies, &[Impulse::default()]);
-    assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
+    for (stats, l, out) in newton(&rows, &bodies, &[Impulse::default()]) {
+        assert!(stats.converged, "{stats:?}");
+        assert!((l[0].normal - 1.0).abs() < 1e-4 && (l[0].tangent.abs() - 0.5 * l[0].normal).abs() < 1e-5, "{l:?}");
+        let (vn, _) = relative_velocity(&rows[0], &out);
+        assert!(vn.abs() < 1e-4, "vn {vn}");
+        let (reference, _) = sweeps(&rows, &bodies, &[Impulse::default()]);
+        assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
+    }
 }
 
 #[test]
 fn a_stack_of_three_gets_the_sweeps_loads() {
     let (bodies, rows) = stack(3, -0.1);
-    let (stats, l, out) = newton(&rows, &bodies, &[Impulse::default(); 3]);
-    assert!(stats.converged && stats.natural_max <= 1e-6, "{stats:?}");
-    for (i, li) in l.iter().enumerate() {
-        assert!((li.normal - 0.1 * (3 - i) as f32).abs() < 1e-5 && li.tangent.abs() < 1e-6, "row {i}: {li:?}");
+    for (stats, l, out) in newton(&rows, &bodies, &[Impulse::default(); 3]) {
+        assert!(stats.converged && stats.natural_max <= 1e-6, "{stats:?}");
+        for (i, li) in l.iter().enumerate() {
+            assert!((li.normal - 0.1 * (3 - i) as f32).abs() < 1e-5 && li.tangent.abs() < 1e-6, "row {i}: {li:?}");
+        }
+        assert!(out[1..].iter().all(|b| b.v.length() < 1e-5), "{out:?}");
+        // A chain: the Hessian's pattern is the pile's, and a few iterations do it.
+        assert!(stats.iterations <= 10, "{stats:?}");
     }
-    assert!(out[1..].iter().all(|b| b.v.length() < 1e-5), "{out:?}");
-    // A chain: the Hessian's pattern is the pile's, and a few iterations do it.
-    assert!(stats.iterations <= 10, "{stats:?}");
 }
 
 /// A ball driven into the corner of the floor (body 0) and a wall (body 2, at its left).
@@ -89,20 +101,21 @@ fn corner() -> (Vec<ContactRow>, Vec<SolverBody>) {
 fn a_ball_in_a_corner_with_friction_reaches_the_sweeps_solution() {
     let (rows, bodies) = corner();
     let warm = [Impulse::default(); 2];
-    let (stats, l, out) = newton(&rows, &bodies, &warm);
-    assert!(stats.converged, "{stats:?}");
-    let (reference, reference_bodies) = sweeps(&rows, &bodies, &warm);
-    // Neither contact lets the ball in; friction within its cone.
-    for r in &rows {
-        assert!(relative_velocity(r, &out).0 > -1e-4);
+    for (stats, l, out) in newton(&rows, &bodies, &warm) {
+        assert!(stats.converged, "{stats:?}");
+        let (reference, reference_bodies) = sweeps(&rows, &bodies, &warm);
+        // Neither contact lets the ball in; friction within its cone.
+        for r in &rows {
+            assert!(relative_velocity(r, &out).0 > -1e-4);
+        }
+        for li in &l {
+            assert!(li.normal >= 0.0 && li.tangent.abs() <= 0.5 * li.normal + 1e-6, "{li:?}");
+        }
+        assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
+        let dv = (out[1].v - reference_bodies[1].v).length() + (out[1].w - reference_bodies[1].w).abs();
+        assert!(dv < 1e-4, "{:?} vs {:?}", out[1], reference_bodies[1]);
+        assert!(natural_residual(&rows, &out, &l, 0.0).max <= 1e-5);
     }
-    for li in &l {
-        assert!(li.normal >= 0.0 && li.tangent.abs() <= 0.5 * li.normal + 1e-6, "{li:?}");
-    }
-    assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
-    let dv = (out[1].v - reference_bodies[1].v).length() + (out[1].w - reference_bodies[1].w).abs();
-    assert!(dv < 1e-4, "{:?} vs {:?}", out[1], reference_bodies[1]);
-    assert!(natural_residual(&rows, &out, &l, 0.0).max <= 1e-5);
 }
 
 /// A box (unit mass, side 1) resting on the floor at two corners, each contact given twice,
@@ -132,14 +145,15 @@ fn jammed() -> (Vec<ContactRow>, Vec<SolverBody>) {
 fn a_jammed_stack_with_redundant_contacts_is_solved_without_a_singular_matrix() {
     let (rows, bodies) = jammed();
     let warm = vec![Impulse::default(); rows.len()];
-    let (stats, l, out) = newton(&rows, &bodies, &warm);
-    assert!(stats.converged, "{stats:?}");
-    // The impulses are not unique, the velocities are: both boxes at rest.
-    assert!(out[1..].iter().all(|b| b.v.length() < 1e-4 && b.w.abs() < 1e-4), "{out:?}");
-    // The floor carries both boxes' momentum, the upper interface the top box's.
-    let load = |range: std::ops::Range<usize>| l[range].iter().map(|x| x.normal).sum::<f32>();
-    assert!((load(0..4) - 0.6).abs() < 1e-4 && (load(4..8) - 0.4).abs() < 1e-4, "{l:?}");
-    assert!(natural_residual(&rows, &out, &l, 0.0).max <= 1e-5);
+    for (stats, l, out) in newton(&rows, &bodies, &warm) {
+        assert!(stats.converged, "{stats:?}");
+        // The impulses are not unique, the velocities are: both boxes at rest.
+        assert!(out[1..].iter().all(|b| b.v.length() < 1e-4 && b.w.abs() < 1e-4), "{out:?}");
+        // The floor carries both boxes' momentum, the upper interface the top box's.
+        let load = |range: std::ops::Range<usize>| l[range].iter().map(|x| x.normal).sum::<f32>();
+        assert!((load(0..4) - 0.6).abs() < 1e-4 && (load(4..8) - 0.4).abs() < 1e-4, "{l:?}");
+        assert!(natural_residual(&rows, &out, &l, 0.0).max <= 1e-5);
+    }
 }
 
 #[test]
@@ -147,18 +161,21 @@ fn the_reused_symbolic_factorisation_gives_the_fresh_ones_result() {
     let (rows, bodies) = jammed();
     let warm = vec![Impulse::default(); rows.len()];
     let problem = NewtonProblem { rows: &rows, bodies: &bodies, warm_start: &warm, compliance: 0.0, tolerance: 1e-6 };
-    let mut kept = NewtonSolver::new();
-    let (mut first, mut second) = (Vec::new(), Vec::new());
-    let (mut b1, mut b2) = (bodies.clone(), bodies.clone());
-    let s1 = kept.solve(&problem, &NewtonParams::default(), &mut first, &mut b1).unwrap();
-    let s2 = kept.solve(&problem, &NewtonParams::default(), &mut second, &mut b2).unwrap();
-    assert!(!s1.symbolic_reused && s2.symbolic_reused, "{s1:?} {s2:?}");
-    assert_eq!(first, second);
-    assert_eq!(b1, b2);
-    // A different pattern (the top box gone) is not mistaken for the kept one.
-    let problem = NewtonProblem { rows: &rows[..4], warm_start: &warm[..4], ..problem };
-    let s3 = kept.solve(&problem, &NewtonParams::default(), &mut first, &mut b1.clone()).unwrap();
-    assert!(!s3.symbolic_reused && s3.converged, "{s3:?}");
+    for method in METHODS {
+        let params = NewtonParams { method, ..NewtonParams::default() };
+        let mut kept = NewtonSolver::new();
+        let (mut first, mut second) = (Vec::new(), Vec::new());
+        let (mut b1, mut b2) = (bodies.clone(), bodies.clone());
+        let s1 = kept.solve(&problem, &params, &mut first, &mut b1).unwrap();
+        let s2 = kept.solve(&problem, &params, &mut second, &mut b2).unwrap();
+        assert!(!s1.symbolic_reused && s2.symbolic_reused, "{s1:?} {s2:?}");
+        assert_eq!(first, second);
+        assert_eq!(b1, b2);
+        // A different pattern (the top box gone) is not mistaken for the kept one.
+        let problem = NewtonProblem { rows: &rows[..4], warm_start: &warm[..4], ..problem };
+        let s3 = kept.solve(&problem, &params, &mut first, &mut b1.clone()).unwrap();
+        assert!(!s3.symbolic_reused && s3.converged, "{s3:?}");
+    }
 }
 
 #[test]
@@ -194,20 +211,47 @@ fn the_per_step_bound_caps_friction_whatever_the_normal_impulse() {
     let mut rows = [floor_row(1)];
     rows[0].friction_bound = Some(0.1);
     let bodies = [SolverBody::default(), ball(Vec2::new(-5.0, -1.0))];
-    let (stats, l, _) = newton(&rows, &bodies, &[Impulse::default()]);
-    assert!(stats.converged, "{stats:?}");
-    assert!((l[0].tangent.abs() - 0.1).abs() < 1e-5, "{l:?}");
-    let (reference, _) = sweeps(&rows, &bodies, &[Impulse::default()]);
-    assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
+    for (stats, l, _) in newton(&rows, &bodies, &[Impulse::default()]) {
+        assert!(stats.converged, "{stats:?}");
+        assert!((l[0].tangent.abs() - 0.1).abs() < 1e-5, "{l:?}");
+        let (reference, _) = sweeps(&rows, &bodies, &[Impulse::default()]);
+        assert!(close(&l, &reference, 1e-4), "{l:?} vs {reference:?}");
+    }
 }
 
 #[test]
 fn the_contact_solver_runs_newton_and_counts_its_factorisations() {
     let (rows, bodies) = jammed();
     let warm = vec![Impulse::default(); rows.len()];
+    for setting in [SolverSetting::NEWTON, SolverSetting::INTERIOR_POINT] {
+        let mut out = bodies.clone();
+        let mut s = ContactSolver::new();
+        let rep = s.solve(&rows, &mut out, &warm, &params(setting));
+        assert!(rep.converged && rep.factorisations > 0 && rep.factorisations == rep.sweeps, "{setting}: {rep:?}");
+        assert_eq!(rep.natural, natural_residual(&rows, &out, s.impulses(), 0.0));
+    }
+}
+
+#[test]
+fn a_second_order_solve_short_of_the_tolerance_is_finished_by_the_sweeps() {
+    let (rows, bodies) = jammed();
+    let warm = vec![Impulse::default(); rows.len()];
     let mut out = bodies.clone();
     let mut s = ContactSolver::new();
-    let rep = s.solve(&rows, &mut out, &warm, &params(SolverSetting::NEWTON));
-    assert!(rep.converged && rep.factorisations > 0 && rep.factorisations == rep.sweeps, "{rep:?}");
+    // Two iterations cannot reach 1e-6 from zero; the sweeps take over from its impulses.
+    let capped = SolveParams { max_sweeps: 2, ..params(SolverSetting::INTERIOR_POINT) };
+    let rep = s.solve(&rows, &mut out, &warm, &capped);
+    assert_eq!(rep.factorisations, 2, "{rep:?}");
+    assert!(rep.sweeps > rep.factorisations, "{rep:?}");
     assert_eq!(rep.natural, natural_residual(&rows, &out, s.impulses(), 0.0));
+    // With room, the sweeps finish what it started.
+    let mut out = bodies.clone();
+    let room = SolveParams { max_sweeps: 20_000, ..capped };
+    let mut handed = NewtonSolver::new();
+    let mut start = Vec::new();
+    let problem = NewtonProblem { rows: &rows, bodies: &bodies, warm_start: &warm, compliance: 0.0, tolerance: 1e-6 };
+    let few = NewtonParams { max_iterations: 2, ..NewtonParams::default() };
+    assert!(!handed.solve(&problem, &few, &mut start, &mut bodies.clone()).unwrap().converged);
+    let rep = s.solve(&rows, &mut out, &start, &room.with_setting(SolverSetting::RECOMMENDED));
+    assert!(rep.converged, "{rep:?}");
 }
