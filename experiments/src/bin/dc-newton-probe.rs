@@ -24,6 +24,7 @@ struct Args {
     from: u32,
     #[arg(long, default_value_t = 10)]
     every: u32,
+    /// Friction law: box or per-step.
     #[arg(long, default_value = "box")]
     friction: String,
     /// Tunings `rho/max_inner/inner_tolerance[/rho_start/rho_growth]` (the proximal method) or
@@ -42,10 +43,7 @@ fn main() -> std::process::ExitCode {
 }
 
 fn probe(args: Args) -> Result<()> {
-    let friction = match args.friction.as_str() {
-        "per-step" => FrictionModel::PerStep,
-        _ => FrictionModel::Box,
-    };
+    let friction: FrictionModel = args.friction.parse().map_err(anyhow::Error::msg)?;
     let tunings: Vec<NewtonParams> = args
         .tunings
         .split(',')
@@ -79,10 +77,10 @@ fn probe(args: Args) -> Result<()> {
     for _ in 0..args.steps {
         let report = world.step(&mut warm).clone();
         let step = report.step;
-        let problem = world.problem().expect("capturing").clone();
-        if step < args.from || (step - args.from) % args.every != 0 {
+        if step < args.from || !(step - args.from).is_multiple_of(args.every) {
             continue;
         }
+        let problem = world.problem().expect("capturing");
         let rows = rows_of(&problem.contacts, friction);
         let bodies = bodies_of(&problem.bodies);
         let warm_start = builtin_warm_start(&problem.contacts);

@@ -220,7 +220,7 @@ impl NewtonSolver {
     ) -> Result<NewtonStats, NewtonError> {
         check(problem)?;
         let mut stats = NewtonStats::default();
-        self.setup(problem, params.rho);
+        self.setup(problem);
         stats.symbolic_reused = self.prepare_pattern()?;
         if params.method == SecondOrder::InteriorPoint {
             self.interior_point(problem, params, &mut stats)?;
@@ -238,10 +238,13 @@ impl NewtonSolver {
         // An outer iteration without a Newton step (the velocities already minimise L) still
         // moves the impulses; bounded all the same.
         let max_outer = 2 * params.max_iterations;
-        let mut rho = params.rho_start.min(params.rho);
+        let (mut rho, mut weighted) = (params.rho_start.min(params.rho), f64::NAN);
         while residual > tolerance && stats.iterations < params.max_iterations && stats.outer < max_outer {
             stats.outer += 1;
-            self.set_rho(rho);
+            if rho != weighted {
+                self.set_rho(rho);
+                weighted = rho;
+            }
             rho = (rho * params.rho_growth).min(params.rho);
             // Inner: Newton on L for this outer iterate.
             for _ in 0..params.max_inner {
@@ -302,7 +305,7 @@ impl NewtonSolver {
     }
 
     /// Rows, bodies, masses and the projected warm start in f64.
-    fn setup(&mut self, problem: &NewtonProblem<'_>, rho: f64) {
+    fn setup(&mut self, problem: &NewtonProblem<'_>) {
         let bodies = problem.bodies;
         self.block_of.clear();
         self.mass.clear();
@@ -342,7 +345,6 @@ impl NewtonSolver {
                 a_first: true,
             });
         }
-        self.set_rho(rho);
         // The warm start projected onto the rows' intervals (a learned guess may be outside).
         self.lambda.clear();
         for (r, w) in self.rows.iter().zip(problem.warm_start) {
@@ -488,17 +490,7 @@ impl NewtonSolver {
             }
         }
         for (r, l) in self.rows.iter().zip(&self.trial) {
-            for (body, offset) in [(r.a, 0), (r.b, 3)] {
-                let k = self.block_of[body];
-                if k == NONE {
-                    continue;
-                }
-                for c in 0..3 {
-                    if self.mass[body][c] > 0.0 {
-                        self.rhs[3 * k as usize + c] += r.j[0][offset + c] * l[0] + r.j[1][offset + c] * l[1];
-                    }
-                }
-            }
+            add_transposed(&mut self.rhs, &self.block_of, &self.mass, r, *l);
         }
         self.rhs.iter().fold(0.0f64, |m, x| m.max(x.abs()))
     }
@@ -666,10 +658,16 @@ impl NewtonSolver {
     /// rows' own law (the Box2D law's bound from each row's current normal impulse).
     fn natural_residual(&mut self, softness: f64) -> f64 {
         self.relative_velocities();
+        self.natural_residual_with(softness, |_, r, l| r.bound(l[0]))
+    }
+
+    /// The natural residual (max over rows) at the current `u`, each row's tangent bound given
+    /// by `bound(row index, row, impulse)`.
+    fn natural_residual_with(&self, softness: f64, bound: impl Fn(usize, &Row, &[f64; 2]) -> f64) -> f64 {
         let mut max = 0.0f64;
-        for ((r, l), u) in self.rows.iter().zip(&self.lambda).zip(&self.u) {
+        for (k, ((r, l), u)) in self.rows.iter().zip(&self.lambda).zip(&self.u).enumerate() {
             let rn = (l[0] - ((l[0] - r.mass[0] * u[0]) * softness).max(0.0)).abs();
-            let c = r.bound(l[0]);
+            let c = bound(k, r, l);
             let rt = (l[1] - ((l[1] - r.mass[1] * u[1]) * softness).clamp(-c, c)).abs();
             max = max.max(rn).max(rt);
         }
@@ -749,9 +747,10 @@ impl NewtonSolver {
                 self.interior_rebound();
             }
             loop {
-                // The own problem's residual: this pass's bounds.
-                let own = self.interior_residual(softness);
-                residual = self.natural_residual(softness);
+                // The law's residual, and the pass's own problem's (its fixed bounds).
+                self.relative_velocities();
+                residual = self.natural_residual_with(softness, |_, r, l| r.bound(l[0]));
+                let own = self.natural_residual_with(softness, |k, _, _| self.interior.hi[k][1]);
                 if residual <= tolerance || stats.iterations >= params.max_iterations {
                     break;
                 }
@@ -824,21 +823,6 @@ impl NewtonSolver {
             }
         }
         self.velocities_of_lambda();
-    }
-
-    /// The natural residual (max) of the pass's own problem: its fixed bounds.
-    fn interior_residual(&mut self, softness: f64) -> f64 {
-        self.relative_velocities();
-        let ip = &self.interior;
-        let mut max = 0.0f64;
-        for (k, (r, l)) in self.rows.iter().zip(&self.lambda).enumerate() {
-            let u = self.u[k];
-            let rn = (l[0] - ((l[0] - r.mass[0] * u[0]) * softness).max(0.0)).abs();
-            let c = ip.hi[k][1];
-            let rt = (l[1] - ((l[1] - r.mass[1] * u[1]) * softness).clamp(-c, c)).abs();
-            max = max.max(rn).max(rt);
-        }
-        max
     }
 
     /// One predictor-corrector iteration from the current `lambda` (x), `u` and slacks; returns
@@ -951,17 +935,7 @@ impl NewtonSolver {
         self.rhs.iter_mut().for_each(|x| *x = 0.0);
         for (k, r) in self.rows.iter().enumerate() {
             let wr = [0, 1].map(|part| self.weights[k][part] * self.interior.rhs[k][part]);
-            for (body, offset) in [(r.a, 0), (r.b, 3)] {
-                let b = self.block_of[body];
-                if b == NONE {
-                    continue;
-                }
-                for c in 0..3 {
-                    if self.mass[body][c] > 0.0 {
-                        self.rhs[3 * b as usize + c] += r.j[0][offset + c] * wr[0] + r.j[1][offset + c] * wr[1];
-                    }
-                }
-            }
+            add_transposed(&mut self.rhs, &self.block_of, &self.mass, r, wr);
         }
         self.solve_direction();
         let ip = &mut self.interior;
@@ -1047,6 +1021,22 @@ impl Row {
         let c = self.bound(l[0]);
         let tangent = st.clamp(-c, c);
         ([normal, tangent], [sn > 0.0 && self.mass[0] > 0.0, st.abs() < c && self.mass[1] > 0.0])
+    }
+}
+
+/// `rhs += J^T l` of one row (`l`: its normal and tangent parts), per dof of the bodies' blocks,
+/// fixed dofs left alone.
+fn add_transposed(rhs: &mut [f64], block_of: &[u32], mass: &[[f64; 3]], r: &Row, l: [f64; 2]) {
+    for (body, offset) in [(r.a, 0), (r.b, 3)] {
+        let k = block_of[body];
+        if k == NONE {
+            continue;
+        }
+        for c in 0..3 {
+            if mass[body][c] > 0.0 {
+                rhs[3 * k as usize + c] += r.j[0][offset + c] * l[0] + r.j[1][offset + c] * l[1];
+            }
+        }
     }
 }
 

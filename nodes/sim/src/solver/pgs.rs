@@ -211,8 +211,10 @@ pub struct ContactSolver {
     trail: Vec<[Impulse; TRAIL_SWEEPS]>,
     /// The Newton method's state (pattern, symbolic factorisation), kept across steps.
     newton: NewtonSolver,
-    /// The impulses a second-order method hands the sweeps that finish its solve.
+    /// The impulses a second-order method hands the sweeps that finish its solve, and its
+    /// velocities before they are handed to the caller.
     handed: Vec<Impulse>,
+    solved: Vec<SolverBody>,
 }
 
 /// How many of a solve's last sweeps [`ContactSolver::trail`] keeps per row.
@@ -248,16 +250,12 @@ impl ContactSolver {
             Method::Sweeps => None,
         };
         if let (Some(method), false) = (second_order, rows.is_empty()) {
-            let start = bodies.to_vec();
             match self.solve_newton(rows, bodies, warm_start, params, method) {
                 Ok(report) if report.converged => return report,
                 Ok(report) => {
-                    // Short of the tolerance: the sweeps finish from its impulses, on the step's
-                    // own velocities; both counts are reported.
-                    bodies.copy_from_slice(&start);
-                    let mut handed = std::mem::take(&mut self.handed);
-                    handed.clear();
-                    handed.extend_from_slice(&self.impulses);
+                    // Short of the tolerance (the bodies untouched): the sweeps finish from its
+                    // impulses; both counts are reported.
+                    let handed = std::mem::replace(&mut self.impulses, std::mem::take(&mut self.handed));
                     let sweeps = params.with_setting(params.setting().sweeps());
                     let mut finished = self.solve(rows, bodies, &handed, &sweeps);
                     self.handed = handed;
@@ -372,12 +370,18 @@ impl ContactSolver {
             max_iterations: params.max_sweeps.min(NewtonParams::default().max_iterations),
             ..NewtonParams::default()
         };
-        let mut solved = bodies.to_vec();
-        let stats = self.newton.solve(&problem, &newton, &mut self.impulses, &mut solved)?;
-        bodies.copy_from_slice(&solved);
+        self.solved.clear();
+        self.solved.extend_from_slice(bodies);
+        let stats = self.newton.solve(&problem, &newton, &mut self.impulses, &mut self.solved)?;
         self.prepared.clear();
-        self.prepared.extend(rows.iter().map(|r| Prepared::of(r, bodies)));
-        let natural = natural_residual_of(&self.prepared, &self.impulses, bodies, 1.0 / (1.0 + params.compliance));
+        self.prepared.extend(rows.iter().map(|r| Prepared::of(r, &self.solved)));
+        let natural =
+            natural_residual_of(&self.prepared, &self.impulses, &self.solved, 1.0 / (1.0 + params.compliance));
+        // The velocities go to the caller only with a solution; short of one, the sweeps that
+        // finish start from the step's own.
+        if natural.max <= params.tolerance {
+            bodies.copy_from_slice(&self.solved);
+        }
         self.residuals.clear();
         self.residuals.extend_from_slice(self.newton.residuals());
         self.trail.clear();
