@@ -5,6 +5,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// The cargo target folder holding the binaries (`target/debug`), found from the test executable.
+/// The shipped demo U-Net model, by absolute path (a launch file's relative paths resolve against
+/// the file's own folder, and the tests write theirs in scratch folders).
+pub const UNET_DEMO: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/models/unet-demo.dcu");
+
 pub fn bin_dir() -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
     // target/debug/deps/<test> -> target/debug

@@ -5,7 +5,7 @@
 //! recorder's view of the run puts those steps between the launcher's node-down and node-up
 //! notices.
 
-use deep_contact::{bin, report_steps, scratch_dir, unique_namespace};
+use deep_contact::{bin, report_steps, scratch_dir, unique_namespace, UNET_DEMO};
 use msgs::{ControlDetails, ControlKind, SolveStatsHeader};
 use std::io::{BufRead, BufReader};
 use std::path::Path;
@@ -96,7 +96,7 @@ binary = "dc-unet"
 daemon = true
 on_failure = "restart"
 max_restarts = 2
-params = {{ model = "models/unet-demo.dcu" }}
+params = {{ model = "{UNET_DEMO}" }}
 
 [[nodes]]
 name = "metrics"

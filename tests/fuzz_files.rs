@@ -605,7 +605,7 @@ fn damaged_steps_files_are_errors_or_whole_reports() {
         let (kind, bytes) = damage_csv(&mut rng, &base);
         std::fs::write(&path, &bytes).unwrap();
         let what = || format!("case {case} ({kind}, seed {})", env_u64("DC_FUZZ_SEED", 24));
-        let accepted = limited(what, || match metrics::report::aggregate_steps(&path, 0.1, &[10, 20]) {
+        let accepted = limited(what, || match metrics::report::aggregate_steps(&path, 0.1, Some(&[10, 20])) {
             Ok(aggregate) => {
                 // Every table the report is made of; every 500th accepted case the whole folder.
                 let summaries = aggregate.summaries();

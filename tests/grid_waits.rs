@@ -6,7 +6,7 @@
 //! Times are only bounded from below (a step cannot fall back before its wait is over) or against
 //! the options' defaults with a wide margin: the test stays honest on a loaded machine.
 
-use deep_contact::{launch, scratch_dir, text};
+use deep_contact::{launch, scratch_dir, text, UNET_DEMO};
 use msgs::SolveStatsHeader;
 
 /// Steps of the run: step 0 needs no grid (step k starts from the grid made of step k - 1), step 1
@@ -44,7 +44,7 @@ params = {{ model = "unet", seeds = "0", steps = {STEPS}, n = 20, deadline = "no
 name = "unet"
 binary = "dc-unet"
 daemon = true
-params = {{ model = "models/unet-demo.dcu" }}
+params = {{ model = "{UNET_DEMO}" }}
 
 [[nodes]]
 name = "rec"

@@ -343,7 +343,7 @@ fn eval_feeds_the_unet_the_grids_its_model_file_asks_for_and_refuses_a_non_model
     for arg in ["--temporal", "--pad-to=128", "--res=0.125", "--mode=preserving"] {
         assert!(sph.contains(arg), "{sph}");
     }
-    assert!(stdout.contains("dc-unet --model=models/unet-demo.dcu"), "{stdout}");
+    assert!(stdout.contains("dc-unet --model=") && stdout.contains("models/unet-demo.dcu"), "{stdout}");
 
     let out = std::process::Command::new(&dc)
         .current_dir(root)
@@ -682,4 +682,122 @@ fn a_launcher_whose_stdout_closes_keeps_supervising_its_graph() {
     let info = recorder::Info::read(&recording).unwrap();
     let solves = info.topics.get("stats/solve").map(|t| t.messages).unwrap_or(0);
     assert_eq!(solves, 4 * 2 * 60, "{log}");
+}
+
+/// `dc` from any folder: the defaults name the shipped files, and a launch file's relative paths
+/// are its own (`[graph] root`, from the file's folder), not the current folder's.
+#[test]
+fn eval_and_launch_dry_runs_work_from_any_folder() {
+    let elsewhere = scratch_dir("any-folder");
+    let repo = deep_contact::repo_root().canonicalize().unwrap();
+    for folder in [std::path::Path::new("/"), elsewhere.as_path()] {
+        let dc = |args: &[&str]| Command::new(bin("dc")).current_dir(folder).args(args).output().unwrap();
+        let out = dc(&["eval", "--dry-run", "--seeds", "0..2"]);
+        assert!(out.status.success(), "dc eval --dry-run from {}: {}", folder.display(), text(&out));
+        assert!(String::from_utf8_lossy(&out.stdout).contains("dc-unet --model="), "{}", text(&out));
+        for (file, host) in [("launch/unet-loop.toml", None), ("launch/two-hosts.toml", Some("sim-box"))] {
+            let file = repo.join(file);
+            let mut args = vec!["launch", file.to_str().unwrap(), "--dry-run"];
+            args.extend(host.iter().flat_map(|h| ["--host", *h]));
+            let out = dc(&args);
+            assert!(out.status.success(), "{args:?} from {}: {}", folder.display(), text(&out));
+            let stdout = String::from_utf8_lossy(&out.stdout);
+            assert!(stdout.contains(&format!("nodes run in {}", repo.display())), "{stdout}");
+        }
+    }
+}
+
+/// A host checks the files of its own nodes only: the model on the other host need not exist
+/// here, a missing one on this host is named, and a relative one is the launch file's.
+#[test]
+fn each_host_checks_only_its_own_nodes_files() {
+    let dir = scratch_dir("own-host-files");
+    let file = dir.join("two.toml");
+    let write = |model: &str| {
+        let text = format!(
+            "[hosts.sim-box]\naddress = \"127.0.0.1\"\nzenoh_port = 7447\n\n\
+             [hosts.gpu-box]\naddress = \"127.0.0.2\"\nzenoh_port = 7447\n\n\
+             [[nodes]]\nname = \"sim\"\nbinary = \"dc-sim\"\nhost = \"sim-box\"\n\
+             params = {{ models = \"builtin\", seeds = \"0..1\", steps = 5 }}\n\n\
+             [[nodes]]\nname = \"unet\"\nbinary = \"dc-unet\"\nhost = \"gpu-box\"\ndaemon = true\n\
+             params = {{ model = \"{model}\" }}\n\n\
+             [[nodes]]\nname = \"metrics\"\nbinary = \"dc-metrics\"\nhost = \"gpu-box\"\n\
+             params = {{ runs = 1, out = \"report\" }}\n"
+        );
+        std::fs::write(&file, text).unwrap();
+    };
+    let dry_run = |host: &str| {
+        Command::new(bin("dc"))
+            .current_dir("/")
+            .arg("launch")
+            .arg(&file)
+            .args(["--host", host, "--dry-run"])
+            .output()
+            .unwrap()
+    };
+    write("missing.dcu");
+    let out = dry_run("sim-box");
+    assert!(out.status.success(), "the sim host must not need the other host's model: {}", text(&out));
+    let out = dry_run("gpu-box");
+    assert!(!out.status.success(), "{}", text(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("node `unet`") && stderr.contains("missing.dcu"), "{stderr}");
+    // Beside the launch file, named relatively: found from any folder.
+    std::fs::copy(deep_contact::UNET_DEMO, dir.join("demo.dcu")).unwrap();
+    write("demo.dcu");
+    let out = dry_run("gpu-box");
+    assert!(out.status.success(), "{}", text(&out));
+}
+
+#[test]
+fn dc_says_its_version() {
+    let out = Command::new(bin("dc")).arg("--version").output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    assert_eq!(String::from_utf8_lossy(&out.stdout).trim(), format!("dc {}", env!("CARGO_PKG_VERSION")));
+}
+
+/// A node that never gets ready (a server stuck importing, a model that loads forever): the
+/// launcher says whom it waits for, and past `--ready-timeout` stops the graph naming it.
+#[test]
+fn a_node_that_never_gets_ready_is_named_and_the_wait_is_bounded() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = scratch_dir("never-ready");
+    // Answers the checks as a node would, then never says it is ready.
+    let script = dir.join("stall.sh");
+    std::fs::write(
+        &script,
+        "#!/bin/sh\n[ \"$DC_VALIDATE\" = 1 ] && exit 0\n\
+         [ \"$DC_DESCRIBE\" = 1 ] && { printf '\\036dc-ports {\"publishes\":[],\"subscribes\":[]}\\n'; exit 0; }\n\
+         exec sleep 60\n",
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let file = dir.join("graph.toml");
+    std::fs::write(&file, "[[nodes]]\nname = \"stuck\"\nbinary = \"./stall.sh\"\n").unwrap();
+    let started = Instant::now();
+    let out = Command::new(bin("dc"))
+        .current_dir("/")
+        .arg("launch")
+        .arg(&file)
+        .args(["--trust", "--ready-timeout", "7s", "--namespace", &unique_namespace("never-ready")])
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "{}", text(&out));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("waiting for node `stuck` to be ready"), "{stderr}");
+    assert!(stderr.contains("node `stuck` not ready within 7 s"), "{stderr}");
+    assert!(started.elapsed() < Duration::from_secs(30), "the wait is bounded: {:?}", started.elapsed());
+}
+
+#[test]
+fn dc_writes_shell_completions() {
+    for (shell, marker) in [("bash", "_dc()"), ("zsh", "#compdef dc")] {
+        let out = Command::new(bin("dc")).args(["completions", shell]).output().unwrap();
+        assert!(out.status.success(), "{}", text(&out));
+        let script = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            script.contains(marker) && script.contains("eval") && script.contains("topic"),
+            "{shell}: {script:.300}"
+        );
+    }
 }

@@ -4,7 +4,7 @@
 //! start awaited, no deadline) the report matches a one-host run of the same seeds step for step.
 //! Needs root and `ip netns` (skipped, saying why, elsewhere).
 
-use deep_contact::{bin, report_steps, scratch_dir, skip_for_missing, text, unique_namespace};
+use deep_contact::{bin, report_steps, scratch_dir, skip_for_missing, text, unique_namespace, UNET_DEMO};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -94,7 +94,7 @@ name = "unet"
 binary = "dc-unet"
 {place_rest}
 daemon = true
-params = {{ model = "models/unet-demo.dcu" }}
+params = {{ model = "{UNET_DEMO}" }}
 
 [[nodes]]
 name = "metrics"

@@ -397,6 +397,9 @@ fn an_attached_recorder_stopped_by_ctrl_c_leaves_a_finished_file() {
     let _ = Command::new("kill").arg("-INT").arg(graph_run.id().to_string()).status();
     let out = finish(graph_run, Duration::from_secs(60), "the graph after Ctrl-C");
     assert!(out.status.code() == Some(130) || out.status.success(), "{}", text(&out));
+    // Ctrl-C is how a user ends a graph: said as such, never as an error.
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("dc: error"), "{stderr}");
     let reference = frames(&reference, "bodies");
     for (key, data) in &recorded {
         assert_eq!(reference.get(key), Some(data), "{key:?}: the attached file holds what was published");
@@ -517,5 +520,87 @@ fn dc_play_into_a_live_graph_is_refused_unless_it_joins_with_its_runs_marked_as_
     assert!(String::from_utf8_lossy(&late.stderr).contains("dc play"), "{}", text(&late));
     let _ = Command::new("kill").arg("-INT").arg(play.id().to_string()).status();
     let _ = finish(play, Duration::from_secs(30), "dc play");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// `dc node list` and `dc topic info` against a running graph: its nodes by name with their
+/// pids and state, and what a topic carries with its live writers and readers.
+#[test]
+fn node_list_and_topic_info_describe_a_running_graph() {
+    let dir = scratch_dir("observe-info");
+    let namespace = unique_namespace("observe-info");
+    let mut graph_run = start(&dir, "observed", &graph(&dir.join("run.mcap"), "", 100_000), &namespace);
+    wait_for_writer(&namespace, "bodies", None);
+
+    let out = dc(&["node", "list", "--namespace", &namespace]).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    for node in ["recorder", "sim"] {
+        let row = stdout.lines().find(|l| l.split_whitespace().nth(3) == Some(node));
+        let cols: Vec<&str> = row.unwrap_or_else(|| panic!("no row for {node}: {stdout}")).split_whitespace().collect();
+        assert_eq!((cols[0], cols[2], cols[5]), (namespace.as_str(), "observed", "running"), "{stdout}");
+        let pid: i32 = cols[4].parse().unwrap();
+        assert_eq!(unsafe { libc::kill(pid, 0) }, 0, "{node}'s pid {pid} is alive");
+        assert!(cols[6].ends_with(&format!("dc-{}", if node == "sim" { "sim" } else { "record" })), "{stdout}");
+    }
+
+    let out = dc(&["topic", "info", "stats/solve", "--namespace", &namespace]).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("type:    dc::SolveStatsHeader header, f32 items"), "{stdout}");
+    assert!(
+        stdout.lines().any(|l| l.starts_with("header:") && l.contains("sweeps") && l.contains("model")),
+        "{stdout}"
+    );
+    assert!(stdout.contains(&format!("namespace `{namespace}`: writers 1, readers 1, reliable")), "{stdout}");
+    let out = dc(&["topic", "info", "contacts", "--namespace", &namespace]).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.lines().any(|l| l.starts_with("items:") && l.contains("normal_impulse")), "{stdout}");
+    let out = dc(&["topic", "info", "no/such"]).output().unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("not a Deep Contact topic"));
+
+    let _ = Command::new("kill").arg("-INT").arg(graph_run.id().to_string()).status();
+    let _ = graph_run.wait();
+    let out = dc(&["node", "list", "--namespace", &namespace]).output().unwrap();
+    assert!(!out.status.success(), "the graph is gone: {}", text(&out));
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// `dc topic bridge`: a topic the launch file keeps on iceoryx2 relayed to zenoh, where a foreign
+/// session (as Python's would be) receives the simulator's frames under `dc/<namespace>/<topic>`.
+#[test]
+fn a_bridge_relays_a_shared_memory_topic_to_zenoh() {
+    use runtime::zenoh::Wait;
+    let dir = scratch_dir("observe-bridge");
+    let namespace = unique_namespace("observe-bridge");
+    let mut graph_run = start(&dir, "observed", &graph(&dir.join("run.mcap"), "", 100_000), &namespace);
+    wait_for_writer(&namespace, "stats/solve", None);
+    let mut bridge =
+        dc(&["topic", "bridge", "stats/solve", "--namespace", &namespace, "--count", "400"]).spawn().unwrap();
+    let mut stderr = BufReader::new(bridge.stderr.take().unwrap());
+    let mut said = String::new();
+    stderr.read_line(&mut said).unwrap();
+    let endpoint = said
+        .split_whitespace()
+        .find(|w| w.starts_with("tcp/"))
+        .unwrap_or_else(|| panic!("the relay names its endpoint: {said}"))
+        .trim_end_matches(',')
+        .to_string();
+    let session = foreign_session(&endpoint);
+    let subscriber = session.declare_subscriber(format!("dc/{namespace}/stats/solve")).wait().unwrap();
+    let mut steps = Vec::new();
+    let started = Instant::now();
+    while steps.len() < 20 && started.elapsed() < Duration::from_secs(60) {
+        if let Ok(Some(sample)) = subscriber.recv_timeout(Duration::from_millis(200)) {
+            let frame: msgs::Frame<msgs::SolveStatsHeader, f32> = msgs::decode(&sample.payload().to_bytes()).unwrap();
+            steps.push(frame.header.step.step);
+        }
+    }
+    assert!(steps.len() >= 20, "frames over zenoh: {steps:?}: {said}");
+    assert!(steps.windows(2).all(|w| w[0] < w[1] || w[1] == 0), "in order: {steps:?}");
+    let _ = Command::new("kill").arg("-INT").arg(bridge.id().to_string()).status();
+    let _ = bridge.wait();
+    let _ = Command::new("kill").arg("-INT").arg(graph_run.id().to_string()).status();
+    let _ = graph_run.wait();
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -2,7 +2,7 @@
 //! ranges share one SPH node and one `dc-unet`, which batches grids that wait together; each
 //! simulator takes only the replies for its own simulations, in lockstep.
 
-use deep_contact::{launch, report_steps, text};
+use deep_contact::{launch, report_steps, text, UNET_DEMO};
 
 #[test]
 fn two_simulators_share_one_unet_and_each_gets_its_own_replies() {
@@ -25,7 +25,7 @@ params = {{ mode = \"preserving\", temporal = true, pad-to = 128 }}
 name = \"unet\"
 binary = \"dc-unet\"
 daemon = true
-params = {{ model = \"models/unet-demo.dcu\" }}
+params = {{ model = \"{UNET_DEMO}\" }}
 
 [[nodes]]
 name = \"metrics\"

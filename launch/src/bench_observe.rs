@@ -119,7 +119,7 @@ fn run_once(dir: &Path, args: &ObserveBenchArgs, observed: bool, r: usize) -> Re
         if !out.status.success() {
             bail!("`dc {what}` failed: {err}");
         }
-        // "N frames taken, D dropped" (topic tools) or "dropped D" (record).
+        // "N frames, D dropped" (topic tools) or "dropped D" (record).
         for line in err.lines().chain(String::from_utf8_lossy(&out.stdout).lines()) {
             let words: Vec<&str> = line.split_whitespace().collect();
             for w in words.windows(2) {

@@ -179,6 +179,9 @@ impl Security {
 struct RawGraph {
     name: Option<String>,
     namespace: Option<String>,
+    /// The folder the nodes run in, so the folder relative paths in `params` (and a relative
+    /// `binary`) resolve against: relative to the launch file's own folder, which is the default.
+    root: Option<Spanned<String>>,
     /// Queue depth per subscriber.
     queue_depth: Option<Spanned<usize>>,
 }
@@ -336,6 +339,9 @@ fn run_check_within(
     let program = node.program.display();
     let mut command = std::process::Command::new(&node.program);
     command.args(&node.args);
+    if let Some(dir) = &node.workdir {
+        command.current_dir(dir);
+    }
     configure(&mut command);
     command.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).process_group(0);
     // SAFETY: prctl is async-signal-safe and touches no memory of the parent.
@@ -418,9 +424,14 @@ fn run_check_within(
     }
 }
 
-/// Finds node `label`'s binary, or says why not.
-fn resolve_binary(label: &str, binary: &str) -> Result<PathBuf, String> {
-    find_binary(binary).ok_or_else(|| {
+/// Finds node `label`'s binary, or says why not; a path (`scripts/node.py`) is taken relative to
+/// `root`, the graph's folder.
+fn resolve_binary(label: &str, binary: &str, root: Option<&Path>) -> Result<PathBuf, String> {
+    let rooted = match root {
+        Some(root) if Path::new(binary).components().count() > 1 => root.join(binary).display().to_string(),
+        _ => binary.to_string(),
+    };
+    find_binary(&rooted).ok_or_else(|| {
         format!("node `{label}`: unknown node binary `{binary}` (not beside dc nor on PATH; was it built?)")
     })
 }
@@ -476,6 +487,9 @@ pub struct NodeSpec {
     pub args: Vec<String>,
     pub env: BTreeMap<String, String>,
     pub line: usize,
+    /// The folder the node runs in (its relative paths resolve against it): the launch file's
+    /// root; `None` for a node built in code, which runs where dc was started.
+    pub workdir: Option<PathBuf>,
 }
 
 impl NodeSpec {
@@ -492,6 +506,7 @@ impl NodeSpec {
             args,
             env: BTreeMap::new(),
             line: 0,
+            workdir: None,
         }
     }
 
@@ -527,6 +542,9 @@ impl NodeSpec {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Graph {
     pub file: String,
+    /// The folder the file's nodes run in (`[graph] root`, by default the file's folder); `None`
+    /// for a graph built in code, whose nodes run where dc was started.
+    pub root: Option<PathBuf>,
     pub name: String,
     pub namespace: String,
     pub queue_depth: usize,
@@ -668,6 +686,25 @@ impl Graph {
                 format!("graph name: {} bytes, at most {MAX_GRAPH_NAME_LEN}", name.len()),
             );
         }
+        // The folder the nodes run in: `root` taken from the file's own folder (the default),
+        // so a graph means the same files whichever folder dc was started from.
+        let root = {
+            let base = Path::new(file).parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+            let rel = raw.graph.root.as_ref().map_or(".", |r| r.get_ref().as_str());
+            let at = raw.graph.root.as_ref().map_or(0, |r| r.span().start);
+            let joined = base.join(rel);
+            match joined.canonicalize() {
+                Ok(dir) if dir.is_dir() => Some(dir),
+                Ok(_) => {
+                    problem(at, format!("[graph] root = \"{rel}\": {} is not a folder", joined.display()));
+                    None
+                }
+                Err(e) => {
+                    problem(at, format!("[graph] root = \"{rel}\": {}: {e}", joined.display()));
+                    None
+                }
+            }
+        };
         let queue_depth = match &raw.graph.queue_depth {
             None => DEFAULT_QUEUE_DEPTH,
             Some(depth) => {
@@ -872,7 +909,7 @@ impl Graph {
                 problem(start, format!("node `{label}`: missing `binary`"));
                 continue;
             };
-            let program = match resolve_binary(&label, binary.get_ref()) {
+            let program = match resolve_binary(&label, binary.get_ref(), root.as_deref()) {
                 Ok(p) => p,
                 Err(why) => {
                     problem(binary.span().start, why);
@@ -917,6 +954,7 @@ impl Graph {
                 args,
                 env: node.env.clone(),
                 line,
+                workdir: root.clone(),
             });
         }
         if routers.is_empty() {
@@ -958,6 +996,7 @@ impl Graph {
         }
         Ok(Graph {
             file: file.to_string(),
+            root,
             name,
             namespace,
             queue_depth,
@@ -1000,7 +1039,7 @@ impl Graph {
                 problem(format!("node `{}`: unknown host `{}` (hosts: {DEFAULT_HOST})", node.name, node.host));
                 continue;
             }
-            match resolve_binary(&node.name, &node.binary) {
+            match resolve_binary(&node.name, &node.binary, None) {
                 Ok(program) => node.program = program,
                 Err(why) => {
                     problem(why);
@@ -1014,6 +1053,7 @@ impl Graph {
         }
         Ok(Graph {
             file,
+            root: None,
             name: name.to_string(),
             namespace: namespace.to_string(),
             queue_depth: DEFAULT_QUEUE_DEPTH,
@@ -1031,8 +1071,14 @@ impl Graph {
     /// missing, unknown or ill-typed parameter fails before anything starts (through
     /// [`run_check`]: only dc's own binaries unless [`Graph::trust`], bounded in time and output).
     pub fn check_params(&self) -> Result<(), GraphError> {
+        self.check_params_on(None)
+    }
+
+    /// [`Graph::check_params`] for the nodes of `host` only (all with `None`): a host checks
+    /// the files its own nodes read, which the other hosts need not have.
+    pub fn check_params_on(&self, host: Option<&str>) -> Result<(), GraphError> {
         let mut problems = Vec::new();
-        for node in &self.nodes {
+        for node in self.nodes.iter().filter(|n| host.is_none_or(|h| n.host == h)) {
             let checked = run_check(node, self.trust, |command| {
                 command
                     .env("DC_VALIDATE", "1")
@@ -1251,6 +1297,33 @@ host = "c"
         std::fs::write(&big, "#".repeat(MAX_FILE_BYTES + 1)).unwrap();
         let e = Graph::load(&big).unwrap_err().to_string();
         assert!(e.contains("big.toml: larger than 1024 KiB"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_files_nodes_run_in_its_root_taken_from_the_files_own_folder() {
+        let dir = std::env::temp_dir().join(format!("dc-root-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("launch")).unwrap();
+        let file = dir.join("launch/g.toml");
+        let node = "[[nodes]]\nname = 'a'\nbinary = 'sh'\n";
+        std::fs::write(&file, format!("[graph]\nroot = '..'\n{node}")).unwrap();
+        let g = Graph::load(&file).unwrap();
+        let root = dir.canonicalize().unwrap();
+        assert_eq!(g.root.as_deref(), Some(root.as_path()));
+        assert_eq!(g.nodes[0].workdir.as_deref(), Some(root.as_path()));
+        // By default the file's own folder.
+        std::fs::write(&file, node).unwrap();
+        assert_eq!(Graph::load(&file).unwrap().root, Some(root.join("launch")));
+        std::fs::write(&file, format!("[graph]\nroot = 'no-such'\n{node}")).unwrap();
+        match Graph::load(&file) {
+            Err(GraphError::Invalid { problems, .. }) => {
+                assert!(
+                    problems.iter().any(|p| p.line == 2 && p.message.contains("root = \"no-such\"")),
+                    "{problems:?}"
+                )
+            }
+            other => panic!("expected a problem with the root, got {other:?}"),
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -16,7 +16,7 @@ mod bench_observe;
 mod topic;
 
 #[derive(Parser)]
-#[command(name = "dc", about = "Deep Contact: learning warm starts for rigid-body contact solvers")]
+#[command(name = "dc", version, about = "Deep Contact: learning warm starts for rigid-body contact solvers")]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -44,6 +44,10 @@ enum Command {
         /// (`120s`, `500ms`; a unit is required: a bare `120` is ambiguous here).
         #[arg(long, default_value = "120s", value_parser = duration_with_unit)]
         wait_hosts: std::time::Duration,
+        /// How long this host's nodes may take to be ready (ports made: a model loaded, a
+        /// server's packages imported); meanwhile dc says whom it waits for.
+        #[arg(long, default_value = "120s", value_parser = duration_with_unit)]
+        ready_timeout: std::time::Duration,
     },
     /// Start one node by hand: `dc run sim --steps 10` runs `dc-sim --steps 10`.
     Run {
@@ -96,10 +100,29 @@ enum Command {
         #[command(subcommand)]
         what: BenchWhat,
     },
-    /// A running graph's topics: `dc topic list | echo TOPIC | hz TOPIC | bw TOPIC`.
+    /// Shell completions for dc: `dc completions bash > ~/.local/share/bash-completion/completions/dc`
+    /// (zsh: into a folder of `$fpath` as `_dc`; also fish, elvish, powershell).
+    Completions { shell: clap_complete::Shell },
+    /// The nodes of the graphs running on this machine: `dc node list`.
+    Node {
+        #[command(subcommand)]
+        what: NodeWhat,
+    },
+    /// A running graph's topics: `dc topic list | info TOPIC | echo TOPIC | hz TOPIC | bw TOPIC`.
     Topic {
         #[command(subcommand)]
         what: TopicWhat,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum NodeWhat {
+    /// Every node of the graphs running on this machine, as their launchers list them:
+    /// namespace, host, graph, node, pid, state, program (every namespace, or one).
+    List {
+        /// Only this graph's bus namespace.
+        #[arg(long)]
+        namespace: Option<String>,
     },
 }
 
@@ -111,8 +134,14 @@ enum TopicWhat {
         #[command(flatten)]
         place: topic::Where,
     },
+    /// What a topic carries (header and item types, their fields, who publishes it) and where
+    /// it is alive: writers, readers, delivery.
+    Info(topic::InfoArgs),
     /// Print a topic's frames as they pass, decoded (header fields by name, items summarised).
     Echo(topic::EchoArgs),
+    /// Relay topics of a graph on this host to zenoh (`dc/<namespace>/<topic>`), so a zenoh
+    /// client (Python's `subscribe.py`, another machine) taps them without editing the launch file.
+    Bridge(topic::BridgeArgs),
     /// A topic's rate: mean, min, max and std dev of the period over the latest frames.
     Hz(topic::RateArgs),
     /// A topic's bandwidth: bytes per second and frame sizes over the latest frames.
@@ -130,8 +159,15 @@ struct EvalArgs {
     )]
     models: Vec<String>,
     /// Model file of the `unet` model (`dc train` writes one; the repository ships a demo model).
-    #[arg(long, default_value = "models/unet-demo.dcu")]
+    #[arg(long, default_value_os_t = runtime::shipped("models/unet-demo.dcu"))]
     unet_model: PathBuf,
+    /// The command serving each `external:NAME` model of --models, in their order (`python3
+    /// python/serve_example.py`, split into words as a shell would, but run without one): started
+    /// as node NAME of the graph, it answers each step's problem over zenoh (docs/external.md);
+    /// a late answer falls back to builtin, counted; a server that fails stops the evaluation,
+    /// named.
+    #[arg(long, value_name = "COMMAND")]
+    serve: Vec<String>,
     /// Model file of the `gnn` model (`dc-gnn`), run inside the simulators.
     #[arg(long)]
     gnn_model: Option<PathBuf>,
@@ -210,7 +246,7 @@ enum BenchWhat {
         /// Dynamic bodies (ball-box).
         #[arg(long, default_value_t = 40)]
         n: u32,
-        #[arg(long, default_value = "models/unet-demo.dcu")]
+        #[arg(long, default_value_os_t = runtime::shipped("models/unet-demo.dcu"))]
         unet_model: PathBuf,
         /// Repetitions of each variant (the median is reported).
         #[arg(long, default_value_t = 3)]
@@ -231,13 +267,15 @@ fn main() {
         Ok(()) => 0,
         // The reader of our output went away (`dc topic echo ... | head`): done, as coreutils.
         Err(e) if e.chain().any(|c| c.is::<runtime::StdoutClosed>()) => 0,
+        // Ctrl-C is how a user ends a graph: said as what happened, not as an error; the
+        // status stays 130, as a shell's for an interrupted command.
+        Err(e) if e.downcast_ref::<RunError>().is_some_and(|r| matches!(r, RunError::Interrupted)) => {
+            eprintln!("dc: stopped (Ctrl-C); every node of the graph was stopped");
+            130
+        }
         Err(e) => {
             eprintln!("dc: error: {}", runtime::error_text(&e));
-            if e.downcast_ref::<RunError>().is_some_and(|r| matches!(r, RunError::Interrupted)) {
-                130
-            } else {
-                1
-            }
+            1
         }
     };
     std::process::exit(code);
@@ -261,7 +299,7 @@ fn duration_with_unit(s: &str) -> Result<std::time::Duration, String> {
 
 fn real_main(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Launch { file, host, namespace, dry_run, trust, wait_hosts } => {
+        Command::Launch { file, host, namespace, dry_run, trust, wait_hosts, ready_timeout } => {
             let mut graph = Graph::load(&file)?;
             graph.trust = trust;
             if let Some(ns) = namespace {
@@ -269,12 +307,12 @@ fn real_main(cli: Cli) -> Result<()> {
                 graph.namespace = ns;
             }
             let host = pick_host(&graph, host)?;
-            graph.check_params()?;
+            graph.check_params_on(Some(&host))?;
             if dry_run {
                 return print_graph(&graph, Some(&host));
             }
             let flag = interrupt_flag();
-            let options = supervisor::RunOptions { hosts_timeout: wait_hosts };
+            let options = supervisor::RunOptions { hosts_timeout: wait_hosts, ready_timeout };
             supervisor::run_with(&graph, &host, Output::Forward, &flag, &options)?;
             Ok(())
         }
@@ -295,9 +333,16 @@ fn real_main(cli: Cli) -> Result<()> {
             graph.trust = trust;
             print_graph(&graph, None)
         }
+        Command::Node { what: NodeWhat::List { namespace } } => node_list(namespace.as_deref()),
+        Command::Completions { shell } => {
+            clap_complete::generate(shell, &mut <Cli as clap::CommandFactory>::command(), "dc", &mut std::io::stdout());
+            Ok(())
+        }
         Command::Topic { what } => match what {
             TopicWhat::List { place } => topic::list(&place),
+            TopicWhat::Info(args) => topic::info(&args),
             TopicWhat::Echo(args) => topic::echo(&args),
+            TopicWhat::Bridge(args) => topic::bridge(&args),
             TopicWhat::Hz(args) => topic::rate(&args, topic::Figure::Hz),
             TopicWhat::Bw(args) => topic::rate(&args, topic::Figure::Bw),
         },
@@ -323,12 +368,59 @@ fn pick_host(graph: &Graph, host: Option<String>) -> Result<String> {
     }
 }
 
+/// `dc node list`: one line per node of the graphs running here; none running is an error
+/// (exit 1), so a script can tell.
+fn node_list(namespace: Option<&str>) -> Result<()> {
+    let graphs = runtime::lock::NamespaceLock::running_graphs(namespace);
+    if graphs.is_empty() {
+        match namespace {
+            Some(ns) => {
+                bail!("no graph runs in namespace `{ns}` on this machine (`dc node list` shows every namespace)")
+            }
+            None => bail!("no graph runs on this machine"),
+        }
+    }
+    let rows: Vec<[String; 7]> = graphs
+        .iter()
+        .flat_map(|g| {
+            g.nodes.iter().map(|n| {
+                let state =
+                    if n.restarts > 0 { format!("{} ({} restarts)", n.state, n.restarts) } else { n.state.clone() };
+                [
+                    g.namespace.clone(),
+                    g.host.clone(),
+                    g.graph.clone(),
+                    n.name.clone(),
+                    n.pid.to_string(),
+                    state,
+                    n.program.clone(),
+                ]
+            })
+        })
+        .collect();
+    let titles = ["namespace", "host", "graph", "node", "pid", "state", "program"];
+    let widths: Vec<usize> =
+        (0..7).map(|i| rows.iter().map(|r| r[i].len()).chain([titles[i].len()]).max().unwrap_or(0)).collect();
+    let line = |cells: [&str; 7]| {
+        let padded: Vec<String> = cells.iter().zip(&widths).map(|(c, w)| format!("{c:w$}")).collect();
+        padded.join("  ").trim_end().to_string()
+    };
+    runtime::print_line(&line(titles))?;
+    for r in &rows {
+        runtime::print_line(&line([&r[0], &r[1], &r[2], &r[3], &r[4], &r[5], &r[6]]))?;
+    }
+    Ok(())
+}
+
 /// What would start where, and how each topic travels (asks the node binaries for their ports).
 fn print_graph(graph: &Graph, only: Option<&str>) -> Result<()> {
     let ports = launch::plan::describe_ports(graph)?;
     let plan = launch::plan::Plan::new(graph, &ports);
     plan.check_port_limits(graph)?;
     println!("graph `{}` ({}), bus namespace `{}`", graph.name, graph.file, graph.namespace);
+    if let Some(root) = &graph.root {
+        println!("nodes run in {} (relative paths are taken from there)", root.display());
+    }
     if let Some((endpoint, host)) = &plan.router {
         println!("zenoh router: {endpoint} (run by the launcher on `{host}`)");
     }
@@ -527,8 +619,7 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>, budg
     // into one row of the report (`builtin,builtin`; `blend,blend:0.5`).
     let mut named = std::collections::BTreeSet::new();
     for m in &args.models {
-        let (info, param) = msgs::models::parse(m).map_err(|e| anyhow::anyhow!("--models: {e}"))?;
-        let name = msgs::models::spec_name(info, param);
+        let name = msgs::models::canonical_name(m).map_err(|e| anyhow::anyhow!("--models: {e}"))?;
         if !named.insert(name.clone()) {
             bail!("--models: `{m}` is `{name}`, already asked for: its runs would be merged into one report row");
         }
@@ -575,12 +666,50 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>, budg
             args.gnn_model.as_ref().context("the gnn-node model needs --gnn-model FILE (e.g. models/gnn.dcg)")?;
         nodes.push(NodeSpec::new("gnn", "dc-gnn", true, vec![format!("--model={}", model.display())]));
     }
+    let externals = external_servers(args)?;
+    nodes.extend(externals.iter().cloned());
     for j in 0..jobs {
         let models: Vec<&str> = args.models.iter().skip(j).step_by(jobs).map(String::as_str).collect();
         let sim_args = simulator_args(args, &models, solver, budget);
         nodes.push(NodeSpec::new(format!("sim-{j}"), "dc-sim", false, sim_args));
     }
-    Ok(Graph::single_host("eval", &unique_namespace("eval"), nodes)?)
+    let mut graph = Graph::single_host("eval", &unique_namespace("eval"), nodes)?;
+    if !externals.is_empty() {
+        // A server is any process: it reaches the graph over zenoh, the one transport every
+        // language has (iceoryx2 stays for the Rust nodes' other topics).
+        use msgs::topics::{CONTROL, PROBLEM_BODIES, PROBLEM_CONTACTS, WARM_EXTERNAL};
+        for topic in [CONTROL.name, PROBLEM_BODIES.name, PROBLEM_CONTACTS.name, WARM_EXTERNAL.name] {
+            graph.topics.insert(topic.to_string(), Transport::Zenoh);
+        }
+    }
+    Ok(graph)
+}
+
+/// The server nodes of the `external:NAME` models: the i-th --serve command serves the i-th
+/// external model, as node NAME, told its model's name (`DC_EXTERNAL_MODEL`).
+fn external_servers(args: &EvalArgs) -> Result<Vec<NodeSpec>> {
+    let names: Vec<&str> = args.models.iter().filter_map(|m| msgs::models::external_name(m)).collect();
+    if names.len() != args.serve.len() {
+        bail!(
+            "{} external models ({}) and {} --serve commands: give one command per `external:NAME` model, in order              (`--models builtin,external:py --serve \"python3 python/serve_example.py\"`)",
+            names.len(),
+            names.join(", "),
+            args.serve.len()
+        );
+    }
+    names
+        .iter()
+        .zip(&args.serve)
+        .map(|(name, command)| {
+            let words = shlex::split(command).filter(|w| !w.is_empty());
+            let words =
+                words.with_context(|| format!("--serve `{command}`: not a command line (unbalanced quotes?)"))?;
+            Ok(NodeSpec::new(*name, &words[0], true, words[1..].to_vec())
+                .with_env("DC_EXTERNAL_MODEL", *name)
+                // A Python server's lines reach the launcher as they are written.
+                .with_env("PYTHONUNBUFFERED", "1"))
+        })
+        .collect()
 }
 
 /// The arguments of an evaluation's simulator running `models` (with a solver and a budget).

@@ -405,7 +405,7 @@ impl Route {
     }
 }
 
-fn free_port(address: &str) -> u16 {
+pub fn free_port(address: &str) -> u16 {
     std::net::TcpListener::bind((address, 0)).and_then(|l| l.local_addr()).map(|a| a.port()).unwrap_or(7447)
 }
 

@@ -41,13 +41,20 @@ const STDERR_DRAIN: Duration = Duration::from_secs(1);
 pub struct RunOptions {
     /// How long a launcher waits for the other hosts' launchers to have their nodes connected.
     pub hosts_timeout: Duration,
+    /// How long this host's nodes may take to be ready (a model to load, a Python process to
+    /// import its packages) before the launcher gives up; it says whom it waits for long before.
+    pub ready_timeout: Duration,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
-        RunOptions { hosts_timeout: Duration::from_secs(120) }
+        RunOptions { hosts_timeout: Duration::from_secs(120), ready_timeout: Duration::from_secs(120) }
     }
 }
+
+/// After this long without every node ready, the launcher says whom it waits for (and again
+/// each time as long again has passed).
+const READY_NOTICE: Duration = Duration::from_secs(5);
 
 /// How a graph run ended.
 #[derive(Debug, thiserror::Error)]
@@ -67,6 +74,8 @@ pub enum RunError {
     Graph(#[from] crate::graph::GraphError),
     #[error("launcher bus: {0}")]
     Bus(String),
+    #[error("node {nodes} not ready within {secs} s of its start (a node is ready once its ports exist; `--ready-timeout` sets the limit)")]
+    NotReady { nodes: String, secs: f64 },
     #[error("host {missing} did not get its nodes connected within {secs} s (is `dc launch --host` running there, and can this host reach it?)")]
     HostsMissing { missing: String, secs: f64 },
     /// Another graph runs on this namespace and host: its nodes would read and write ours.
@@ -263,6 +272,8 @@ struct BarrierState {
     stage: Stage,
     /// When the nodes were spawned (the other hosts get [`RunOptions::hosts_timeout`] from then).
     since: Instant,
+    /// How many "waiting for node ..." notices were said.
+    ready_notices: u32,
 }
 
 impl BarrierState {
@@ -473,6 +484,8 @@ pub fn run_with(
     sup.spawn_all()?;
     loop {
         sup.pump_events();
+        sup.list_nodes();
+        sup.watch_ready()?;
         sup.advance_barrier()?;
         sup.watch_hosts();
         sup.announce_restarted();
@@ -503,8 +516,10 @@ struct Supervisor<'a> {
     width: usize,
     barrier: BarrierState,
     hosts: HostWatch,
+    /// What `dc node list` was last told: each node's pid and state.
+    listed: Vec<(u32, String)>,
     /// Last: released after every node is stopped and the bus closed.
-    _namespace: runtime::lock::NamespaceLock,
+    namespace_lock: runtime::lock::NamespaceLock,
 }
 
 impl<'a> Supervisor<'a> {
@@ -537,7 +552,8 @@ impl<'a> Supervisor<'a> {
         let (tx, rx) = mpsc::channel::<Event>();
         let with_nodes = graph.hosts.keys().filter(|h| graph.nodes_on(h).next().is_some()).cloned().collect();
         Ok(Supervisor {
-            _namespace: lock,
+            namespace_lock: lock,
+            listed: Vec::new(),
             nodes: Vec::new(),
             report: RunReport::default(),
             rx,
@@ -549,7 +565,7 @@ impl<'a> Supervisor<'a> {
             output,
             options,
             width,
-            barrier: BarrierState { stage: Stage::Spawned, since: Instant::now() },
+            barrier: BarrierState { stage: Stage::Spawned, since: Instant::now(), ready_notices: 0 },
             hosts: HostWatch { with_nodes, ..Default::default() },
         })
     }
@@ -582,6 +598,9 @@ impl<'a> Supervisor<'a> {
     fn spawn(&self, i: usize, spec: &NodeSpec) -> Result<(Child, Option<ChildStdin>), RunError> {
         let bus_json = serde_json::to_string(&self.plan.bus(&spec.name, self.host)).expect("bus config serialises");
         let mut cmd = Command::new(&spec.program);
+        if let Some(dir) = &spec.workdir {
+            cmd.current_dir(dir);
+        }
         cmd.args(&spec.args)
             .envs(&spec.env)
             .env("DC_NODE_NAME", &spec.name)
@@ -644,6 +663,77 @@ impl<'a> Supervisor<'a> {
 
     fn phases(&self) -> impl Iterator<Item = (Phase, bool)> + '_ {
         self.nodes.iter().map(|n| (n.phase, n.finished()))
+    }
+
+    /// Tells `dc node list` this host's nodes (beside the namespace lock) when one started,
+    /// finished or was restarted since it was last told.
+    fn list_nodes(&mut self) {
+        let state = |n: &Running| match (n.exited, n.done) {
+            (Some(status), _) => status.to_string(),
+            (None, true) => "done".to_string(),
+            (None, false) => "running".to_string(),
+        };
+        let now: Vec<(u32, String)> = self.nodes.iter().map(|n| (n.child.id(), state(n))).collect();
+        if now == self.listed {
+            return;
+        }
+        let nodes = self
+            .nodes
+            .iter()
+            .zip(&now)
+            .map(|(n, (pid, state))| runtime::lock::NodeEntry {
+                name: n.spec.name.clone(),
+                program: n.spec.program.display().to_string(),
+                pid: *pid,
+                state: state.clone(),
+                restarts: n.restarts,
+            })
+            .collect();
+        let list = runtime::lock::GraphNodes {
+            namespace: self.graph.namespace.clone(),
+            host: self.host.to_string(),
+            graph: self.graph.name.clone(),
+            launcher_pid: std::process::id(),
+            nodes,
+        };
+        if let Err(e) = self.namespace_lock.list_nodes(&list) {
+            tracing::debug!("cannot list the nodes for `dc node list`: {e}");
+        }
+        self.listed = now;
+    }
+
+    /// While the nodes are not all ready: says whom the graph waits for every [`READY_NOTICE`],
+    /// and past [`RunOptions::ready_timeout`] stops the nodes and fails naming them.
+    fn watch_ready(&mut self) -> Result<(), RunError> {
+        if self.barrier.stage != Stage::Spawned {
+            return Ok(());
+        }
+        let waited = self.barrier.since.elapsed();
+        let notices = (waited.as_secs_f64() / READY_NOTICE.as_secs_f64()) as u32;
+        if notices <= self.barrier.ready_notices && waited < self.options.ready_timeout {
+            return Ok(());
+        }
+        self.barrier.ready_notices = notices;
+        let waiting: Vec<String> = self
+            .nodes
+            .iter()
+            .filter(|n| n.phase < Phase::Ready && !n.finished())
+            .map(|n| format!("`{}`", n.spec.name))
+            .collect();
+        if waiting.is_empty() {
+            return Ok(());
+        }
+        let nodes = waiting.join(", ");
+        if waited >= self.options.ready_timeout {
+            let secs = self.options.ready_timeout.as_secs_f64();
+            return Err(self.abort(RunError::NotReady { nodes, secs }));
+        }
+        tell!(
+            "[dc] waiting for node {nodes} to be ready ({:.0} s of at most {:.0} s)",
+            waited.as_secs_f64(),
+            self.options.ready_timeout.as_secs_f64()
+        );
+        Ok(())
     }
 
     /// Says `connect` once every node is ready, then `start` once every node (on every host) is

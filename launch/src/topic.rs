@@ -64,6 +64,147 @@ pub fn list(place: &Where) -> Result<()> {
     Ok(())
 }
 
+/// Options of `dc topic info`.
+#[derive(clap::Args, Debug)]
+pub struct InfoArgs {
+    pub topic: String,
+    #[command(flatten)]
+    pub place: Where,
+}
+
+/// `dc topic info`: what a topic carries (its frame's header and item types with their fields,
+/// who publishes it) and, where it is alive, its writers, readers and delivery per namespace.
+/// A name that is no topic of the table is an error listing the topics.
+pub fn info(args: &InfoArgs) -> Result<()> {
+    let Some(row) = msgs::topics::info(&args.topic) else {
+        bail!("`{}` is not a Deep Contact topic (topics: {})", args.topic, msgs::topics::names_list());
+    };
+    let (header_type, item_type) = row.kind.parts();
+    let (header_fields, item_fields) = fields_of(row.kind);
+    let mut lines = vec![
+        format!("topic:   {}", row.name),
+        format!("about:   {}", row.about),
+        format!("type:    {header_type} header, {item_type} items"),
+        format!("header:  {}", header_fields.join(", ")),
+    ];
+    if !item_fields.is_empty() {
+        lines.push(format!("items:   {}", item_fields.join(", ")));
+    }
+    let live: Vec<LiveTopic> =
+        live(&args.place, args.place.namespace.as_deref())?.into_iter().filter(|t| t.topic == row.name).collect();
+    if live.is_empty() {
+        lines.push(format!("alive:   nowhere {}", where_text(&args.place)));
+    }
+    for t in &live {
+        let delivery = if t.best_effort { "best effort" } else { "reliable" };
+        lines.push(format!(
+            "alive:   namespace `{}`: writers {}, readers {}, {delivery}",
+            t.namespace, t.writers, t.readers
+        ));
+    }
+    runtime::print_line(&lines.join("\n"))
+}
+
+/// The field names of a frame kind's header and items (empty for items that are plain numbers).
+fn fields_of(kind: FrameKind) -> (Vec<String>, Vec<String>) {
+    use msgs::*;
+    fn names<T: Serialize + Default>() -> Vec<String> {
+        match ciborium::Value::serialized(&T::default()) {
+            Ok(ciborium::Value::Map(fields)) => fields.iter().map(|(k, _)| inline_cbor(k)).collect(),
+            _ => Vec::new(),
+        }
+    }
+    match kind {
+        FrameKind::Bodies => (names::<StepHeader>(), names::<Body>()),
+        FrameKind::Contacts => (names::<StepHeader>(), names::<Contact>()),
+        FrameKind::ProblemBodies => (names::<StepHeader>(), names::<ProblemBody>()),
+        FrameKind::ProblemContacts => (names::<ProblemHeader>(), names::<ProblemContact>()),
+        FrameKind::Grid => (names::<GridHeader>(), Vec::new()),
+        FrameKind::SolveStats => (names::<SolveStatsHeader>(), Vec::new()),
+        FrameKind::Control => (names::<Control>(), Vec::new()),
+    }
+}
+
+/// Options of `dc topic bridge`.
+#[derive(clap::Args, Debug)]
+pub struct BridgeArgs {
+    /// The topics to relay, comma-separated (default: every topic alive in the namespace).
+    #[arg(value_delimiter = ',')]
+    pub topics: Vec<String>,
+    /// The graph's bus namespace (default: the only one alive on this host).
+    #[arg(long)]
+    pub namespace: Option<String>,
+    /// The zenoh endpoint the relay listens on (port 0: a free one; the endpoint is printed).
+    #[arg(long, default_value = "tcp/127.0.0.1:0")]
+    pub listen: String,
+    /// Stop after relaying this many frames.
+    #[arg(long)]
+    pub count: Option<u64>,
+}
+
+/// `dc topic bridge`: relays topics of a graph on this host's shared memory to zenoh, keys
+/// `dc/<namespace>/<topic>`, so any zenoh client (Python, another machine) can tap a topic the
+/// launch file keeps on iceoryx2, without editing it. Best effort like every observer: a slow
+/// relay drops (counted) and never holds the graph back.
+pub fn bridge(args: &BridgeArgs) -> Result<()> {
+    use runtime::zenoh::Wait;
+    let (target, topics) = runtime::observe::find_graph(args.namespace.as_deref(), None, &args.topics)?;
+    let namespace = target.namespace.clone();
+    let options = ObserveOptions { target, topics: topics.clone(), encode: true, capacity: 256, reliable: false };
+    let mut observer = Observer::start(options)?;
+    let (session, endpoint) = relay_session(&args.listen)?;
+    let bus = runtime::BusConfig { namespace: namespace.clone(), ..Default::default() };
+    let publishers = topics
+        .iter()
+        .map(|t| {
+            session.declare_publisher(bus.key(t)).wait().map_err(|e| anyhow::anyhow!("zenoh publisher for `{t}`: {e}"))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    eprintln!(
+        "relaying {} of namespace `{namespace}` to zenoh at {endpoint} (keys {}); Ctrl-C stops",
+        topics.join(", "),
+        bus.key("<topic>")
+    );
+    let mut relayed = 0u64;
+    while args.count.is_none_or(|n| relayed < n) {
+        let Some(event) = next_event(&observer) else { break };
+        if let Some(Event::Frame(o)) = event {
+            if let Some(cbor) = o.cbor {
+                publishers[o.topic].put(cbor).wait().map_err(|e| anyhow::anyhow!("zenoh put: {e}"))?;
+                relayed += 1;
+            }
+        }
+    }
+    observer.join()?;
+    for (i, topic) in topics.iter().enumerate() {
+        let load = |a: &std::sync::atomic::AtomicU64| a.load(std::sync::atomic::Ordering::Relaxed);
+        let c = &observer.counts[i];
+        eprintln!("{topic}: {} frames relayed, {} dropped", load(&c.received), load(&c.dropped));
+    }
+    Ok(())
+}
+
+/// The relay's zenoh session listening on `listen`; port 0 takes a port free now, and another
+/// should a process take it before zenoh binds it. Returns the endpoint it listens on.
+fn relay_session(listen: &str) -> Result<(runtime::zenoh::Session, String)> {
+    let open = |endpoint: &str| {
+        let config = runtime::ZenohConfig { listen: vec![endpoint.to_string()], ..Default::default() };
+        runtime::open_zenoh_session(&config).map_err(|e| anyhow::anyhow!("zenoh on {endpoint}: {e}"))
+    };
+    let Some(address) = listen.strip_prefix("tcp/").and_then(|a| a.strip_suffix(":0")) else {
+        return Ok((open(listen)?, listen.to_string()));
+    };
+    let mut tries = 0;
+    loop {
+        let endpoint = format!("tcp/{address}:{}", launch::plan::free_port(address));
+        match open(&endpoint) {
+            Ok(session) => return Ok((session, endpoint)),
+            Err(e) if tries >= 4 => return Err(e),
+            Err(_) => tries += 1,
+        }
+    }
+}
+
 fn observe(place: &Where, topic: &str, encode: bool) -> Result<Observer> {
     let options = ObserveOptions {
         target: runtime::observe::find_graph(place.namespace.as_deref(), place.zenoh.as_deref(), &[topic.to_string()])?
@@ -91,16 +232,17 @@ fn next_event(observer: &Observer) -> Option<Option<Event>> {
     }
 }
 
-/// Says on stderr what the observer took, dropped (fell behind) and could not decode.
-fn tally(observer: &Observer, topic: &str) {
+/// Says on stderr how many frames were used (`used`: printed or counted; the observer may have
+/// taken a few more before it stopped, which are not said), dropped (fell behind) and could not
+/// be decoded.
+fn tally(observer: &Observer, topic: &str, used: u64) {
     let c = &observer.counts[0];
     let load = |a: &std::sync::atomic::AtomicU64| a.load(std::sync::atomic::Ordering::Relaxed);
     if observer.graph_gone() {
         eprintln!("{topic}: the graph ended (no writer left)");
     }
     eprintln!(
-        "{topic}: {} frames taken, {} dropped (this terminal fell behind), {} undecodable",
-        load(&c.received),
+        "{topic}: {used} frames, {} dropped (this terminal fell behind), {} undecodable",
         load(&c.dropped),
         load(&c.undecodable)
     );
@@ -150,7 +292,7 @@ pub fn echo(args: &EchoArgs) -> Result<()> {
         }
     }
     observer.join()?;
-    tally(&observer, &args.topic);
+    tally(&observer, &args.topic, printed);
     Ok(())
 }
 
@@ -475,7 +617,7 @@ pub fn rate(args: &RateArgs, figure: Figure) -> Result<()> {
         }
     }
     observer.join()?;
-    tally(&observer, &args.topic);
+    tally(&observer, &args.topic, seen);
     Ok(())
 }
 

@@ -157,7 +157,42 @@ pub const MODELS: &[ModelInfo] = &[
     served("grid", ModelGroup::Product, topics::GRID_CONTACTS.name, "the previous step's impulses through the SPH node's grid"),
     served("unet", ModelGroup::Product, topics::GRID_UNET.name, "the U-Net's predicted impulse grid"),
     served("unet-delta", ModelGroup::Product, topics::GRID_UNET.name, "builtin plus the U-Net's predicted change on persisting contacts, its value on new ones"),
+    served(EXTERNAL, ModelGroup::Product, topics::WARM_EXTERNAL.name, "your own model, `external:NAME`: a process of the graph (any language; `dc eval --serve CMD`) answers each step's problem on warm/external; its row is named NAME; builtin when late or down (docs/external.md)"),
 ];
+
+/// The model a user's own process serves, written `external:NAME`.
+pub const EXTERNAL: &str = "external";
+
+/// The user's name of an external model (`external:py` -> `py`), None for any other spec.
+pub fn external_name(spec: &str) -> Option<&str> {
+    spec.strip_prefix(EXTERNAL).and_then(|rest| rest.strip_prefix(':'))
+}
+
+/// Why `name` cannot name an external model: it names its report row, its statistics (16
+/// bytes) and its node in the graph, so it is 1 to 16 of `a-z 0-9 -`, starting with a letter,
+/// and not one of the built-in models' names.
+fn external_name_problem(name: &str) -> Option<String> {
+    let shape = !name.is_empty()
+        && name.len() <= 16
+        && name.starts_with(|c: char| c.is_ascii_lowercase())
+        && name.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-');
+    if !shape {
+        return Some(format!(
+            "`{EXTERNAL}:{name}`: the name must be 1 to 16 of a-z, 0-9 and `-`, starting with a letter"
+        ));
+    }
+    model(name).map(|_| format!("`{EXTERNAL}:{name}`: `{name}` is a built-in model's name; name yours otherwise"))
+}
+
+/// The name a model's statistics and report row carry: the user's for `external:NAME`, else the
+/// canonical `name[:param]`.
+pub fn canonical_name(spec: &str) -> Result<String, String> {
+    let (info, param) = parse(spec)?;
+    Ok(match external_name(spec) {
+        Some(name) => name.to_string(),
+        None => spec_name(info, param),
+    })
+}
 
 /// The model of a name, without a parameter (`blend`, not `blend:0.5`).
 pub fn model(name: &str) -> Option<&'static ModelInfo> {
@@ -166,6 +201,15 @@ pub fn model(name: &str) -> Option<&'static ModelInfo> {
 
 /// Parses `name` or `name:value` into the model and its parameter (the default when omitted).
 pub fn parse(spec: &str) -> Result<(&'static ModelInfo, Option<f32>), String> {
+    if let Some(name) = external_name(spec) {
+        return match external_name_problem(name) {
+            Some(why) => Err(why),
+            None => Ok((model(EXTERNAL).expect("in the table"), None)),
+        };
+    }
+    if spec == EXTERNAL {
+        return Err(format!("`{EXTERNAL}` needs a name, `{EXTERNAL}:NAME`: the name its report row carries"));
+    }
     let (name, value) = match spec.split_once(':') {
         Some((n, v)) => (n, Some(v)),
         None => (spec, None),
@@ -273,5 +317,18 @@ mod tests {
         // Names must fit the 16-byte name of the statistics.
         assert!(parse("extrapolate:0.25").is_ok());
         assert!(parse("extrapolate:0.125").unwrap_err().contains("16 bytes"));
+    }
+
+    #[test]
+    fn an_external_model_is_named_by_its_user() {
+        let (m, p) = parse("external:my-net2").unwrap();
+        assert_eq!((m.name, p, m.served_on), (EXTERNAL, None, Some(topics::WARM_EXTERNAL.name)));
+        assert_eq!(canonical_name("external:my-net2").unwrap(), "my-net2");
+        assert_eq!(canonical_name("blend").unwrap(), "blend:0.5");
+        assert!(parse("external").unwrap_err().contains("external:NAME"));
+        for bad in ["external:", "external:Py", "external:2py", "external:a_b", "external:seventeen-bytes-x"] {
+            assert!(parse(bad).unwrap_err().contains("1 to 16"), "{bad}");
+        }
+        assert!(parse("external:builtin").unwrap_err().contains("built-in"));
     }
 }

@@ -252,6 +252,10 @@ pub const PROBLEM_CONTACTS: Topic<ProblemHeader, ProblemContact> = Topic::new("p
 /// The contact-graph network's warm start of a step: its contacts (keys, in the problem's order)
 /// with the predicted impulses (the `dc-gnn` node, for the `gnn-node` model).
 pub const WARM_GNN: Topic<StepHeader, Contact> = Topic::new("warm/gnn");
+/// An external model's warm start of a step (the `external:NAME` model; any process of the
+/// graph that answers `problem/*`, see docs/external.md): the step's contacts, keys in the
+/// problem's order, with the predicted impulses.
+pub const WARM_EXTERNAL: Topic<StepHeader, Contact> = Topic::new("warm/external");
 /// Per-step summary for live plots (metrics).
 pub const METRICS_STEP: Topic<SolveStatsHeader, f32> = Topic::new("metrics/step");
 /// Plumbing benchmark and test topics (dc-bench-bus).
@@ -272,6 +276,8 @@ pub const TABLE: &[TopicInfo] = &[
     PROBLEM_BODIES.row("sim (--publish-problem): bodies of the step's velocity problem"),
     PROBLEM_CONTACTS.row("sim (--publish-problem): contact rows, builtin's warm start, the reference solution"),
     WARM_GNN.row("gnn (the dc-gnn node): per-contact warm start of the step whose problem it read"),
+    WARM_EXTERNAL
+        .row("an external model's server (`external:NAME`): per-contact warm start of the step whose problem it read"),
     METRICS_STEP.row("metrics: per-step summary [cumulative sweeps, sweeps] for live plots"),
     BENCH_BODIES.row("dc-bench-bus: body frames"),
     BENCH_GRID.row("dc-bench-bus: grid frames"),

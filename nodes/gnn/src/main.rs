@@ -30,7 +30,7 @@ struct Cli {
 #[derive(clap::Args, Debug)]
 struct ServeArgs {
     /// The network (`dc train --model gnn` writes one).
-    #[arg(long, default_value = "models/gnn.dcg")]
+    #[arg(long, default_value_os_t = runtime::shipped("models/gnn.dcg"))]
     model: PathBuf,
 }
 
@@ -167,16 +167,15 @@ fn try_main() -> Result<()> {
 /// The node loop: pairs each step's problem bodies and contacts, predicts, publishes.
 fn serve(model: &std::path::Path) -> Result<()> {
     use msgs::{topics, Contact, ProblemHeader};
-    let file = ModelFile::load(model)?;
-    let mut predictor = Predictor::new(file.net);
     let node = runtime::Node::from_env("dc-gnn")?;
     let mut bodies = node.subscriber(topics::PROBLEM_BODIES)?;
     let mut contacts = node.subscriber(topics::PROBLEM_CONTACTS)?;
     let mut control = node.subscriber(topics::CONTROL)?;
     let mut warm = node.publisher(topics::WARM_GNN)?;
-    if !node.ready()? {
-        return Ok(());
-    }
+    // A node only described (its ports) reads no model: the file may be on another host.
+    let loaded = if runtime::describing() { None } else { Some(ModelFile::load(model)?) };
+    let (true, Some(file)) = (node.ready()?, loaded) else { return Ok(()) };
+    let mut predictor = Predictor::new(file.net);
     tracing::info!(model = %model.display(), made_by = file.provenance, "dc-gnn serving");
     let mut pairer: sph::StepPairer<Vec<ProblemBody>, (ProblemHeader, Vec<ProblemContact>)> = sph::StepPairer::new();
     let (mut out, mut reply) = (Vec::new(), Vec::<Contact>::new());

@@ -17,7 +17,7 @@ use std::time::Instant;
 #[command(name = "dc-loop-bench", about = "The closed loop (sim, SPH, U-Net, statistics, recording) in one process")]
 struct Args {
     /// U-Net model file.
-    #[arg(long, default_value = "models/unet-demo.dcu")]
+    #[arg(long, default_value_os_t = runtime::shipped("models/unet-demo.dcu"))]
     model: PathBuf,
     #[arg(long, default_value = "0..2")]
     seeds: String,

@@ -180,8 +180,9 @@ pub struct Aggregate {
     /// Speed (m/s) below which every body must stay for a step to count as settled.
     pub settle_speed: f32,
     /// First steps of the step-range phases after the first (`[100, 150]`: steps 0-99, 100-149,
-    /// 150-end); see [`crate::phases`].
-    pub phase_boundaries: Vec<u32>,
+    /// 150-end); see [`crate::phases`]. `None`: they scale with the simulations' length
+    /// ([`Aggregate::boundaries`]).
+    pub phase_boundaries: Option<Vec<u32>>,
 }
 
 impl Default for Aggregate {
@@ -192,7 +193,20 @@ impl Default for Aggregate {
 
 impl Aggregate {
     pub fn new() -> Aggregate {
-        Aggregate { models: BTreeMap::new(), settle_speed: 0.1, phase_boundaries: DEFAULT_PHASE_BOUNDARIES.to_vec() }
+        Aggregate { models: BTreeMap::new(), settle_speed: 0.1, phase_boundaries: None }
+    }
+
+    /// The phase boundaries: as given, or 2/5 and 3/5 of the longest simulation's steps (the
+    /// thesis's 100 and 150 at 250 steps), so that a short run has a late phase too.
+    pub fn boundaries(&self) -> Vec<u32> {
+        if let Some(given) = &self.phase_boundaries {
+            return given.clone();
+        }
+        let steps = self.models.keys().flat_map(|m| self.records(m)).map(|r| r.step + 1).max();
+        match steps {
+            Some(steps) if steps >= 5 => [2, 3].iter().map(|k| steps * k / 5).collect(),
+            _ => DEFAULT_PHASE_BOUNDARIES.to_vec(),
+        }
     }
 
     /// The models in a stable, meaningful order: the contract's table order (the thesis's), then
@@ -273,7 +287,7 @@ impl Aggregate {
                     ),
                     accuracy: Accuracy::of(
                         self.records(model).map(|r| &r.stats),
-                        self.phase_boundaries.iter().copied().max().unwrap_or(0),
+                        self.boundaries().iter().copied().max().unwrap_or(0),
                     ),
                     split: ErrorSplit::over(self.records(model).map(|r| &r.stats)),
                 }
@@ -348,7 +362,7 @@ fn share(part: u64, whole: u64) -> f64 {
 impl Aggregate {
     /// The step ranges of [`Aggregate::phase_boundaries`].
     pub fn phase_ranges(&self) -> Vec<StepRange> {
-        StepRange::from_boundaries(&self.phase_boundaries)
+        StepRange::from_boundaries(&self.boundaries())
     }
 
     fn in_range<'a>(&'a self, model: &str, range: StepRange) -> impl Iterator<Item = &'a StepRecord> + 'a {
@@ -539,6 +553,24 @@ mod tests {
             ..StepStats::default()
         };
         StepRecord { stats, residuals: (0..sweeps).map(|i| 1.0 / (i + 1) as f32).collect() }
+    }
+
+    #[test]
+    fn phases_scale_with_the_simulations_length_unless_given() {
+        let mut a = Aggregate::new();
+        assert_eq!(a.boundaries(), DEFAULT_PHASE_BOUNDARIES, "no records yet");
+        for step in 0..40 {
+            a.add(record("builtin", 0, step, 4, 8));
+        }
+        // 40 steps: a late phase of 16 steps, as 150-end is of 250.
+        assert_eq!(a.boundaries(), [16, 24]);
+        assert_eq!(a.phase_ranges().last().unwrap().label(), "24-end");
+        for step in 40..250 {
+            a.add(record("builtin", 1, step, 4, 8));
+        }
+        assert_eq!(a.boundaries(), DEFAULT_PHASE_BOUNDARIES, "the thesis's at 250 steps");
+        a.phase_boundaries = Some(vec![10]);
+        assert_eq!(a.boundaries(), [10]);
     }
 
     #[test]

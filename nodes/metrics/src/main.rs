@@ -28,9 +28,9 @@ struct Args {
     settle_speed: f32,
     /// First steps of the step-range phases after the first, comma-separated and increasing
     /// (`100,150`: steps 0-99, 100-149, 150-end; the last is the late phase of the accuracy table;
-    /// empty: one phase).
-    #[arg(long, value_parser = parse_phases, default_value = "100,150")]
-    phases: Phases,
+    /// empty: one phase). Default: 2/5 and 3/5 of the simulations' steps (100,150 at 250).
+    #[arg(long, value_parser = parse_phases)]
+    phases: Option<Phases>,
     /// Build the report from an earlier report's `steps.csv` instead of listening on the bus (its
     /// tables and plots as this version makes them; the convergence plot needs the per-sweep
     /// residuals, which the file does not keep).
@@ -66,7 +66,7 @@ fn try_main() -> Result<()> {
 
     let mut aggregate = Aggregate::new();
     aggregate.settle_speed = args.settle_speed;
-    aggregate.phase_boundaries = args.phases.0.clone();
+    aggregate.phase_boundaries = args.phases.as_ref().map(|p| p.0.clone());
     let mut completeness = Completeness::default();
     // Per model: cumulative sweeps, for the live summary.
     let mut cumulative: BTreeMap<String, u64> = BTreeMap::new();
@@ -176,7 +176,7 @@ fn write_and_print(aggregate: &Aggregate, out: &std::path::Path, title: &str, mi
 
 /// `--from-steps`: the report of an earlier run's steps, without the bus.
 fn report_from_steps(args: &Args, steps: &std::path::Path) -> Result<()> {
-    let aggregate = report::aggregate_steps(steps, args.settle_speed, &args.phases.0)?;
+    let aggregate = report::aggregate_steps(steps, args.settle_speed, args.phases.as_ref().map(|p| p.0.as_slice()))?;
     let out = args.out.clone().unwrap_or_else(default_out);
     let missing = [
         format!("{}: per-sweep residuals are not kept in steps.csv, so the convergence plot is empty", steps.display()),

@@ -29,7 +29,7 @@ fn a_steps_file_that_is_a_device_a_fifo_or_a_folder_is_refused_by_its_kind() {
         (fifo.as_path(), "is a FIFO (named pipe), not a steps file"),
         (dir.as_path(), "is a directory, not a steps file"),
     ] {
-        let e = metrics::report::aggregate_steps(path, 0.1, &[]).expect_err("refused").to_string();
+        let e = metrics::report::aggregate_steps(path, 0.1, Some(&[])).expect_err("refused").to_string();
         assert_eq!(e, format!("{}: {why}", path.display()));
         let out = dc_metrics(&["--from-steps", path.to_str().unwrap(), "--out", dir.join("report").to_str().unwrap()]);
         let err = String::from_utf8_lossy(&out.stderr);

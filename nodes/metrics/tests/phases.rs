@@ -7,6 +7,14 @@ use metrics::report::{self, AccuracyTable, PhaseTable, ACCURACY_COLUMNS, PHASE_C
 use metrics::{Aggregate, StepRecord};
 use msgs::{name16, SolveStatsHeader, StepHeader};
 
+/// An aggregate with the thesis's phases (0-99, 100-149, 150-end) whatever the simulations'
+/// length: these tests' runs are shorter than 250 steps.
+fn thesis_phases() -> Aggregate {
+    let mut a = Aggregate::new();
+    a.phase_boundaries = Some(metrics::phases::DEFAULT_PHASE_BOUNDARIES.to_vec());
+    a
+}
+
 fn scratch(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("dc-metrics-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
@@ -46,7 +54,7 @@ fn step(
 /// Warm-start errors: builtin 0.2, half 0.05 on steps with persisting contacts; late steps
 /// 195-199 have no persisting contacts and a huge error (left out of the accuracy table).
 fn synthetic() -> Aggregate {
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     let sweeps_at = |s: u32| match s {
         0..=99 => 2,
         100..=149 => 4,
@@ -120,7 +128,7 @@ fn phase_totals_add_up_and_compare_with_builtins_whole_run() {
 
 #[test]
 fn same_states_per_phase_pair_each_step_with_builtin_on_it() {
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     for s in 0..200 {
         // Early steps: 3 sweeps where builtin needs 4; late ones: 9 where it needs 6.
         let (own, builtin) = if s < 150 { (3, 4) } else { (9, 6) };
@@ -140,7 +148,7 @@ fn same_states_per_phase_pair_each_step_with_builtin_on_it() {
 
 #[test]
 fn without_builtin_there_is_no_builtin_column() {
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     for s in 0..10 {
         a.add(step("none", 0, s, 3, true, 0.1, 5));
     }
@@ -158,13 +166,13 @@ fn without_builtin_there_is_no_builtin_column() {
 #[test]
 fn custom_phase_boundaries() {
     let mut a = synthetic();
-    a.phase_boundaries = vec![50];
+    a.phase_boundaries = Some(vec![50]);
     let rows = a.phase_rows();
     let builtin: Vec<_> = rows.iter().filter(|r| r.model == "builtin").collect();
     assert_eq!(builtin.iter().map(|r| r.phase.label()).collect::<Vec<_>>(), ["0-49", "50-end"]);
     assert_eq!(builtin.iter().map(|r| r.total_sweeps).collect::<Vec<_>>(), [200, 1600]);
 
-    a.phase_boundaries = vec![10, 20, 190];
+    a.phase_boundaries = Some(vec![10, 20, 190]);
     let rows = a.phase_rows();
     let builtin: Vec<_> = rows.iter().filter(|r| r.model == "builtin").collect();
     assert_eq!(builtin.iter().map(|r| r.phase.label()).collect::<Vec<_>>(), ["0-9", "10-19", "20-189", "190-end"]);
@@ -175,7 +183,7 @@ fn custom_phase_boundaries() {
     let capped = a.accuracy().into_iter().find(|r| r.model == "capped").unwrap();
     assert_eq!(capped.late_sweeps, 20_000);
 
-    a.phase_boundaries = Vec::new();
+    a.phase_boundaries = Some(Vec::new());
     assert_eq!(a.phase_rows().iter().filter(|r| r.model == "half").count(), 1);
     assert_eq!(a.phase_rows()[0].phase.label(), "0-end");
 }
@@ -259,7 +267,7 @@ fn shadowed(model: &str, simulation: u32, k: u32, sweeps: u32, builtin_sweeps: u
 /// the curve; `worse` needs more than builtin.
 #[test]
 fn accuracy_places_models_on_the_blend_curve_and_says_why() {
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     for sim in 0..2 {
         for k in 0..200 {
             a.add(shadowed("builtin", sim, k, 100, 100, 0.4));
@@ -311,7 +319,7 @@ fn accuracy_places_models_on_the_blend_curve_and_says_why() {
 
 #[test]
 fn scatter_points_are_positive_and_subsampled_deterministically() {
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     for sim in 0..10 {
         for s in 0..1000 {
             // Every 10th step has no error (skipped on a log axis), every 7th no sweeps.
@@ -376,7 +384,7 @@ fn ablations() -> Aggregate {
         ("unet", 0.11),
         ("grid", 0.18),
     ];
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
     for (model, err) in models {
         for sim in 0..4 {
@@ -469,7 +477,7 @@ fn a_crowded_accuracy_chart_renders() {
         ("extrapolate:1", 2.80, 1.148),
         ("builtin-reappear", 1.16, 1.020),
     ];
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     for (model, error, sweeps) in measured {
         for k in 0..200 {
             a.add(step(model, 0, k, (400.0 * sweeps) as u32, true, 0.01 * error as f32, 10));

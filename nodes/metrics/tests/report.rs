@@ -4,6 +4,14 @@
 use metrics::{report, Aggregate, StepRecord};
 use msgs::{name16, SolveStatsHeader, StepHeader};
 
+/// An aggregate with the thesis's phases (0-99, 100-149, 150-end) whatever the simulations'
+/// length: these tests' runs are shorter than 250 steps.
+fn thesis_phases() -> Aggregate {
+    let mut a = Aggregate::new();
+    a.phase_boundaries = Some(metrics::phases::DEFAULT_PHASE_BOUNDARIES.to_vec());
+    a
+}
+
 fn scratch(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("dc-metrics-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
@@ -36,7 +44,7 @@ fn is_png(path: &std::path::Path) -> bool {
 
 #[test]
 fn report_folder_has_csv_summary_plots_and_html() {
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     for sim in 0..3 {
         for step in 0..20 {
             a.add(stats("builtin", sim, step, 5));
@@ -80,7 +88,7 @@ fn report_folder_has_csv_summary_plots_and_html() {
 fn empty_run_writes_a_report_that_says_so() {
     let dir = scratch("empty");
     let missing = vec!["run 3 (model unet): no run end (the simulator stopped or died before finishing)".to_string()];
-    let w = report::write(&Aggregate::new(), &dir, "empty", &missing).unwrap();
+    let w = report::write(&thesis_phases(), &dir, "empty", &missing).unwrap();
     assert!(w.summaries.is_empty());
     let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
     assert!(html.contains("No solver statistics arrived"));
@@ -93,7 +101,7 @@ fn empty_run_writes_a_report_that_says_so() {
 /// tables: every statistic but the per-sweep residuals survives the file.
 #[test]
 fn a_report_rebuilt_from_its_steps_csv_has_the_same_tables() {
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     for sim in 0..2 {
         for step in 0..160 {
             for (model, sweeps) in [("builtin", 20 + step % 7), ("blend:0.5", 12 + step % 5), ("gnn", 21 + step % 3)] {
@@ -109,7 +117,7 @@ fn a_report_rebuilt_from_its_steps_csv_has_the_same_tables() {
     let records = report::read_steps(&first.join("steps.csv")).unwrap();
     assert_eq!(records.len(), 3 * 2 * 160);
     assert!(records.iter().all(|r| r.residuals.is_empty()), "residuals are not in the file");
-    let mut b = Aggregate::new();
+    let mut b = thesis_phases();
     for r in records {
         b.add(r);
     }
@@ -157,7 +165,7 @@ fn a_report_rebuilt_from_its_steps_csv_has_the_same_tables() {
 /// file and the record, never a report with wrong totals.
 #[test]
 fn a_steps_file_with_impossible_or_repeated_rows_is_refused_naming_the_record() {
-    let mut a = Aggregate::new();
+    let mut a = thesis_phases();
     for step in 0..20 {
         a.add(stats("builtin", 0, step, 10 + step % 3));
     }

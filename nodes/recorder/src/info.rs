@@ -175,8 +175,8 @@ impl fmt::Display for Info {
         match self.time_range {
             Some((a, b)) => {
                 writeln!(f, "Duration:          {:.3} s", (b - a) as f64 * 1e-9)?;
-                writeln!(f, "Start:             {} ns since the epoch", a)?;
-                writeln!(f, "End:               {} ns since the epoch", b)?;
+                writeln!(f, "Start:             {} ({:.3} s since the epoch)", crate::utc_text(a), a as f64 * 1e-9)?;
+                writeln!(f, "End:               {} ({:.3} s since the epoch)", crate::utc_text(b), b as f64 * 1e-9)?;
             }
             None => writeln!(f, "Duration:          (no messages)")?,
         }

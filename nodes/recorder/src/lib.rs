@@ -38,7 +38,7 @@ pub use join::{Step, Steps};
 /// The frame kinds live in the contract crate (`msgs::topics`).
 pub use msgs::{FrameKind, HasStep};
 pub use read::{Item, Message, RecordingReader};
-pub use write::{now_ns, utc_stamp, RecordingWriter};
+pub use write::{now_ns, utc_stamp, utc_text, RecordingWriter};
 
 use std::path::PathBuf;
 

@@ -354,6 +354,18 @@ fn copy_io_error(e: &std::io::Error) -> std::io::Error {
 /// `YYYYMMDDTHHMMSSZ` in UTC: the time in recordings' default names.
 pub fn utc_stamp(t: std::time::SystemTime) -> String {
     let secs = t.duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0) as i64;
+    let (y, m, d, hh, mm, ss) = civil_utc(secs);
+    format!("{y:04}{m:02}{d:02}T{hh:02}{mm:02}{ss:02}Z")
+}
+
+/// A time in ns since the epoch as people read it: `2026-12-06 03:24:40.123 UTC`.
+pub fn utc_text(ns: u64) -> String {
+    let (y, m, d, hh, mm, ss) = civil_utc((ns / 1_000_000_000) as i64);
+    format!("{y:04}-{m:02}-{d:02} {hh:02}:{mm:02}:{ss:02}.{:03} UTC", ns % 1_000_000_000 / 1_000_000)
+}
+
+/// Year, month, day, hour, minute, second of `secs` since 1970-01-01 UTC.
+fn civil_utc(secs: i64) -> (i64, i64, i64, i64, i64, i64) {
     let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
     // Civil date from days since 1970-01-01 (H. Hinnant's algorithm).
     let z = days + 719_468;
@@ -365,10 +377,23 @@ pub fn utc_stamp(t: std::time::SystemTime) -> String {
     let d = doy - (153 * mp + 2) / 5 + 1;
     let m = if mp < 10 { mp + 3 } else { mp - 9 };
     let y = yoe + era * 400 + i64::from(m <= 2);
-    format!("{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z", rem / 3600, rem % 3600 / 60, rem % 60)
+    (y, m, d, rem / 3600, rem % 3600 / 60, rem % 60)
 }
 
 /// Now, in nanoseconds since the Unix epoch: a message's log time.
 pub fn now_ns() -> u64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn times_are_written_as_people_read_them() {
+        // 2026-12-06 03:24:40.123 UTC, a leap year's end and the epoch itself.
+        assert_eq!(super::utc_text(1_796_527_480_123_456_789), "2026-12-06 03:24:40.123 UTC");
+        assert_eq!(super::utc_text(1_704_067_199_999_000_000), "2023-12-31 23:59:59.999 UTC");
+        assert_eq!(super::utc_text(0), "1970-01-01 00:00:00.000 UTC");
+        let t = std::time::UNIX_EPOCH + std::time::Duration::from_secs(1_796_527_480);
+        assert_eq!(super::utc_stamp(t), "20261206T032440Z");
+    }
 }

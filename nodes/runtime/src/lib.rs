@@ -120,7 +120,7 @@ impl Node {
         let bus = BusConfig::from_env()?;
         let launched = std::env::var("DC_LAUNCHED").is_ok_and(|v| v == "1");
         let mut node = Node::new(name, bus, launched);
-        if std::env::var("DC_DESCRIBE").is_ok_and(|v| v == "1") {
+        if describing() {
             node.describe = Some(Default::default());
         }
         Ok(node)
@@ -470,6 +470,30 @@ pub fn exit(result: anyhow::Result<()>) -> std::process::ExitCode {
     }
 }
 
+/// The project's folder, where its shipped files lie (`models/`, `launch/`, `python/`): `DC_HOME`
+/// if set, else the checkout these binaries were built from.
+pub fn project_root() -> std::path::PathBuf {
+    match std::env::var_os("DC_HOME") {
+        Some(home) => home.into(),
+        None => {
+            let runtime_crate = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+            runtime_crate.parent().and_then(std::path::Path::parent).unwrap_or(runtime_crate).to_path_buf()
+        }
+    }
+}
+
+/// A shipped file (`models/unet-demo.dcu`) under [`project_root`]: what a default names, so that
+/// the default holds from any folder.
+pub fn shipped(relative: &str) -> std::path::PathBuf {
+    project_root().join(relative)
+}
+
+/// Whether the launcher only asks which topics this node would use (`DC_DESCRIBE=1`): the node
+/// then opens no file (a model, a recording), which may exist only on the host that runs it.
+pub fn describing() -> bool {
+    std::env::var("DC_DESCRIBE").is_ok_and(|v| v == "1")
+}
+
 /// [`parse_args`], then `check` on the parsed parameters (what clap cannot see: a grid too large,
 /// a file that does not exist, values that only fail together), both when the launcher checks a
 /// launch file (`DC_VALIDATE=1`) and before the node starts: a node whose parameters would fail
@@ -482,6 +506,11 @@ pub fn parse_args_checked<A: clap::Parser, E: std::fmt::Display>(
         Ok(a) => a,
         Err(e) => e.exit(),
     };
+    // Describing the ports needs only the parameters' shape; the files are checked on the host
+    // that runs the node (DC_VALIDATE).
+    if describing() {
+        return Some(args);
+    }
     if let Err(e) = check(&args) {
         clap::Error::raw(clap::error::ErrorKind::ValueValidation, format!("{e:#}\n")).exit();
     }

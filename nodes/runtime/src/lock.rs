@@ -12,6 +12,27 @@ pub enum LockError {
     Io { path: String, what: String },
 }
 
+/// One node of a running graph, as its launcher lists it beside its namespace lock.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct NodeEntry {
+    pub name: String,
+    pub program: String,
+    pub pid: u32,
+    /// `running`, `done`, or how it exited (`exit status: 1`).
+    pub state: String,
+    pub restarts: u32,
+}
+
+/// The nodes one launcher runs: what `dc node list` shows.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct GraphNodes {
+    pub namespace: String,
+    pub host: String,
+    pub graph: String,
+    pub launcher_pid: u32,
+    pub nodes: Vec<NodeEntry>,
+}
+
 /// A graph's hold on its namespace on one host: an advisory lock (`flock`) on a file named after
 /// both, held while the launcher runs and released by the kernel when it exits, however it exits.
 /// A second graph on the same namespace and host is refused instead of sharing the first's
@@ -27,6 +48,7 @@ impl Drop for NamespaceLock {
     fn drop(&mut self) {
         // Removed while still locked: a launcher that opened it meanwhile finds, once it has the
         // lock, that the path no longer names its file, and takes a new one.
+        let _ = std::fs::remove_file(self.path.with_extension("nodes"));
         let _ = std::fs::remove_file(&self.path);
     }
 }
@@ -68,6 +90,7 @@ fn remove_stale_locks(folder: &std::path::Path) -> usize {
         let Ok(file) = std::fs::OpenOptions::new().read(true).open(&path) else { continue };
         // Held by no one, and still the file at that path: its launcher is gone.
         if try_flock(&file).unwrap_or(false) && is_file_at(&file, &path) && std::fs::remove_file(&path).is_ok() {
+            let _ = std::fs::remove_file(path.with_extension("nodes"));
             removed += 1;
         }
     }
@@ -107,6 +130,40 @@ impl NamespaceLock {
         }
         held.sort();
         held
+    }
+
+    /// Says which nodes this holder runs: `<lock>.nodes` beside the lock file (JSON, replaced
+    /// whole, never seen half written), removed with the lock.
+    pub fn list_nodes(&self, nodes: &GraphNodes) -> std::io::Result<()> {
+        let json = serde_json::to_vec_pretty(nodes).map_err(std::io::Error::other)?;
+        let (path, partial) = (self.path.with_extension("nodes"), self.path.with_extension("nodes.partial"));
+        std::fs::write(&partial, json)?;
+        std::fs::rename(partial, path)
+    }
+
+    /// The node lists of the graphs holding a namespace on this machine now (all, or those of
+    /// `namespace`), sorted by namespace and host. A list whose lock no process holds (its
+    /// launcher is gone) is not shown; one that does not parse is skipped.
+    pub fn running_graphs(namespace: Option<&str>) -> Vec<GraphNodes> {
+        let Ok(entries) = std::fs::read_dir(Self::folder()) else { return Vec::new() };
+        let mut graphs = Vec::new();
+        for path in entries.filter_map(|e| e.ok().map(|e| e.path())) {
+            if path.extension().is_none_or(|e| e != "nodes") {
+                continue;
+            }
+            let Ok(lock) = std::fs::OpenOptions::new().read(true).open(path.with_extension("lock")) else { continue };
+            if try_flock(&lock).unwrap_or(true) {
+                continue; // held by no one: its launcher is gone
+            }
+            // A list is small; a foreign file there is read to a bound, never whole.
+            let Ok(bytes) = read_bounded(&path, 1 << 20) else { continue };
+            let Ok(graph) = serde_json::from_slice::<GraphNodes>(&bytes) else { continue };
+            if namespace.is_none_or(|ns| ns == graph.namespace) {
+                graphs.push(graph);
+            }
+        }
+        graphs.sort_by(|a, b| (&a.namespace, &a.host).cmp(&(&b.namespace, &b.host)));
+        graphs
     }
 
     /// The folder of the lock files.
@@ -178,6 +235,17 @@ impl NamespaceLock {
         }
         Ok(lock)
     }
+}
+
+/// A file's bytes, refused when longer than `max`.
+fn read_bounded(path: &std::path::Path, max: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)?.take(max + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max {
+        return Err(std::io::Error::other(format!("longer than {max} bytes")));
+    }
+    Ok(bytes)
 }
 
 #[cfg(test)]

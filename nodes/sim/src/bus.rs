@@ -175,13 +175,13 @@ pub fn run(
     // the producer, which stalls the simulator in turn (a deadlock seen in `dc eval`). In lockstep
     // at most one grid is outstanding, so the loop cannot fill it.
     let simulations: Vec<u32> = spec.seeds.iter().map(|&s| s as u32).collect();
-    let (served, source): (Served, Option<Box<dyn Drain>>) = match (model.grid_topic(), model.kind) {
+    let (served, source): (Served, Option<Box<dyn Drain>>) = match (model.grid_topic(), model.kind.warm_topic()) {
         (Some(topic), _) => {
             let source = Rc::new(RefCell::new(BusSource::new(BusInbox::open(node, topic)?, how.waits, simulations)));
             (Served { grid: Some(Box::new(SourceHandle(source.clone()))), contact: None }, Some(Box::new(source)))
         }
-        (None, kind) if kind.sends_problems() => {
-            let inbox = BusInbox::open(node, msgs::topics::WARM_GNN)?;
+        (None, Some(warm_topic)) => {
+            let inbox = BusInbox::open(node, warm_topic)?;
             let source = Rc::new(RefCell::new(BusSource::new(inbox, how.waits, simulations)));
             let pubs = pubs.problem.clone().ok_or_else(|| {
                 SimError::Output(format!(

@@ -27,7 +27,7 @@ struct Cli {
 #[derive(Args, Debug)]
 struct NodeArgs {
     /// Model file (written by `dc-unet train`).
-    #[arg(long, default_value = "models/unet-demo.dcu")]
+    #[arg(long, default_value_os_t = runtime::shipped("models/unet-demo.dcu"))]
     model: PathBuf,
     /// Backend: flex (CPU); with the `tch` feature also libtorch, cuda, cuda:N.
     #[arg(long, default_value = "flex", value_parser = unet::device_name)]
@@ -249,7 +249,13 @@ fn main() -> std::process::ExitCode {
 }
 
 fn try_main() -> Result<()> {
-    let Some(cli) = runtime::parse_args::<Cli>() else { return Ok(()) };
+    // The node's model file is checked with its parameters (the launcher's check on the host
+    // that runs it), so a missing or foreign file fails before the graph starts.
+    let check = |cli: &Cli| match cli.command {
+        None => ModelFile::read_meta(&cli.node.model).map(|_| ()).context("--model"),
+        Some(_) => Ok(()),
+    };
+    let Some(cli) = runtime::parse_args_checked::<Cli, _>(check) else { return Ok(()) };
     runtime::init_logging();
     match cli.command {
         None => run_node(cli.node),
@@ -326,16 +332,19 @@ fn print_summary(path: &std::path::Path, meta: &unet::ModelMeta) {
 
 /// The node: one prediction per received bodies grid, batched when several wait.
 fn run_node(args: NodeArgs) -> Result<()> {
-    let device = unet::device(&args.device)?;
-    let predictor =
-        Predictor::load(&args.model, &device).with_context(|| format!("loading the model {}", args.model.display()))?;
     let node = runtime::Node::from_env("dc-unet")?;
     let mut grids_in = node.subscriber::<GridHeader, f32>(topics::GRID_BODIES)?;
     let mut control = node.subscriber(topics::CONTROL)?;
     let mut grids_out = node.publisher(topics::GRID_UNET)?;
-    if !node.ready()? {
-        return Ok(());
-    }
+    // A node only described (its ports) reads no model: the file may be on another host.
+    let loaded = if runtime::describing() {
+        None
+    } else {
+        let device = unet::device(&args.device)?;
+        let loaded = Predictor::load(&args.model, &device);
+        Some(loaded.with_context(|| format!("loading the model {}", args.model.display()))?)
+    };
+    let (true, Some(predictor)) = (node.ready()?, loaded) else { return Ok(()) };
     tracing::info!(model = %args.model.display(), device = args.device, inputs = ?predictor.meta().input_channels, "dc-unet ready");
     let (mut predicted, mut rejected, mut batches) = (0u64, 0u64, 0u64);
     let mut busy = Duration::ZERO;

@@ -55,7 +55,11 @@ pub fn read_steps(path: &Path) -> Result<Vec<StepRecord>, ReportError> {
 /// path applies to every frame: an empty file, or an impossible or repeated step, is an error
 /// naming the file and the CSV record (record 1 is the first row after the header), so a damaged
 /// or edited file never moves a report's totals.
-pub fn aggregate_steps(path: &Path, settle_speed: f32, phase_boundaries: &[u32]) -> Result<Aggregate, ReportError> {
+pub fn aggregate_steps(
+    path: &Path,
+    settle_speed: f32,
+    phase_boundaries: Option<&[u32]>,
+) -> Result<Aggregate, ReportError> {
     let records = read_steps(path)?;
     let refused = |why: String| ReportError::Steps { path: path.display().to_string(), why };
     if records.is_empty() {
@@ -66,7 +70,7 @@ pub fn aggregate_steps(path: &Path, settle_speed: f32, phase_boundaries: &[u32])
     }
     let mut aggregate = Aggregate::new();
     aggregate.settle_speed = settle_speed;
-    aggregate.phase_boundaries = phase_boundaries.to_vec();
+    aggregate.phase_boundaries = phase_boundaries.map(<[u32]>::to_vec);
     for r in records {
         aggregate.add(r);
     }

@@ -157,20 +157,29 @@ pub type ProblemSender = Box<dyn FnMut(&Problem) -> Result<(), String>>;
 /// `gnn-node`: the same network served by a `dc-gnn` node: the step's problem goes out on
 /// `problem/*`, the per-contact warm start comes back on `warm/gnn` (matched by contact key); late,
 /// missing or from a node that is down, the step falls back (counted) like the grid models.
+///
+/// An external model (`external:NAME`) is the same exchange with any process on
+/// `warm/external`, under the user's name.
 pub struct GnnNodeModel {
+    name: String,
     send: ProblemSender,
     source: Box<dyn ContactWarmSource>,
 }
 
 impl GnnNodeModel {
     pub fn new(send: ProblemSender, source: Box<dyn ContactWarmSource>) -> GnnNodeModel {
-        GnnNodeModel { send, source }
+        GnnNodeModel::named("gnn-node".into(), send, source)
+    }
+
+    /// The exchange under another name (an external model's).
+    pub fn named(name: String, send: ProblemSender, source: Box<dyn ContactWarmSource>) -> GnnNodeModel {
+        GnnNodeModel { name, send, source }
     }
 }
 
 impl WarmStartModel for GnnNodeModel {
     fn name(&self) -> &str {
-        "gnn-node"
+        &self.name
     }
 
     fn needs(&self) -> Needs {

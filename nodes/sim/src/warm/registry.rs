@@ -82,11 +82,13 @@ pub enum ModelKind {
     Unet,
     /// Builtin plus the U-Net's predicted change on persisting contacts.
     UnetDelta,
+    /// A user's own model served by any process of the graph (`external:NAME`).
+    External,
 }
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 29] = [
+    pub const ALL: [ModelKind; 30] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -116,6 +118,7 @@ impl ModelKind {
         ModelKind::Grid,
         ModelKind::Unet,
         ModelKind::UnetDelta,
+        ModelKind::External,
     ];
 
     /// The model's row in the contract's model table (`msgs::models::MODELS`, same order).
@@ -131,7 +134,16 @@ impl ModelKind {
     /// Whether the model sends problems to a `dc-gnn` node and reads its answers
     /// ([`Served::contact`]).
     pub fn sends_problems(self) -> bool {
-        matches!(self, ModelKind::GnnNode | ModelKind::GnnPipelined)
+        self.warm_topic().is_some()
+    }
+
+    /// The topic the warm starts of a model that sends problems come back on.
+    pub fn warm_topic(self) -> Option<msgs::topics::Topic<msgs::StepHeader, msgs::Contact>> {
+        match self {
+            ModelKind::GnnNode | ModelKind::GnnPipelined => Some(msgs::topics::WARM_GNN),
+            ModelKind::External => Some(msgs::topics::WARM_EXTERNAL),
+            _ => None,
+        }
     }
 
     /// Whether the model needs a [`GridSource`].
@@ -189,17 +201,22 @@ pub struct ModelSpec {
     pub kind: ModelKind,
     /// The parameter of a parametrised model (its default when not given), None otherwise.
     pub param: Option<f32>,
+    /// The user's name of an external model (`external:NAME`), None otherwise.
+    pub label: Option<msgs::Name16>,
 }
 
 impl ModelSpec {
     /// The model with its default parameter.
     pub fn of(kind: ModelKind) -> ModelSpec {
-        ModelSpec { kind, param: kind.info().param.map(|p| p.default) }
+        ModelSpec { kind, param: kind.info().param.map(|p| p.default), label: None }
     }
 
     /// The name in statistics and control messages (`blend:0.75`; unparametrised models' own).
     pub fn name(&self) -> String {
-        msgs::models::spec_name(self.kind.info(), self.param)
+        match &self.label {
+            Some(label) => msgs::name16_str(label).to_string(),
+            None => msgs::models::spec_name(self.kind.info(), self.param),
+        }
     }
 
     pub fn is_grid_based(&self) -> bool {
@@ -257,6 +274,10 @@ impl ModelSpec {
                 let (send, source) = served.contact.ok_or_else(no_source)?;
                 Box::new(GnnNodeModel::new(send, source))
             }
+            ModelKind::External => {
+                let (send, source) = served.contact.ok_or_else(no_source)?;
+                Box::new(GnnNodeModel::named(self.name(), send, source))
+            }
             ModelKind::GnnPipelined => {
                 let (send, source) = served.contact.ok_or_else(no_source)?;
                 Box::new(GnnPipelinedModel::new(send, source))
@@ -295,7 +316,8 @@ impl FromStr for ModelSpec {
     fn from_str(s: &str) -> Result<Self, SimError> {
         let (info, param) = msgs::models::parse(s).map_err(SimError::BadModel)?;
         let kind = ModelKind::ALL.into_iter().find(|k| k.name() == info.name).expect("the table and the enum agree");
-        Ok(ModelSpec { kind, param })
+        let label = msgs::models::external_name(s).map(msgs::name16);
+        Ok(ModelSpec { kind, param, label })
     }
 }
 
