@@ -104,3 +104,41 @@ fn python_taps_the_live_statistics_of_the_python_tap_graph() {
     assert!(lines.iter().all(|l| l["model"] == "builtin"), "{lines:?}");
     assert!(lines.iter().map(|l| l["sweeps"].as_u64().unwrap()).sum::<u64>() > 0);
 }
+
+/// `dc-record --foxglove`: beside the raw recording, its Foxglove view, which the official `mcap`
+/// reader (PyPI) opens with Foxglove's schemas (what Foxglove's file mode reads).
+#[test]
+fn a_recording_with_the_viewers_channels_opens_with_foxglove_schemas() {
+    if !have_python("foxglove view", "mcap") {
+        return;
+    }
+    let dir = deep_contact::scratch_dir("foxglove-view");
+    let file = dir.join("run.mcap");
+    let graph = format!(
+        "[[nodes]]\nname = \"recorder\"\nbinary = \"dc-record\"\ndaemon = true\n\
+         params = {{ out = \"{}\", foxglove = true }}\n\n\
+         [[nodes]]\nname = \"sim\"\nbinary = \"dc-sim\"\nparams = {{ model = \"builtin\", seeds = \"0..1\", steps = 30, n = 20 }}\n",
+        file.display()
+    );
+    let (_, out) = deep_contact::launch("foxglove-view", &graph, &[]);
+    assert!(out.status.success(), "{}", text(&out));
+    let view = dir.join("run.foxglove.mcap");
+    assert!(view.is_file(), "no view beside the recording: {}", text(&out));
+    let schemas = Command::new("python3")
+        .args([
+            "-c",
+            "import sys; from mcap.reader import make_reader\n\
+             s = make_reader(open(sys.argv[1], 'rb')).get_summary()\n\
+             print(' '.join(sorted({x.name for x in s.schemas.values()})))\n\
+             print(' '.join(sorted({c.topic for c in s.channels.values()})))",
+            view.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(schemas.status.success(), "{}", text(&schemas));
+    let said = String::from_utf8_lossy(&schemas.stdout);
+    assert!(
+        said.contains("foxglove.SceneUpdate") && said.contains("/scene") && said.contains("/stats/solve"),
+        "{said}"
+    );
+}

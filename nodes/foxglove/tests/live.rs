@@ -291,3 +291,66 @@ fn client_that_never_reads_does_not_stall_the_sim() {
     // simulator to the client's pace (here: never), far below half its speed without the client.
     assert!(stuck >= 0.5 * alone, "the stuck client slowed the simulator: {stuck:.0} vs {alone:.0} steps/s:\n{out}");
 }
+
+/// The repository's own `launch/foxglove.toml`, as its README command starts it, twice at once
+/// (two namespaces): both bridges start (each on a free port, which its log names), and an
+/// independent client sees every channel of each (scene, frames, grids and heat maps, statistics,
+/// control) and decodes a scene; the simulators are paced, so the graphs are still running.
+#[test]
+fn the_shipped_foxglove_graph_is_paced_and_two_start_at_once() {
+    let _serial = serial();
+    let file = deep_contact::repo_root().join("launch/foxglove.toml");
+    let start = |name: &str| {
+        let mut child = Command::new(bin("dc"))
+            .current_dir("/")
+            .arg("launch")
+            .arg(&file)
+            .args(["--namespace", &unique_namespace(name)])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("run dc");
+        let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+        let deadline = Instant::now() + Duration::from_secs(60);
+        let mut line = String::new();
+        let port = loop {
+            line.clear();
+            use std::io::BufRead;
+            assert!(stderr.read_line(&mut line).unwrap() > 0 && Instant::now() < deadline, "no URL logged");
+            if let Some(at) = line.find("url=ws://127.0.0.1:") {
+                let rest = &line[at + "url=ws://127.0.0.1:".len()..];
+                break rest.split(|c: char| !c.is_ascii_digit()).next().unwrap().parse::<u16>().unwrap();
+            }
+        };
+        // Keep draining the log so the graph never blocks on a full pipe.
+        std::thread::spawn(move || std::io::copy(&mut stderr, &mut std::io::sink()));
+        (child, port)
+    };
+    let (mut a, port_a) = start("foxglove-shipped-a");
+    let (mut b, port_b) = start("foxglove-shipped-b");
+    assert_ne!(port_a, port_b);
+    let expected =
+        ["/scene", "/tf", "/grid/contacts", "/grid/contacts/heat/normal", "/stats/solve", "/metrics/step", "/control"];
+    for port in [port_a, port_b] {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        runtime().block_on(async {
+            let mut c: Client = client::connect(port, deadline, None).await;
+            assert!(c.wait_for_channels(&expected, deadline).await, "advertised: {:?}", c.channels.keys());
+            c.subscribe("/scene").await;
+            loop {
+                let data = c.next_data(deadline).await.expect("a scene before the deadline");
+                if data.topic == "/scene" {
+                    let update = SceneUpdate::decode(data.payload.as_slice()).expect("a SceneUpdate");
+                    assert!(update.entities.iter().any(|e| e.id == "balls"));
+                    break;
+                }
+            }
+        });
+    }
+    for child in [&mut a, &mut b] {
+        assert!(child.try_wait().unwrap().is_none(), "a paced graph is still running");
+        unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+        let _ = child.wait();
+    }
+}

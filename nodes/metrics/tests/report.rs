@@ -130,6 +130,7 @@ fn a_report_rebuilt_from_its_steps_csv_has_the_same_tables() {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_dc-metrics"))
         .arg("--from-steps")
         .arg(first.join("steps.csv"))
+        .args(["--phases", "100,150"])
         .arg("--out")
         .arg(&second)
         .output()

@@ -67,6 +67,11 @@ struct Args {
     /// At the end, write the counts (received, dropped, bytes, active time, CPU time) as JSON here.
     #[arg(long)]
     stats_json: Option<PathBuf>,
+    /// Also write each recording as Foxglove sees it (scene, grids, heat maps, statistics in
+    /// Foxglove's schemas), `NAME.foxglove.mcap` beside `NAME.mcap`, once it is finished: the
+    /// conversion of `dc-foxglove viz`, run by it.
+    #[arg(long)]
+    foxglove: bool,
 }
 
 #[derive(Subcommand, Debug)]
@@ -141,18 +146,24 @@ fn try_main() -> anyhow::Result<()> {
             show(&r)
         }
         Some(Command::Bench(bench_args)) => bench::run(bench_args),
-        None if args.all || !args.attach_topics.is_empty() => attach::record(&attach::Attach {
-            topics: &args.attach_topics,
-            namespace: args.namespace.as_deref(),
-            zenoh: args.zenoh.as_deref(),
-            out: args.out.as_deref(),
-            overwrite: args.overwrite,
-            dir: &args.dir,
-            reliable: args.reliable,
-            duration: args.duration,
-            flush_every: Duration::from_millis(args.flush_ms.max(1)),
-            metadata: recorder_metadata("dc-record"),
-        }),
+        None if args.all || !args.attach_topics.is_empty() => {
+            let path = attach::record(&attach::Attach {
+                topics: &args.attach_topics,
+                namespace: args.namespace.as_deref(),
+                zenoh: args.zenoh.as_deref(),
+                out: args.out.as_deref(),
+                overwrite: args.overwrite,
+                dir: &args.dir,
+                reliable: args.reliable,
+                duration: args.duration,
+                flush_every: Duration::from_millis(args.flush_ms.max(1)),
+                metadata: recorder_metadata("dc-record"),
+            })?;
+            if args.foxglove {
+                foxglove_view(&path)?;
+            }
+            Ok(())
+        }
         None if !in_a_graph() => anyhow::bail!(
             "say what to record from the running graph: `dc record -a` (every topic) or `dc record TOPIC...`; \
              `dc record info FILE` and `dc record recover IN OUT` inspect and repair recordings (`dc record --help`)"
@@ -432,6 +443,11 @@ fn record(args: &Args) -> anyhow::Result<()> {
     for (path, n) in &files.finished {
         println!("recorded {n} messages to {}", path.display());
     }
+    if args.foxglove {
+        for (path, _) in &files.finished {
+            foxglove_view(path)?;
+        }
+    }
     println!("received {received}, undecodable {undecodable}, dropped {write_failed}");
     if let Some(path) = &args.stats_json {
         let stats = recorder::bench::RecorderStats {
@@ -445,6 +461,28 @@ fn record(args: &Args) -> anyhow::Result<()> {
         };
         recorder::write::replace_file(path, serde_json::to_string_pretty(&stats)?.as_bytes())?;
     }
+    Ok(())
+}
+
+/// Writes the Foxglove view of a finished recording, `NAME.foxglove.mcap` beside it, with
+/// `dc-foxglove viz` (found beside this binary, then on PATH), and says where and how long it took.
+fn foxglove_view(recording: &std::path::Path) -> anyhow::Result<()> {
+    let view = recording.with_extension("foxglove.mcap");
+    let beside = std::env::current_exe().ok().and_then(|e| e.parent().map(|d| d.join("dc-foxglove")));
+    let program = beside.filter(|p| p.is_file()).unwrap_or_else(|| PathBuf::from("dc-foxglove"));
+    let started = Instant::now();
+    let out =
+        std::process::Command::new(&program).arg("viz").arg(recording).arg(&view).output().with_context(|| {
+            format!("running {} for the Foxglove view of {}", program.display(), recording.display())
+        })?;
+    if !out.status.success() {
+        anyhow::bail!(
+            "the Foxglove view of {} failed: {}",
+            recording.display(),
+            String::from_utf8_lossy(&out.stderr).trim()
+        );
+    }
+    println!("Foxglove view: {} ({:.1} s)", view.display(), started.elapsed().as_secs_f64());
     Ok(())
 }
 

@@ -30,7 +30,8 @@ pub struct Attach<'a> {
 /// Frames the hand-over queue holds before the recorder drops (a 10,000-body frame is 480 KB).
 const QUEUE_FRAMES: usize = 1024;
 
-pub fn record(a: &Attach) -> Result<()> {
+/// Records until Ctrl-C, `--duration` or the graph's end; returns the file written.
+pub fn record(a: &Attach) -> Result<std::path::PathBuf> {
     let (target, topics) = runtime::observe::find_graph(a.namespace, a.zenoh, a.topics)?;
     let namespace = target.namespace.clone();
     // A default name is taken as the graph recorder takes its own: a second recorder started in
@@ -123,5 +124,5 @@ pub fn record(a: &Attach) -> Result<()> {
     if dropped > 0 {
         eprintln!("{dropped} frames were dropped: the disk fell behind the graph (--reliable waits instead, holding the graph back)");
     }
-    Ok(())
+    Ok(path)
 }
