@@ -246,7 +246,9 @@ impl ContactSolver {
         let second_order = match params.method {
             Method::Newton => Some(SecondOrder::Proximal),
             Method::InteriorPoint => Some(SecondOrder::InteriorPoint),
-            Method::Auto => (dynamic_bodies(bodies) >= AUTO_NEWTON_FROM).then_some(SecondOrder::InteriorPoint),
+            Method::Auto => AUTO_NEWTON_FROM
+                .is_some_and(|from| dynamic_bodies(bodies) >= from)
+                .then_some(SecondOrder::InteriorPoint),
             Method::Sweeps => None,
         };
         if let (Some(method), false) = (second_order, rows.is_empty()) {
