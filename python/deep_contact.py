@@ -156,7 +156,7 @@ def load_problems(path, labelled_only=True):
 
 # --- Serving a model: the external-model contract (docs/external.md) ---------------------------
 
-CONTRACT_VERSION = 1
+CONTRACT_VERSION = 1  # msgs::models::EXTERNAL_CONTRACT_VERSION
 EXTERNAL_TOPIC = "warm/external"
 SERVER_SUBSCRIBES = ("control", "problem/bodies", "problem/contacts")
 PORTS_MARKER, READY_MARKER, CONNECTED_MARKER = "\x1edc-ports ", "\x1edc-ready", "\x1edc-connected"

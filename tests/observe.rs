@@ -604,3 +604,25 @@ fn a_bridge_relays_a_shared_memory_topic_to_zenoh() {
     let _ = graph_run.wait();
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `dc topic pub control shutdown` from another terminal ends a running graph cleanly: the
+/// simulator stops at its next step, the recorder closes its file (strictly readable), the
+/// launcher exits 0.
+#[test]
+fn a_shutdown_published_by_hand_ends_the_graph_cleanly() {
+    let dir = scratch_dir("observe-pub");
+    let namespace = unique_namespace("observe-pub");
+    let recording = dir.join("run.mcap");
+    let graph_run = start(&dir, "observed", &graph(&recording, "", 100_000), &namespace);
+    wait_for_writer(&namespace, "bodies", None);
+    let out = dc(&["topic", "pub", "control", "shutdown", "--namespace", &namespace]).output().unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("published `shutdown`"), "{}", text(&out));
+    let out = finish(graph_run, Duration::from_secs(60), "the graph after a published shutdown");
+    assert!(out.status.success(), "{}", text(&out));
+    let steps = frames(&recording, "bodies");
+    assert!(!steps.is_empty() && steps.len() < 2 * 100_000, "{} steps recorded", steps.len());
+    let refused = dc(&["topic", "pub", "bodies", "shutdown", "--namespace", &namespace]).output().unwrap();
+    assert!(!refused.status.success());
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -139,6 +139,9 @@ enum TopicWhat {
     Info(topic::InfoArgs),
     /// Print a topic's frames as they pass, decoded (header fields by name, items summarised).
     Echo(topic::EchoArgs),
+    /// Publish a control message into a running graph: `dc topic pub control shutdown` ends it
+    /// cleanly (every node finishes, files closed), as Ctrl-C of its launcher does.
+    Pub(topic::PubArgs),
     /// Relay topics of a graph on this host to zenoh (`dc/<namespace>/<topic>`), so a zenoh
     /// client (Python's `subscribe.py`, another machine) taps them without editing the launch file.
     Bridge(topic::BridgeArgs),
@@ -343,6 +346,7 @@ fn real_main(cli: Cli) -> Result<()> {
             TopicWhat::Info(args) => topic::info(&args),
             TopicWhat::Echo(args) => topic::echo(&args),
             TopicWhat::Bridge(args) => topic::bridge(&args),
+            TopicWhat::Pub(args) => topic::publish(&args),
             TopicWhat::Hz(args) => topic::rate(&args, topic::Figure::Hz),
             TopicWhat::Bw(args) => topic::rate(&args, topic::Figure::Bw),
         },

@@ -125,6 +125,45 @@ fn fields_of(kind: FrameKind) -> (Vec<String>, Vec<String>) {
     }
 }
 
+/// Options of `dc topic pub`.
+#[derive(clap::Args, Debug)]
+pub struct PubArgs {
+    /// The topic: `control`, the one a person publishes to by hand.
+    pub topic: String,
+    /// What to say: `shutdown`, every node of the graph finishes cleanly (its simulators at the
+    /// next step, its recorders with their files closed), as on Ctrl-C of its launcher.
+    pub message: String,
+    /// The graph's bus namespace (default: the only one alive on this host).
+    #[arg(long)]
+    pub namespace: Option<String>,
+}
+
+/// `dc topic pub control shutdown`: publishes one control frame into a running graph on this
+/// host's shared memory.
+pub fn publish(args: &PubArgs) -> Result<()> {
+    if args.topic != msgs::topics::CONTROL.name {
+        bail!("`dc topic pub` publishes on `control` only (the other topics are the nodes' own data)");
+    }
+    let kind = match args.message.as_str() {
+        "shutdown" => msgs::ControlKind::Shutdown,
+        other => bail!("control message `{other}`: the one a person sends is `shutdown`"),
+    };
+    let (target, _) = runtime::observe::find_graph(args.namespace.as_deref(), None, &[args.topic.clone()])?;
+    let (namespace, host) = match target.namespace.split_once('@') {
+        Some((ns, host)) => (ns.to_string(), host.to_string()),
+        None => (target.namespace.clone(), String::new()),
+    };
+    let bus = runtime::BusConfig { namespace, host, queue_depth: 16, ..Default::default() };
+    let node = runtime::Node::new("dc-topic-pub", bus, false);
+    let mut control = node.publisher(msgs::topics::CONTROL)?;
+    node.ready()?;
+    let frame = msgs::Control { step: msgs::StepHeader::default(), kind: kind as u32, count: 0 };
+    control.publish(&frame, &[])?;
+    // The frame lives in this process's shared memory: stay until the graph's readers took it.
+    std::thread::sleep(Duration::from_millis(500));
+    runtime::print_line(&format!("published `{}` on control of namespace `{}`", args.message, target.namespace))
+}
+
 /// Options of `dc topic bridge`.
 #[derive(clap::Args, Debug)]
 pub struct BridgeArgs {

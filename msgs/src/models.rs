@@ -163,6 +163,12 @@ pub const MODELS: &[ModelInfo] = &[
 /// The model a user's own process serves, written `external:NAME`.
 pub const EXTERNAL: &str = "external";
 
+/// The version of the external-model contract (docs/external.md): the topics `problem/bodies`,
+/// `problem/contacts`, `control` to the server and `warm/external` back, their frames at
+/// [`crate::WIRE_VERSION`], the reply's keys in the problem's order, the deadline and fallback
+/// rules. A change a server would notice is a new version.
+pub const EXTERNAL_CONTRACT_VERSION: u32 = 1;
+
 /// The user's name of an external model (`external:py` -> `py`), None for any other spec.
 pub fn external_name(spec: &str) -> Option<&str> {
     spec.strip_prefix(EXTERNAL).and_then(|rest| rest.strip_prefix(':'))

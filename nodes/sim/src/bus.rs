@@ -65,6 +65,9 @@ pub struct Publishers {
     control: runtime::Publisher<msgs::Control, u8>,
     /// With --publish-problem, or for `gnn-node` (which sends the problem before the solve).
     problem: Option<Rc<RefCell<ProblemPublishers>>>,
+    /// `control` as read, between steps: a shutdown published from outside the graph (`dc topic
+    /// pub control shutdown`) ends the run at the next step, as the launcher's Ctrl-C does.
+    commands: runtime::Subscriber<msgs::Control, u8>,
 }
 
 impl Publishers {
@@ -82,6 +85,7 @@ impl Publishers {
             } else {
                 None
             },
+            commands: node.subscriber(msgs::topics::CONTROL)?,
         })
     }
 }
@@ -127,6 +131,10 @@ impl RunSink for BusSink<'_> {
             }
             // Late steps do not bunch up to catch up: the next is due a period after this one.
             *due = (*due + *period).max(Instant::now());
+        }
+        // Every control frame is taken (the node's own too): the queue never holds its writers back.
+        while let Ok(Some(c)) = self.pubs.commands.try_recv() {
+            self.node.observe_control(c.header());
         }
         if self.node.is_shutdown() {
             return false;
