@@ -148,7 +148,7 @@ pub fn publish(args: &PubArgs) -> Result<()> {
         "shutdown" => msgs::ControlKind::Shutdown,
         other => bail!("control message `{other}`: the one a person sends is `shutdown`"),
     };
-    let (target, _) = runtime::observe::find_graph(args.namespace.as_deref(), None, &[args.topic.clone()])?;
+    let (target, _) = runtime::observe::find_graph(args.namespace.as_deref(), None, std::slice::from_ref(&args.topic))?;
     let (namespace, host) = match target.namespace.split_once('@') {
         Some((ns, host)) => (ns.to_string(), host.to_string()),
         None => (target.namespace.clone(), String::new()),
