@@ -255,3 +255,23 @@ fn a_second_order_solve_short_of_the_tolerance_is_finished_by_the_sweeps() {
     let rep = s.solve(&rows, &mut out, &start, &room.with_setting(SolverSetting::RECOMMENDED));
     assert!(rep.converged, "{rep:?}");
 }
+
+#[test]
+fn auto_solves_with_the_fastest_measured_method_the_sweeps_so_far() {
+    // No size where the interior point wins is measured yet (AUTO_NEWTON_FROM), so `auto` is
+    // the recommended sweeps, step for step.
+    let (rows, bodies) = jammed();
+    let warm = vec![Impulse::default(); rows.len()];
+    let solve = |setting: SolverSetting| {
+        let mut out = bodies.clone();
+        let mut s = ContactSolver::new();
+        let rep = s.solve(&rows, &mut out, &warm, &params(setting));
+        (rep.factorisations, rep.sweeps, s.impulses().to_vec())
+    };
+    let (factorisations, sweeps, impulses) = solve(SolverSetting::AUTO);
+    assert_eq!(factorisations, 0);
+    assert_eq!((sweeps, impulses), {
+        let (_, sweeps, impulses) = solve(SolverSetting::RECOMMENDED);
+        (sweeps, impulses)
+    });
+}
