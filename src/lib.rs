@@ -128,23 +128,31 @@ pub fn text(out: &Output) -> String {
     )
 }
 
-/// Per-step rows of a metrics report (`steps.csv`): `(simulation, step) -> (sweeps, fallback,
-/// used model)`.
-pub fn report_steps(dir: &Path) -> std::collections::BTreeMap<(u32, u32), (u32, bool, String)> {
+/// The named `columns` of every row of a metrics report's `steps.csv`, in file order.
+pub fn report_columns(dir: &Path, columns: &[&str]) -> Vec<Vec<String>> {
     let file = dir.join("steps.csv");
     let text = std::fs::read_to_string(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("no column {name}"));
-    let (sim, step, sweeps, fallback, used) =
-        (col("simulation"), col("step"), col("sweeps"), col("fallback"), col("used_model"));
+    let at: Vec<usize> = columns
+        .iter()
+        .map(|name| header.iter().position(|h| h == name).unwrap_or_else(|| panic!("no column {name}")))
+        .collect();
     lines
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
-            (
-                (f[sim].parse().unwrap(), f[step].parse().unwrap()),
-                (f[sweeps].parse().unwrap(), f[fallback] == "true", f[used].to_string()),
-            )
+            at.iter().map(|&i| f[i].to_string()).collect()
+        })
+        .collect()
+}
+
+/// Per-step rows of a metrics report (`steps.csv`): `(simulation, step) -> (sweeps, fallback,
+/// used model)`.
+pub fn report_steps(dir: &Path) -> std::collections::BTreeMap<(u32, u32), (u32, bool, String)> {
+    report_columns(dir, &["simulation", "step", "sweeps", "fallback", "used_model"])
+        .into_iter()
+        .map(|f| {
+            ((f[0].parse().unwrap(), f[1].parse().unwrap()), (f[2].parse().unwrap(), f[3] == "true", f[4].clone()))
         })
         .collect()
 }

@@ -5,25 +5,17 @@
 //! fails is reported by name. Skipped, saying why, without python3 and the PyPI packages
 //! (`python/requirements.txt`), except under `DC_REQUIRE_ALL=1` (CI).
 
-use deep_contact::{bin, have_python, repo_root, scratch_dir, text};
+use deep_contact::{bin, have_python, repo_root, report_columns, scratch_dir, text};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// One row of `steps.csv`: (model, simulation, step) -> (sweeps, fallback).
 fn steps(report: &Path) -> BTreeMap<(String, u32, u32), (u32, bool)> {
-    let file = report.join("steps.csv");
-    let csv = std::fs::read_to_string(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
-    let mut lines = csv.lines();
-    let header: Vec<&str> = lines.next().expect("a header").split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("no column {name}"));
-    let (model, sim, step, sweeps, fallback) =
-        (col("model"), col("simulation"), col("step"), col("sweeps"), col("fallback"));
-    lines
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            let key = (f[model].to_string(), f[sim].parse().unwrap(), f[step].parse().unwrap());
-            (key, (f[sweeps].parse().unwrap(), f[fallback] == "true"))
+    report_columns(report, &["model", "simulation", "step", "sweeps", "fallback"])
+        .into_iter()
+        .map(|f| {
+            ((f[0].clone(), f[1].parse().unwrap(), f[2].parse().unwrap()), (f[3].parse().unwrap(), f[4] == "true"))
         })
         .collect()
 }

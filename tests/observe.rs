@@ -74,6 +74,12 @@ fn dc(args: &[&str]) -> Command {
     c
 }
 
+/// Ctrl-C to `child`, then [`finish`]: its output once it has stopped.
+fn interrupt(child: Child, limit: Duration, what: &str) -> Output {
+    let _ = Command::new("kill").arg("-INT").arg(child.id().to_string()).status();
+    finish(child, limit, what)
+}
+
 /// Waits for `child` at most `limit` (then kills it and fails, with what it said).
 fn finish(child: Child, limit: Duration, what: &str) -> Output {
     let pid = child.id();
@@ -268,8 +274,7 @@ fn dc_play_publishes_a_recording_that_echo_decodes() {
         let h: msgs::SolveStatsHeader = msgs::decode_header(&published[&key]).unwrap();
         assert_eq!(v["header"]["sweeps"], h.sweeps, "{key:?}");
     }
-    let _ = Command::new("kill").arg("-INT").arg(play.id().to_string()).status();
-    let out = finish(play, Duration::from_secs(30), "dc play");
+    let out = interrupt(play, Duration::from_secs(30), "dc play");
     assert!(out.status.success() || out.status.code() == Some(130), "{}", text(&out));
     let _ = std::fs::remove_dir_all(dir);
 }
@@ -387,15 +392,13 @@ fn an_attached_recorder_stopped_by_ctrl_c_leaves_a_finished_file() {
     stderr.read_line(&mut said).unwrap();
     assert!(said.starts_with("recording "), "{said}");
     std::thread::sleep(Duration::from_secs(2));
-    let _ = Command::new("kill").arg("-INT").arg(record.id().to_string()).status();
-    let out = finish(record, Duration::from_secs(30), "dc record -a after Ctrl-C");
+    let out = interrupt(record, Duration::from_secs(30), "dc record -a after Ctrl-C");
     assert!(out.status.success(), "{}", text(&out));
     let recorded = frames(&attached, "bodies");
     assert!(recorded.len() >= 50, "two seconds at 100 steps/s: {}", recorded.len());
     // The graph still runs (its writers are there), then stops on its own Ctrl-C.
     wait_for_writer(&namespace, "bodies", None);
-    let _ = Command::new("kill").arg("-INT").arg(graph_run.id().to_string()).status();
-    let out = finish(graph_run, Duration::from_secs(60), "the graph after Ctrl-C");
+    let out = interrupt(graph_run, Duration::from_secs(60), "the graph after Ctrl-C");
     assert!(out.status.code() == Some(130) || out.status.success(), "{}", text(&out));
     // Ctrl-C is how a user ends a graph: said as such, never as an error.
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -483,8 +486,7 @@ fn dc_play_into_a_live_graph_is_refused_unless_it_joins_with_its_runs_marked_as_
     // the new publisher are not delivered, later ones are.
     let joined = dc(&["play", fixture, "--namespace", &namespace, "--into-live", "--loop"]).spawn().unwrap();
     std::thread::sleep(Duration::from_millis(1500));
-    let _ = Command::new("kill").arg("-INT").arg(joined.id().to_string()).status();
-    let joined = finish(joined, Duration::from_secs(30), "dc play --into-live");
+    let joined = interrupt(joined, Duration::from_secs(30), "dc play --into-live");
     assert!(joined.status.success() || joined.status.code() == Some(130), "{}", text(&joined));
     let out = finish(graph_run, Duration::from_secs(120), "the graph");
     assert!(out.status.success(), "{}", text(&out));
@@ -518,8 +520,7 @@ fn dc_play_into_a_live_graph_is_refused_unless_it_joins_with_its_runs_marked_as_
     let late = Command::new(bin("dc")).arg("launch").arg(&file).args(["--namespace", &played]).output().unwrap();
     assert!(!late.status.success(), "{}", text(&late));
     assert!(String::from_utf8_lossy(&late.stderr).contains("dc play"), "{}", text(&late));
-    let _ = Command::new("kill").arg("-INT").arg(play.id().to_string()).status();
-    let _ = finish(play, Duration::from_secs(30), "dc play");
+    let _ = interrupt(play, Duration::from_secs(30), "dc play");
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -529,7 +530,7 @@ fn dc_play_into_a_live_graph_is_refused_unless_it_joins_with_its_runs_marked_as_
 fn node_list_and_topic_info_describe_a_running_graph() {
     let dir = scratch_dir("observe-info");
     let namespace = unique_namespace("observe-info");
-    let mut graph_run = start(&dir, "observed", &graph(&dir.join("run.mcap"), "", 100_000), &namespace);
+    let graph_run = start(&dir, "observed", &graph(&dir.join("run.mcap"), "", 100_000), &namespace);
     wait_for_writer(&namespace, "bodies", None);
 
     let out = dc(&["node", "list", "--namespace", &namespace]).output().unwrap();
@@ -559,8 +560,7 @@ fn node_list_and_topic_info_describe_a_running_graph() {
     let out = dc(&["topic", "info", "no/such"]).output().unwrap();
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("not a Deep Contact topic"));
 
-    let _ = Command::new("kill").arg("-INT").arg(graph_run.id().to_string()).status();
-    let _ = graph_run.wait();
+    let _ = interrupt(graph_run, Duration::from_secs(60), "the graph");
     let out = dc(&["node", "list", "--namespace", &namespace]).output().unwrap();
     assert!(!out.status.success(), "the graph is gone: {}", text(&out));
     let _ = std::fs::remove_dir_all(dir);
@@ -573,7 +573,7 @@ fn a_bridge_relays_a_shared_memory_topic_to_zenoh() {
     use runtime::zenoh::Wait;
     let dir = scratch_dir("observe-bridge");
     let namespace = unique_namespace("observe-bridge");
-    let mut graph_run = start(&dir, "observed", &graph(&dir.join("run.mcap"), "", 100_000), &namespace);
+    let graph_run = start(&dir, "observed", &graph(&dir.join("run.mcap"), "", 100_000), &namespace);
     wait_for_writer(&namespace, "stats/solve", None);
     let mut bridge =
         dc(&["topic", "bridge", "stats/solve", "--namespace", &namespace, "--count", "400"]).spawn().unwrap();
@@ -598,10 +598,8 @@ fn a_bridge_relays_a_shared_memory_topic_to_zenoh() {
     }
     assert!(steps.len() >= 20, "frames over zenoh: {steps:?}: {said}");
     assert!(steps.windows(2).all(|w| w[0] < w[1] || w[1] == 0), "in order: {steps:?}");
-    let _ = Command::new("kill").arg("-INT").arg(bridge.id().to_string()).status();
-    let _ = bridge.wait();
-    let _ = Command::new("kill").arg("-INT").arg(graph_run.id().to_string()).status();
-    let _ = graph_run.wait();
+    let _ = interrupt(bridge, Duration::from_secs(60), "dc topic bridge");
+    let _ = interrupt(graph_run, Duration::from_secs(60), "the graph");
     let _ = std::fs::remove_dir_all(dir);
 }
 

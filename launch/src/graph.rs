@@ -628,18 +628,7 @@ pub fn params_to_args(params: &toml::Table) -> Result<Vec<String>, String> {
     Ok(args)
 }
 
-/// Finds a node binary: next to the running `dc` first (a cargo target dir), then on `PATH`.
-pub fn find_binary(name: &str) -> Option<PathBuf> {
-    let direct = Path::new(name);
-    if direct.components().count() > 1 {
-        return direct.is_file().then(|| direct.to_path_buf());
-    }
-    let beside = std::env::current_exe().ok().and_then(|exe| exe.parent().map(|d| d.join(name)));
-    if let Some(p) = beside.filter(|p| p.is_file()) {
-        return Some(p);
-    }
-    std::env::var_os("PATH").and_then(|paths| std::env::split_paths(&paths).map(|d| d.join(name)).find(|p| p.is_file()))
-}
+pub use runtime::find_binary;
 
 impl Graph {
     /// Reads and checks a launch file. Parameter checks that need the node binaries run in

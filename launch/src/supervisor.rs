@@ -516,8 +516,8 @@ struct Supervisor<'a> {
     width: usize,
     barrier: BarrierState,
     hosts: HostWatch,
-    /// What `dc node list` was last told: each node's pid and state.
-    listed: Vec<(u32, String)>,
+    /// What `dc node list` was last told: each node's pid, exit status and whether it is done.
+    listed: Vec<(u32, Option<ExitStatus>, bool)>,
     /// Last: released after every node is stopped and the bus closed.
     namespace_lock: runtime::lock::NamespaceLock,
 }
@@ -668,24 +668,26 @@ impl<'a> Supervisor<'a> {
     /// Tells `dc node list` this host's nodes (beside the namespace lock) when one started,
     /// finished or was restarted since it was last told.
     fn list_nodes(&mut self) {
+        // Compared on every pass of the supervisor's loop: plain values, no text.
+        let unchanged = self.listed.len() == self.nodes.len()
+            && self.nodes.iter().zip(&self.listed).all(|(n, l)| *l == (n.child.id(), n.exited, n.done));
+        if unchanged {
+            return;
+        }
+        self.listed = self.nodes.iter().map(|n| (n.child.id(), n.exited, n.done)).collect();
         let state = |n: &Running| match (n.exited, n.done) {
             (Some(status), _) => status.to_string(),
             (None, true) => "done".to_string(),
             (None, false) => "running".to_string(),
         };
-        let now: Vec<(u32, String)> = self.nodes.iter().map(|n| (n.child.id(), state(n))).collect();
-        if now == self.listed {
-            return;
-        }
         let nodes = self
             .nodes
             .iter()
-            .zip(&now)
-            .map(|(n, (pid, state))| runtime::lock::NodeEntry {
+            .map(|n| runtime::lock::NodeEntry {
                 name: n.spec.name.clone(),
                 program: n.spec.program.display().to_string(),
-                pid: *pid,
-                state: state.clone(),
+                pid: n.child.id(),
+                state: state(n),
                 restarts: n.restarts,
             })
             .collect();
@@ -699,7 +701,6 @@ impl<'a> Supervisor<'a> {
         if let Err(e) = self.namespace_lock.list_nodes(&list) {
             tracing::debug!("cannot list the nodes for `dc node list`: {e}");
         }
-        self.listed = now;
     }
 
     /// While the nodes are not all ready: says whom the graph waits for every [`READY_NOTICE`],

@@ -204,21 +204,19 @@ pub fn bridge(args: &BridgeArgs) -> Result<()> {
         topics.join(", "),
         bus.key("<topic>")
     );
-    let mut relayed = 0u64;
-    while args.count.is_none_or(|n| relayed < n) {
+    let mut relayed = vec![0u64; topics.len()];
+    while args.count.is_none_or(|n| relayed.iter().sum::<u64>() < n) {
         let Some(event) = next_event(&observer) else { break };
         if let Some(Event::Frame(o)) = event {
             if let Some(cbor) = o.cbor {
                 publishers[o.topic].put(cbor).wait().map_err(|e| anyhow::anyhow!("zenoh put: {e}"))?;
-                relayed += 1;
+                relayed[o.topic] += 1;
             }
         }
     }
     observer.join()?;
     for (i, topic) in topics.iter().enumerate() {
-        let load = |a: &std::sync::atomic::AtomicU64| a.load(std::sync::atomic::Ordering::Relaxed);
-        let c = &observer.counts[i];
-        eprintln!("{topic}: {} frames relayed, {} dropped", load(&c.received), load(&c.dropped));
+        tally(&observer, i, topic, relayed[i]);
     }
     Ok(())
 }
@@ -274,8 +272,8 @@ fn next_event(observer: &Observer) -> Option<Option<Event>> {
 /// Says on stderr how many frames were used (`used`: printed or counted; the observer may have
 /// taken a few more before it stopped, which are not said), dropped (fell behind) and could not
 /// be decoded.
-fn tally(observer: &Observer, topic: &str, used: u64) {
-    let c = &observer.counts[0];
+fn tally(observer: &Observer, index: usize, topic: &str, used: u64) {
+    let c = &observer.counts[index];
     let load = |a: &std::sync::atomic::AtomicU64| a.load(std::sync::atomic::Ordering::Relaxed);
     if observer.graph_gone() {
         eprintln!("{topic}: the graph ended (no writer left)");
@@ -331,7 +329,7 @@ pub fn echo(args: &EchoArgs) -> Result<()> {
         }
     }
     observer.join()?;
-    tally(&observer, &args.topic, printed);
+    tally(&observer, 0, &args.topic, printed);
     Ok(())
 }
 
@@ -656,7 +654,7 @@ pub fn rate(args: &RateArgs, figure: Figure) -> Result<()> {
         }
     }
     observer.join()?;
-    tally(&observer, &args.topic, seen);
+    tally(&observer, 0, &args.topic, seen);
     Ok(())
 }
 

@@ -66,9 +66,15 @@ params = {{ seeds = "0", steps = {steps}, n = {BALLS}, model = "builtin" }}
 "#
         );
         std::fs::write(&file, toml).unwrap();
+        Graph::launch(&file, test, &dir)
+    }
+
+    /// `dc launch FILE` from folder `cwd`, in a namespace of its own, its output collected.
+    fn launch(file: &std::path::Path, test: &str, cwd: &std::path::Path) -> Graph {
         let mut child = Command::new(bin("dc"))
+            .current_dir(cwd)
             .arg("launch")
-            .arg(&file)
+            .arg(file)
             .args(["--namespace", &unique_namespace(test)])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -300,32 +306,20 @@ fn client_that_never_reads_does_not_stall_the_sim() {
 fn the_shipped_foxglove_graph_is_paced_and_two_start_at_once() {
     let _serial = serial();
     let file = deep_contact::repo_root().join("launch/foxglove.toml");
+    // Each bridge's port, from its log line `serving Foxglove url=ws://127.0.0.1:PORT`.
     let start = |name: &str| {
-        let mut child = Command::new(bin("dc"))
-            .current_dir("/")
-            .arg("launch")
-            .arg(&file)
-            .args(["--namespace", &unique_namespace(name)])
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("run dc");
-        let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+        let graph = Graph::launch(&file, name, std::path::Path::new("/"));
         let deadline = Instant::now() + Duration::from_secs(60);
-        let mut line = String::new();
         let port = loop {
-            line.clear();
-            use std::io::BufRead;
-            assert!(stderr.read_line(&mut line).unwrap() > 0 && Instant::now() < deadline, "no URL logged");
-            if let Some(at) = line.find("url=ws://127.0.0.1:") {
-                let rest = &line[at + "url=ws://127.0.0.1:".len()..];
+            let log = graph.output.lock().unwrap().clone();
+            if let Some(at) = log.find("url=ws://127.0.0.1:") {
+                let rest = &log[at + "url=ws://127.0.0.1:".len()..];
                 break rest.split(|c: char| !c.is_ascii_digit()).next().unwrap().parse::<u16>().unwrap();
             }
+            assert!(Instant::now() < deadline, "no URL logged: {log}");
+            std::thread::sleep(Duration::from_millis(50));
         };
-        // Keep draining the log so the graph never blocks on a full pipe.
-        std::thread::spawn(move || std::io::copy(&mut stderr, &mut std::io::sink()));
-        (child, port)
+        (graph, port)
     };
     let (mut a, port_a) = start("foxglove-shipped-a");
     let (mut b, port_b) = start("foxglove-shipped-b");
@@ -348,9 +342,10 @@ fn the_shipped_foxglove_graph_is_paced_and_two_start_at_once() {
             }
         });
     }
-    for child in [&mut a, &mut b] {
-        assert!(child.try_wait().unwrap().is_none(), "a paced graph is still running");
-        unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
-        let _ = child.wait();
+    for graph in [&mut a, &mut b] {
+        assert!(graph.child.try_wait().unwrap().is_none(), "a paced graph is still running");
+    }
+    for graph in [a, b] {
+        graph.finish(Duration::ZERO); // interrupted now: Ctrl-C
     }
 }

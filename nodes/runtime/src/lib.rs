@@ -470,6 +470,20 @@ pub fn exit(result: anyhow::Result<()>) -> std::process::ExitCode {
     }
 }
 
+/// Finds a node binary: next to the running executable first (a cargo target dir), then on
+/// `PATH`; a path (`scripts/node.py`) is taken as it is.
+pub fn find_binary(name: &str) -> Option<std::path::PathBuf> {
+    let direct = std::path::Path::new(name);
+    if direct.components().count() > 1 {
+        return direct.is_file().then(|| direct.to_path_buf());
+    }
+    let beside = std::env::current_exe().ok().and_then(|exe| exe.parent().map(|d| d.join(name)));
+    if let Some(p) = beside.filter(|p| p.is_file()) {
+        return Some(p);
+    }
+    std::env::var_os("PATH").and_then(|paths| std::env::split_paths(&paths).map(|d| d.join(name)).find(|p| p.is_file()))
+}
+
 /// The project's folder, where its shipped files lie (`models/`, `launch/`, `python/`): `DC_HOME`
 /// if set, else the checkout these binaries were built from.
 pub fn project_root() -> std::path::PathBuf {

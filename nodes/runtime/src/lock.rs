@@ -136,9 +136,7 @@ impl NamespaceLock {
     /// whole, never seen half written), removed with the lock.
     pub fn list_nodes(&self, nodes: &GraphNodes) -> std::io::Result<()> {
         let json = serde_json::to_vec_pretty(nodes).map_err(std::io::Error::other)?;
-        let (path, partial) = (self.path.with_extension("nodes"), self.path.with_extension("nodes.partial"));
-        std::fs::write(&partial, json)?;
-        std::fs::rename(partial, path)
+        crate::files::replace_file(&self.path.with_extension("nodes"), &json)
     }
 
     /// The node lists of the graphs holding a namespace on this machine now (all, or those of
@@ -156,7 +154,7 @@ impl NamespaceLock {
                 continue; // held by no one: its launcher is gone
             }
             // A list is small; a foreign file there is read to a bound, never whole.
-            let Ok(bytes) = read_bounded(&path, 1 << 20) else { continue };
+            let Ok(bytes) = crate::files::read_bounded(&path, "node list", 1 << 20) else { continue };
             let Ok(graph) = serde_json::from_slice::<GraphNodes>(&bytes) else { continue };
             if namespace.is_none_or(|ns| ns == graph.namespace) {
                 graphs.push(graph);
@@ -235,17 +233,6 @@ impl NamespaceLock {
         }
         Ok(lock)
     }
-}
-
-/// A file's bytes, refused when longer than `max`.
-fn read_bounded(path: &std::path::Path, max: u64) -> std::io::Result<Vec<u8>> {
-    use std::io::Read;
-    let mut bytes = Vec::new();
-    std::fs::File::open(path)?.take(max + 1).read_to_end(&mut bytes)?;
-    if bytes.len() as u64 > max {
-        return Err(std::io::Error::other(format!("longer than {max} bytes")));
-    }
-    Ok(bytes)
 }
 
 #[cfg(test)]

@@ -468,8 +468,8 @@ fn record(args: &Args) -> anyhow::Result<()> {
 /// `dc-foxglove viz` (found beside this binary, then on PATH), and says where and how long it took.
 fn foxglove_view(recording: &std::path::Path) -> anyhow::Result<()> {
     let view = recording.with_extension("foxglove.mcap");
-    let beside = std::env::current_exe().ok().and_then(|e| e.parent().map(|d| d.join("dc-foxglove")));
-    let program = beside.filter(|p| p.is_file()).unwrap_or_else(|| PathBuf::from("dc-foxglove"));
+    let program = runtime::find_binary("dc-foxglove")
+        .context("the Foxglove view needs dc-foxglove beside dc-record or on PATH (cargo build --workspace --bins)")?;
     let started = Instant::now();
     let out =
         std::process::Command::new(&program).arg("viz").arg(recording).arg(&view).output().with_context(|| {
