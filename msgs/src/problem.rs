@@ -91,8 +91,9 @@ pub struct ProblemHeader {
     /// Row order: 0 recorded, 1 top-down (absent in older recordings: recorded).
     #[serde(default)]
     pub order: u32,
-    /// Stopping rule: 0 the largest change of a sweep, 1 the natural residual (absent in older
-    /// recordings: the change rule, the only one then).
+    /// Stopping rule: 0 the largest change of a sweep, 1 the natural residual, 2 the natural
+    /// residual relative to the warm start's RMS impulse (absent in older recordings: the change
+    /// rule, the only one then).
     #[serde(default)]
     pub stop: u32,
     /// How it was solved: 0 sweeps (the fields above), 1 Newton, 2 Newton from 200 dynamic

@@ -90,6 +90,7 @@ fn probe(args: Args) -> Result<()> {
             warm_start: &warm_start,
             compliance: problem.header.compliance,
             tolerance: problem.header.tolerance,
+            deadline: None,
         };
         print!("step {step:3} rows {:4} sweeps {:5}", rows.len(), report.sweeps);
         for ((t, solver), total) in tunings.iter().zip(&mut solvers).zip(&mut totals) {

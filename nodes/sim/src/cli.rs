@@ -180,6 +180,12 @@ pub struct SolveArgs {
     /// Linear slop of the position pass.
     #[arg(long, default_value_t = 0.0005, value_parser = non_negative_f32)]
     pub slop: f32,
+    /// A wall-time budget per solve, milliseconds (the real-time regime at a fixed time a
+    /// step): each solve stops at the tolerance or once the budget is spent, whichever comes
+    /// first. Runs are then no longer bit for bit repeatable (they follow the clock). The
+    /// oracle and the reference solves never have one.
+    #[arg(long, value_parser = positive_f32)]
+    pub time_budget_ms: Option<f32>,
 }
 
 impl SolveArgs {
@@ -199,6 +205,7 @@ impl SolveArgs {
             compliance: self.compliance,
             stop: if budget.is_some() { StopRule::Natural } else { self.stop },
             friction: self.friction,
+            time_budget_us: self.time_budget_ms.map(|ms| ms * 1e3),
             ..SolveParams::default()
         }
         .with_setting(setting);
@@ -208,6 +215,7 @@ impl SolveArgs {
             tolerance: self.oracle_tolerance,
             max_sweeps: self.oracle_max_sweeps,
             stop: StopRule::Change,
+            time_budget_us: None,
             ..solve
         };
         let mut p = WorldParams { solve, oracle, ..WorldParams::default() };

@@ -83,7 +83,11 @@ pub fn header_of(step: StepHeader, bodies: u32, solve: &SolveParams) -> ProblemH
         momentum,
         restart,
         order: (solve.order == RowOrder::Down) as u32,
-        stop: (solve.stop == StopRule::Natural) as u32,
+        stop: match solve.stop {
+            StopRule::Change => 0,
+            StopRule::Natural => 1,
+            StopRule::Relative => 2,
+        },
         method: match solve.method {
             Method::Sweeps => 0,
             Method::Newton => 1,
@@ -106,7 +110,11 @@ impl Problem {
             relaxation: msgs::recorded_relaxation(h.relaxation),
             momentum: if h.momentum == 1 { Momentum::Nncg { restart: h.restart } } else { Momentum::None },
             order: if h.order == 1 { RowOrder::Down } else { RowOrder::Recorded },
-            stop: if h.stop == 1 { StopRule::Natural } else { StopRule::Change },
+            stop: match h.stop {
+                1 => StopRule::Natural,
+                2 => StopRule::Relative,
+                _ => StopRule::Change,
+            },
             method: match h.method {
                 1 => Method::Newton,
                 2 => Method::Auto,
@@ -114,6 +122,8 @@ impl Problem {
                 _ => Method::Sweeps,
             },
             friction: if h.friction == 1 { FrictionModel::PerStep } else { FrictionModel::Box },
+            // A recorded problem is re-solved to its tolerance, never against a clock.
+            time_budget_us: None,
         }
     }
 

@@ -20,7 +20,7 @@ pub use msgs::ErrorSplit;
 use msgs::{Accuracy, StepStats};
 use sim::error::SimError;
 use sim::scene::SceneConfig;
-use sim::solver::{SolveParams, StopRule};
+use sim::solver::{SolveParams, SolverSetting, StopRule};
 use sim::warm::{ModelFiles, ModelKind, ModelSpec, Served, WarmStarter};
 use sim::world::{World, WorldParams};
 
@@ -55,6 +55,9 @@ pub struct BudgetSpec {
     /// step keeps the median of its repeats' warm-start and solve times. The runs are
     /// deterministic, so the repeats take the same steps; only their timings differ.
     pub timing_repeats: u32,
+    /// A second curve: builtin's warm start with this solver (the best classical iteration,
+    /// say NNCG), so that every model is also placed against it at equal accuracy.
+    pub against: Option<SolverSetting>,
 }
 
 impl BudgetSpec {
@@ -84,6 +87,7 @@ impl BudgetSpec {
             tolerance: self.reference_tolerance,
             max_sweeps: REFERENCE_MAX_SWEEPS,
             stop: StopRule::Natural,
+            time_budget_us: None,
             ..self.params.solve
         }
         .with_setting(sim::SolverSetting::RECOMMENDED)
@@ -205,31 +209,44 @@ pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) ->
         steps: Vec::new(),
         split: ErrorSplit::default(),
     }];
-    let mut plan: Vec<(ModelSpec, u32)> = spec.curve_budgets().into_iter().map(|k| (builtin, k)).collect();
-    for &k in &spec.budgets {
-        plan.extend(spec.models.iter().filter(|m| m.kind != ModelKind::Builtin).map(|&m| (m, k)));
+    // (model, budget, the solver when not the study's)
+    let mut plan: Vec<(ModelSpec, u32, Option<SolverSetting>)> =
+        spec.curve_budgets().into_iter().map(|k| (builtin, k, None)).collect();
+    if let Some(other) = spec.against {
+        plan.extend(spec.curve_budgets().into_iter().map(|k| (builtin, k, Some(other))));
     }
-    for (m, k) in &plan {
+    for &k in &spec.budgets {
+        plan.extend(spec.models.iter().filter(|m| m.kind != ModelKind::Builtin).map(|&m| (m, k, None)));
+    }
+    for (m, k, other) in &plan {
+        let model = match other {
+            Some(other) => against_model(*other),
+            None => m.name(),
+        };
         runs.push(BudgetRun {
-            label: format!("{}@{k}", m.name()),
-            model: m.name(),
+            label: format!("{model}@{k}"),
+            model,
             budget: *k,
             steps: Vec::new(),
             split: ErrorSplit::default(),
         });
     }
+    let solve_at = |k: u32, other: Option<SolverSetting>| match other {
+        Some(other) => spec.at_budget(k).with_setting(other),
+        None => spec.at_budget(k),
+    };
     for &seed in seeds {
         runs[0].steps.extend(run_seed(spec, seed, &builtin, spec.reference())?);
         // Every run once, then every run again: a slow spell of the machine falls on all of them.
         let mut repeats: Vec<Vec<Vec<StepStats>>> = vec![Vec::new(); plan.len()];
         for _ in 0..spec.timing_repeats.max(1) {
-            for (timed, (m, k)) in repeats.iter_mut().zip(&plan) {
-                timed.push(run_seed(spec, seed, m, spec.at_budget(*k))?);
+            for (timed, (m, k, other)) in repeats.iter_mut().zip(&plan) {
+                timed.push(run_seed(spec, seed, m, solve_at(*k, *other))?);
             }
         }
-        for ((run, (m, k)), timed) in runs[1..].iter_mut().zip(&plan).zip(repeats) {
+        for ((run, (m, k, other)), timed) in runs[1..].iter_mut().zip(&plan).zip(repeats) {
             run.steps.extend(median_timings(&run.label, timed)?);
-            if spec.error_split && spec.budgets.contains(k) {
+            if spec.error_split && spec.budgets.contains(k) && other.is_none() {
                 let s = split_seed(spec, seed, m, spec.at_budget(*k))?;
                 run.split.add(&s);
             }
@@ -373,7 +390,17 @@ pub fn summaries(runs: &[BudgetRun]) -> Vec<RunSummary> {
 
 /// Builtin's curve of `f` against budget, from the summaries.
 pub fn curve(summaries: &[RunSummary], f: impl Fn(&RunSummary) -> f64) -> Vec<(f64, f64)> {
-    summaries.iter().filter(|s| s.model == "builtin" && s.budget > 0).map(|s| (s.budget as f64, f(s))).collect()
+    curve_of(summaries, "builtin", f)
+}
+
+/// The curve of `f` against budget of the runs of `model`.
+fn curve_of(summaries: &[RunSummary], model: &str, f: impl Fn(&RunSummary) -> f64) -> Vec<(f64, f64)> {
+    summaries.iter().filter(|s| s.model == model && s.budget > 0).map(|s| (s.budget as f64, f(s))).collect()
+}
+
+/// The model name of builtin's runs with the solver `other` (`--against`): `builtin+nncg`.
+pub fn against_model(other: SolverSetting) -> String {
+    format!("builtin+{other}")
 }
 
 /// The study's tables as markdown: builtin's curve, each judged budget's models placed on it,
@@ -382,6 +409,13 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
     let rms = curve(summaries, |s| s.accuracy.natural_rms);
     let time = curve(summaries, |s| s.critical_us);
     let median_time = curve(summaries, |s| s.critical_median_us);
+    // The second curve (--against), if the study ran one.
+    let against = summaries.iter().find_map(|s| s.model.strip_prefix("builtin+")).map(|name| {
+        let model = format!("builtin+{name}");
+        let rms = curve_of(summaries, &model, |s| s.accuracy.natural_rms);
+        let median_time = curve_of(summaries, &model, |s| s.critical_median_us);
+        (name.to_string(), rms, median_time)
+    });
     let mut out = String::from(
         "## Builtin's curve: accuracy after the budget\n\n\"critical path\": warm start + solve, the mean over the steps and the median over the steps with contacts.\n\n| budget | mean sweeps | RMS natural residual | max natural residual | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | critical path (us/step) | critical path, median (us) |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
@@ -412,9 +446,17 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
             r.critical_median_us
         );
     }
+    let (against_head, against_note) = match &against {
+        Some((name, _, _)) => (
+            format!(" vs {name} at equal accuracy |"),
+            format!(" \"vs {name}\": the same ratio against builtin's start solved by {name} (its own curve, run beside builtin's): whether the model also beats the better iteration."),
+        ),
+        None => (String::new(), String::new()),
+    };
     for &k in budgets {
         out += &format!(
-            "\n## At {k} sweeps, placed on builtin's curve\n\n\"time at equal accuracy\": what a user buys, the model's critical path (warm start, inference included, and solve; median over the steps with contacts) over builtin's at the budget where builtin is as accurate (\"< r\": builtin is never as accurate on its curve, r at its top; \"-\": less accurate than builtin at one sweep); \"worth\": the budget at which builtin's RMS natural residual equals the model's at {k} (log-log interpolation); \"builtin's time there\": builtin's critical path at that budget (mean, and median over the steps with contacts); \"blend F\": the fraction of builtin's error an oracle blend must remove to leave the same RMS natural residual at {k} (interpolated between the blends run).\n\n| model | time at equal accuracy | RMS natural residual | worth (sweeps) | critical path (us/step) | builtin's time there (us/step) | critical path, median (us) | builtin's median there (us) | blend F | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | fallbacks |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+            "\n## At {k} sweeps, placed on builtin's curve\n\n\"time at equal accuracy\": what a user buys, the model's critical path (warm start, inference included, and solve; median over the steps with contacts) over builtin's at the budget where builtin is as accurate (\"< r\": builtin is never as accurate on its curve, r at its top; \"-\": less accurate than builtin at one sweep); \"worth\": the budget at which builtin's RMS natural residual equals the model's at {k} (log-log interpolation); \"builtin's time there\": builtin's critical path at that budget (mean, and median over the steps with contacts); \"blend F\": the fraction of builtin's error an oracle blend must remove to leave the same RMS natural residual at {k} (interpolated between the blends run).{against_note}\n\n| model | time at equal accuracy |{against_head} RMS natural residual | worth (sweeps) | critical path (us/step) | builtin's time there (us/step) | critical path, median (us) | builtin's median there (us) | blend F | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | fallbacks |\n|---|---:|{}---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+            if against.is_some() { "---:|" } else { "" }
         );
         let blends: Vec<(f64, f64)> = summaries
             .iter()
@@ -431,8 +473,14 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
                 _ => ("-".into(), "-".into()),
             };
             let buys = time_ratio_cell(time_ratio(&rms, &median_time, s.accuracy.natural_rms, s.critical_median_us));
+            let buys_against = match &against {
+                Some((_, rms, time)) => {
+                    format!(" {} |", time_ratio_cell(time_ratio(rms, time, s.accuracy.natural_rms, s.critical_median_us)))
+                }
+                None => String::new(),
+            };
             out += &format!(
-                "| {} | {buys} | {} | {w} | {:.1} | {there} | {:.1} | {median_there} | {} | {} | {} | {} | {} |\n",
+                "| {} | {buys} |{buys_against} {} | {w} | {:.1} | {there} | {:.1} | {median_there} | {} | {} | {} | {} | {} |\n",
                 s.model,
                 num(s.accuracy.natural_rms),
                 s.critical_us,
@@ -580,6 +628,7 @@ mod tests {
             reference_tolerance: 1e-6,
             error_split: false,
             timing_repeats: 1,
+            against: None,
         }
     }
 
@@ -686,6 +735,29 @@ mod tests {
     }
 
     #[test]
+    fn a_second_curve_places_every_model_against_the_better_iteration_too() {
+        let mut spec = spec("pgs", vec![4], 150);
+        spec.against = Some("nncg:1.2/down".parse().unwrap());
+        let runs = study(&spec, &[7], |_| {}).unwrap();
+        let summaries = summaries(&runs);
+        let of = |label: &str| summaries.iter().find(|s| s.label == label).unwrap_or_else(|| panic!("{label}"));
+        // The second curve is builtin's start solved by NNCG: the same budgets, its own accuracy.
+        let (pgs, nncg) = (of("builtin@4"), of("builtin+nncg:1.2/down@4"));
+        assert_ne!(pgs.accuracy.natural_rms, nncg.accuracy.natural_rms);
+        assert_eq!(
+            summaries.iter().filter(|s| s.model == "builtin+nncg:1.2/down").count(),
+            summaries.iter().filter(|s| s.model == "builtin" && s.budget > 0).count()
+        );
+        // PGS's own curve is not mixed with it.
+        assert_eq!(curve(&summaries, |s| s.accuracy.natural_rms).len(), spec.curve_budgets().len());
+        let table = markdown(&summaries, &spec.budgets);
+        assert!(table.contains("| vs nncg:1.2/down at equal accuracy |"), "{table}");
+        // Builtin's own row at 4 is 1.00x against its own curve.
+        let row = table.lines().find(|l| l.starts_with("| builtin | ")).unwrap();
+        assert!(row.starts_with("| builtin | 1.00x |"), "{row}");
+    }
+
+    #[test]
     fn the_curve_reaches_sixteen_times_each_budget() {
         let spec = BudgetSpec {
             scene: SceneConfig::default(),
@@ -697,6 +769,7 @@ mod tests {
             reference_tolerance: 1e-6,
             error_split: false,
             timing_repeats: 1,
+            against: None,
         };
         assert_eq!(spec.curve_budgets(), vec![1, 2, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128]);
         assert_eq!(phase_labels(), ["0-99", "100-149", "150-end"]);

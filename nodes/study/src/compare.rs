@@ -61,7 +61,29 @@ pub struct ComparedStep {
     pub features: StepFeatures,
     /// What extracting the features took, microseconds (a chooser pays it every step).
     pub features_us: f32,
+    /// The trajectory's kinetic energy after the step (J): whether the pile has settled.
+    pub kinetic_energy: f32,
     pub solves: Vec<MenuSolve>,
+}
+
+/// Which steps the menu solves: every `every`-th from `from` (the trajectory runs every step).
+/// A deep pile's slowest solvers are compared on a sample of its steps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Sampling {
+    pub from: u32,
+    pub every: u32,
+}
+
+impl Sampling {
+    pub const EVERY_STEP: Sampling = Sampling { from: 0, every: 1 };
+
+    pub fn includes(&self, step: u32) -> bool {
+        step >= self.from && (step - self.from).is_multiple_of(self.every.max(1))
+    }
+
+    pub fn is_every_step(&self) -> bool {
+        *self == Sampling::EVERY_STEP
+    }
 }
 
 /// The comparison's scene, parameters and seeds.
@@ -73,6 +95,8 @@ pub struct CompareSpec {
     pub steps: u32,
     /// The menu; the first drives the trajectory and is what the others are compared with.
     pub menu: Vec<SolverSetting>,
+    /// The steps the menu solves.
+    pub sampling: Sampling,
 }
 
 impl CompareSpec {
@@ -82,8 +106,8 @@ impl CompareSpec {
     }
 }
 
-/// Every step of `seeds` solved by every setting of the menu from builtin's warm start, the
-/// trajectory driven by the first with builtin's warm start; `progress` after each simulation.
+/// Every sampled step of `seeds` solved by every setting of the menu from builtin's warm start,
+/// the trajectory driven by the first with builtin's warm start; `progress` after each simulation.
 pub fn same_states(
     spec: &CompareSpec,
     seeds: &[u64],
@@ -97,11 +121,24 @@ pub fn same_states(
         let mut warm = ModelKind::Builtin.starter(seed)?;
         warm.begin_simulation(seed as u32, seed);
         for step in 0..spec.steps {
+            let sampled = spec.sampling.includes(step);
+            if !spec.sampling.is_every_step() {
+                world.solver_menu(if sampled { menu.clone() } else { Vec::new() });
+            }
             let started = Instant::now();
             let features = StepFeatures::of(&world);
             let features_us = started.elapsed().as_secs_f32() * 1e6;
             world.step(&mut warm);
-            out.push(ComparedStep { seed, step, features, features_us, solves: world.menu_solves().to_vec() });
+            if sampled {
+                out.push(ComparedStep {
+                    seed,
+                    step,
+                    features,
+                    features_us,
+                    kinetic_energy: world.stats().kinetic_energy,
+                    solves: world.menu_solves().to_vec(),
+                });
+            }
         }
         progress(seed);
     }
@@ -309,6 +346,9 @@ pub struct SameStatesRow {
     pub per_phase: Vec<u64>,
     /// The largest ratio of a seed's sweeps to the first setting's on the same seed.
     pub worst_seed: f64,
+    /// The accuracy reached: the steps' RMS natural residual (over rows), mean over the steps
+    /// with contacts (what a time budget per step buys).
+    pub natural_rms: f64,
 }
 
 /// The first steps of the phases after the first (the report's default phases: falling,
@@ -333,10 +373,16 @@ pub fn same_states_row(
         capped: 0,
         per_phase: vec![0; PHASE_STARTS.len() + 1],
         worst_seed: 0.0,
+        natural_rms: 0.0,
     };
     let mut seeds: std::collections::BTreeMap<u64, (u64, u64)> = Default::default();
+    let mut with_contacts = 0u64;
     for s in steps {
         let (solve, extra_us) = pick(s);
+        if s.features.0[0] > 0.0 {
+            row.natural_rms += solve.natural_rms as f64;
+            with_contacts += 1;
+        }
         row.sweeps += solve.sweeps as u64;
         row.solve_us += solve.us as f64 + extra_us;
         row.capped += (!solve.converged) as u32;
@@ -345,6 +391,7 @@ pub fn same_states_row(
         e.0 += solve.sweeps as u64;
         e.1 += s.solves[0].sweeps as u64;
     }
+    row.natural_rms /= with_contacts.max(1) as f64;
     row.worst_seed = seeds.values().map(|&(own, first)| own as f64 / first.max(1) as f64).fold(0.0, f64::max);
     row
 }
@@ -373,7 +420,7 @@ pub fn same_states_table(
 pub fn markdown(rows: &[SameStatesRow]) -> String {
     let first = &rows[0];
     let mut out = String::from(
-        "| solver | sweeps | vs first | solve time (s) | vs first | capped steps | steps 0-99 | 100-149 | 150- | worst seed |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| solver | sweeps | vs first | solve time (s) | vs first | capped steps | RMS natural residual | steps 0-99 | 100-149 | 150- | worst seed |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         let phases: Vec<String> = r
@@ -383,18 +430,32 @@ pub fn markdown(rows: &[SameStatesRow]) -> String {
             .map(|(own, base)| format!("{:.3}x", *own as f64 / (*base).max(1) as f64))
             .collect();
         out += &format!(
-            "| {} | {} | {:.3}x | {:.2} | {:.3}x | {} | {} | {:.3}x |\n",
+            "| {} | {} | {:.3}x | {:.2} | {:.3}x | {} | {:.2e} | {} | {:.3}x |\n",
             r.name,
             r.sweeps,
             r.sweeps as f64 / first.sweeps.max(1) as f64,
             r.solve_us / 1e6,
             r.solve_us / first.solve_us.max(1e-9),
             r.capped,
+            r.natural_rms,
             phases.join(" | "),
             r.worst_seed,
         );
     }
     out
+}
+
+/// Whether the pile has settled by the end: the trajectory's mean and largest kinetic energy
+/// (J) over the compared steps among each seed's last 100, in words.
+pub fn settling(steps: &[ComparedStep], total_steps: u32) -> String {
+    let late: Vec<f64> =
+        steps.iter().filter(|s| s.step + 100 >= total_steps).map(|s| s.kinetic_energy as f64).collect();
+    if late.is_empty() {
+        return "no compared step among the last 100".to_string();
+    }
+    let mean = late.iter().sum::<f64>() / late.len() as f64;
+    let max = late.iter().copied().fold(0.0, f64::max);
+    format!("kinetic energy over the last 100 steps ({} compared steps): mean {mean:.3} J, largest {max:.3} J", late.len())
 }
 
 /// The per-step CSV: seed, step, the features, then sweeps and microseconds per setting.
@@ -404,18 +465,18 @@ pub fn csv(menu: &[SolverSetting], steps: &[ComparedStep]) -> String {
         out += &format!(",{name}");
     }
     for s in menu {
-        out += &format!(",{s} sweeps,{s} us,{s} converged");
+        out += &format!(",{s} sweeps,{s} us,{s} converged,{s} natural max,{s} natural rms");
     }
-    out.push('\n');
+    out += ",kinetic_energy\n";
     for c in steps {
         out += &format!("{},{}", c.seed, c.step);
         for x in c.features.0 {
             out += &format!(",{x}");
         }
         for m in &c.solves {
-            out += &format!(",{},{:.2},{}", m.sweeps, m.us, m.converged as u8);
+            out += &format!(",{},{:.2},{},{:e},{:e}", m.sweeps, m.us, m.converged as u8, m.natural_max, m.natural_rms);
         }
-        out.push('\n');
+        out += &format!(",{}\n", c.kinetic_energy);
     }
     out
 }

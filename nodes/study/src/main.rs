@@ -52,6 +52,13 @@ struct SolversArgs {
     /// Also run every seed with each setting (and the learned choice) driving its own trajectory.
     #[arg(long)]
     whole_runs: bool,
+    /// Compare on every E-th step only (from --sample-from); the trajectory runs every step.
+    /// For deep piles, where the slowest settings would take hours on every step.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    sample_every: u32,
+    /// The first compared step.
+    #[arg(long, default_value_t = 0)]
+    sample_from: u32,
     /// The folder for `solvers.md`, `solver-steps.csv` and `solver-sweeps.png` (mean sweeps per
     /// step by solver).
     #[arg(long)]
@@ -91,6 +98,10 @@ struct BudgetArgs {
     /// machine's load).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=15))]
     timing_repeats: u32,
+    /// Also run builtin's curve with this solver (`nncg:1.2/down`) and place every model on it
+    /// too: whether a learned start with --solver beats the better iteration at equal accuracy.
+    #[arg(long, value_parser = |s: &str| s.parse::<SolverSetting>())]
+    against: Option<SolverSetting>,
     /// The folder for `budget.md`, `budget-steps.csv` and `budget-accuracy.png`.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -143,6 +154,7 @@ impl BudgetArgs {
             reference_tolerance: self.reference_tolerance,
             error_split: self.error_split,
             timing_repeats: self.timing_repeats,
+            against: self.against,
         })
     }
 }
@@ -163,6 +175,9 @@ fn check(cli: &Cli) -> Result<()> {
             let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
             if let Some(list) = &a.train_seeds {
                 training_seeds(list)?;
+            }
+            if a.sample_from >= a.scene.steps {
+                bail!("--sample-from {}: the runs have {} steps, so no step would be compared", a.sample_from, a.scene.steps);
             }
             sim::Scene::build(&a.scene.scene_config(seeds[0])).context("building the scene")?;
         }
@@ -212,15 +227,23 @@ fn solvers(args: &SolversArgs) -> Result<()> {
         params: args.solve.world_params(None),
         steps: args.scene.steps,
         menu: menu.clone(),
+        sampling: compare::Sampling { from: args.sample_from, every: args.sample_every },
     };
-    let describe = format!(
-        "{} steps, stop {} <= {}, cap {}, {} bodies",
+    let mut describe = format!(
+        "{} steps, stop {} <= {}, cap {}, friction {}, {} bodies",
         args.scene.steps,
         spec.params.solve.stop.name(),
         spec.params.solve.tolerance,
         spec.params.solve.max_sweeps,
+        spec.params.solve.friction,
         args.scene.n
     );
+    if let Some(us) = spec.params.solve.time_budget_us {
+        describe += &format!(", at most {:.3} ms a solve", us / 1e3);
+    }
+    if !spec.sampling.is_every_step() {
+        describe += &format!(", compared on every {}th step from step {}", args.sample_every, args.sample_from);
+    }
     let chooser = match &args.train_seeds {
         Some(list) => {
             let train = training_seeds(list)?;
@@ -252,6 +275,7 @@ fn solvers(args: &SolversArgs) -> Result<()> {
             shares.join(", ")
         );
     }
+    report += &format!("\nSettling: {}.\n", compare::settling(&steps, args.scene.steps));
     if args.whole_runs {
         let mut whole = Vec::new();
         let choices = menu.iter().map(|&s| (s.to_string(), compare::Choice::Fixed(s)));

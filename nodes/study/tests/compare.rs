@@ -18,6 +18,7 @@ fn the_menu_on_the_trajectory_solvers_own_states_repeats_its_sweeps() {
         params: natural("pgs", 1e-4),
         steps: 120,
         menu: ["pgs", "sor:1.4/down", "nncg"].iter().map(|s| s.parse().unwrap()).collect(),
+        sampling: compare::Sampling::EVERY_STEP,
     };
     let steps = compare::same_states(&spec, &[40, 41], |_| ()).unwrap();
     assert_eq!(steps.len(), 240);
@@ -34,7 +35,7 @@ fn the_menu_on_the_trajectory_solvers_own_states_repeats_its_sweeps() {
 fn the_chooser_learns_which_setting_a_feature_favours() {
     // Two settings; the first is cheap when the pile is high (feature 2), the second otherwise.
     let menu: Vec<SolverSetting> = vec!["pgs".parse().unwrap(), "sor:1.4".parse().unwrap()];
-    let solve = |sweeps| sim::world::MenuSolve { sweeps, converged: true, us: sweeps as f32, natural_max: 0.0 };
+    let solve = |sweeps| sim::world::MenuSolve { sweeps, converged: true, us: sweeps as f32, natural_max: 0.0, natural_rms: 0.0 };
     let steps: Vec<compare::ComparedStep> = (0..200)
         .map(|i| {
             let height = (i % 10) as f64;
@@ -42,7 +43,14 @@ fn the_chooser_learns_which_setting_a_feature_favours() {
             features.0[2] = height;
             features.0[0] = (i % 7) as f64; // noise the regression must ignore
             let (a, b) = if height >= 5.0 { (10, 40) } else { (40, 10) };
-            compare::ComparedStep { seed: 1000, step: i, features, features_us: 0.0, solves: vec![solve(a), solve(b)] }
+            compare::ComparedStep {
+                seed: 1000,
+                step: i,
+                features,
+                features_us: 0.0,
+                kinetic_energy: 0.0,
+                solves: vec![solve(a), solve(b)],
+            }
         })
         .collect();
     let chooser = SolverChooser::fit(&menu, &steps).unwrap();
@@ -54,4 +62,29 @@ fn the_chooser_learns_which_setting_a_feature_favours() {
         }
     }
     assert!(SolverChooser::fit(&menu, &steps[..5]).unwrap_err().to_string().contains("training steps"));
+}
+
+#[test]
+fn a_sampled_comparison_solves_the_same_states_on_the_sampled_steps_only() {
+    // The trajectory runs every step whatever is compared: the sampled steps' solves are the
+    // full comparison's on those steps, sweep for sweep and bit for bit in the residual.
+    let full = CompareSpec {
+        scene: SceneConfig::default(),
+        params: natural("nncg:1.2/down", 1e-4),
+        steps: 120,
+        menu: ["nncg:1.2/down", "pgs"].iter().map(|s| s.parse().unwrap()).collect(),
+        sampling: compare::Sampling::EVERY_STEP,
+    };
+    let sampled = CompareSpec { sampling: compare::Sampling { from: 50, every: 10 }, ..full.clone() };
+    let all = compare::same_states(&full, &[42], |_| ()).unwrap();
+    let some = compare::same_states(&sampled, &[42], |_| ()).unwrap();
+    assert_eq!(some.iter().map(|s| s.step).collect::<Vec<_>>(), vec![50, 60, 70, 80, 90, 100, 110]);
+    for s in &some {
+        let same = &all[s.step as usize];
+        assert_eq!((s.kinetic_energy, s.features), (same.kinetic_energy, same.features), "step {}", s.step);
+        for (a, b) in s.solves.iter().zip(&same.solves) {
+            assert_eq!((a.sweeps, a.natural_max, a.natural_rms), (b.sweeps, b.natural_max, b.natural_rms));
+        }
+    }
+    assert!(compare::settling(&some, 120).contains("(7 compared steps)"), "{}", compare::settling(&some, 120));
 }

@@ -40,6 +40,7 @@ use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, Symbol
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{ColMut, Conj, Par, Side};
 use rapier2d::math::Vec2;
+use std::time::Instant;
 
 /// Why a Newton solve was refused or failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -201,6 +202,8 @@ pub struct NewtonProblem<'a> {
     pub compliance: f32,
     /// Natural residual (max over rows) to reach.
     pub tolerance: f32,
+    /// Stop at the first check past this instant (the real-time regime), converged or not.
+    pub deadline: Option<Instant>,
 }
 
 impl NewtonSolver {
@@ -239,7 +242,11 @@ impl NewtonSolver {
         // moves the impulses; bounded all the same.
         let max_outer = 2 * params.max_iterations;
         let (mut rho, mut weighted) = (params.rho_start.min(params.rho), f64::NAN);
-        while residual > tolerance && stats.iterations < params.max_iterations && stats.outer < max_outer {
+        while residual > tolerance
+            && stats.iterations < params.max_iterations
+            && stats.outer < max_outer
+            && !super::pgs::past(problem.deadline)
+        {
             stats.outer += 1;
             if rho != weighted {
                 self.set_rho(rho);
@@ -248,7 +255,7 @@ impl NewtonSolver {
             rho = (rho * params.rho_growth).min(params.rho);
             // Inner: Newton on L for this outer iterate.
             for _ in 0..params.max_inner {
-                if stats.iterations >= params.max_iterations {
+                if stats.iterations >= params.max_iterations || super::pgs::past(problem.deadline) {
                     break;
                 }
                 let gradient_max = self.gradient(compliance);
@@ -739,7 +746,11 @@ impl NewtonSolver {
         }
         ip.active.clear();
         ip.active.resize(n, [false; 2]);
-        while residual > tolerance && stats.iterations < params.max_iterations && stats.outer < MAX_BOUND_PASSES {
+        while residual > tolerance
+            && stats.iterations < params.max_iterations
+            && stats.outer < MAX_BOUND_PASSES
+            && !super::pgs::past(problem.deadline)
+        {
             stats.outer += 1;
             if stats.outer == 1 {
                 self.interior_start();
@@ -751,7 +762,10 @@ impl NewtonSolver {
                 self.relative_velocities();
                 residual = self.natural_residual_with(softness, |_, r, l| r.bound(l[0]));
                 let own = self.natural_residual_with(softness, |k, _, _| self.interior.hi[k][1]);
-                if residual <= tolerance || stats.iterations >= params.max_iterations {
+                if residual <= tolerance
+                    || stats.iterations >= params.max_iterations
+                    || super::pgs::past(problem.deadline)
+                {
                     break;
                 }
                 if own <= 0.5 * tolerance {

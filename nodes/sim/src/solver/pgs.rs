@@ -30,6 +30,7 @@ use super::setting::{
     valid_relaxation, FrictionModel, Method, Momentum, RowOrder, SolverSetting, StopRule, RELAXATION_LIMIT,
 };
 use rapier2d::math::Vec2;
+use std::time::{Duration, Instant};
 
 /// The velocity solve's iteration and stopping rule.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -59,6 +60,11 @@ pub struct SolveParams {
     /// The friction law the rows were built with (the rows carry their bounds; this says which
     /// law made them, for the problem's header and the solver's checks).
     pub friction: FrictionModel,
+    /// A wall-time budget per solve, microseconds (the real-time regime at a fixed time per
+    /// step): the iteration stops at the tolerance or at the first check past the budget (after
+    /// each sweep or factorisation; at least the warm start's residual is measured). None: no
+    /// limit, and the solve is deterministic; with a budget it is not (it depends on the clock).
+    pub time_budget_us: Option<f32>,
 }
 
 impl Default for SolveParams {
@@ -73,6 +79,7 @@ impl Default for SolveParams {
             stop: StopRule::Change,
             method: Method::Sweeps,
             friction: FrictionModel::Box,
+            time_budget_us: None,
         }
     }
 }
@@ -112,6 +119,24 @@ impl SolveParams {
             order: setting.order,
             ..self
         }
+    }
+
+    /// The parameters a solve from `start` runs by: [`StopRule::Relative`] becomes the natural
+    /// rule at `tolerance` times the start's RMS impulse (the absolute tolerance when the start
+    /// is all zero or not finite).
+    pub fn for_start(&self, start: &[Impulse]) -> SolveParams {
+        if self.stop != StopRule::Relative {
+            return *self;
+        }
+        let sum: f64 = start.iter().map(|l| (l.normal as f64).powi(2) + (l.tangent as f64).powi(2)).sum();
+        let rms = (sum / start.len().max(1) as f64).sqrt() as f32;
+        let scale = if rms.is_finite() && rms > 0.0 { rms } else { 1.0 };
+        SolveParams { stop: StopRule::Natural, tolerance: self.tolerance * scale, ..*self }
+    }
+
+    /// The instant a solve started now must stop by, if it has a budget.
+    fn deadline(&self) -> Option<Instant> {
+        self.time_budget_us.map(|us| Instant::now() + Duration::from_secs_f64(us.max(0.0) as f64 * 1e-6))
     }
 
     /// What a compliance must be, in words: `in [0, 10]`.
@@ -217,6 +242,11 @@ pub struct ContactSolver {
     solved: Vec<SolverBody>,
 }
 
+/// Whether `deadline` has passed (never without one).
+pub(crate) fn past(deadline: Option<Instant>) -> bool {
+    deadline.is_some_and(|d| Instant::now() >= d)
+}
+
 /// How many of a solve's last sweeps [`ContactSolver::trail`] keeps per row.
 pub const TRAIL_SWEEPS: usize = 4;
 
@@ -242,6 +272,19 @@ impl ContactSolver {
         warm_start: &[Impulse],
         params: &SolveParams,
     ) -> SolveReport {
+        let deadline = params.deadline();
+        self.solve_until(rows, bodies, warm_start, &params.for_start(warm_start), deadline)
+    }
+
+    /// [`Self::solve`] with an absolute stopping rule, stopping at `deadline` if one is given.
+    fn solve_until(
+        &mut self,
+        rows: &[ContactRow],
+        bodies: &mut [SolverBody],
+        warm_start: &[Impulse],
+        params: &SolveParams,
+        deadline: Option<Instant>,
+    ) -> SolveReport {
         assert_eq!(rows.len(), warm_start.len(), "one warm-start impulse per contact row");
         let second_order = match params.method {
             Method::Newton => Some(SecondOrder::Proximal),
@@ -252,14 +295,14 @@ impl ContactSolver {
             Method::Sweeps => None,
         };
         if let (Some(method), false) = (second_order, rows.is_empty()) {
-            match self.solve_newton(rows, bodies, warm_start, params, method) {
+            match self.solve_newton(rows, bodies, warm_start, params, method, deadline) {
                 Ok(report) if report.converged => return report,
                 Ok(report) => {
                     // Short of the tolerance (the bodies untouched): the sweeps finish from its
                     // impulses; both counts are reported.
                     let handed = std::mem::replace(&mut self.impulses, std::mem::take(&mut self.handed));
                     let sweeps = params.with_setting(params.setting().sweeps());
-                    let mut finished = self.solve(rows, bodies, &handed, &sweeps);
+                    let mut finished = self.solve_until(rows, bodies, &handed, &sweeps, deadline);
                     self.handed = handed;
                     finished.sweeps += report.sweeps;
                     finished.factorisations = report.factorisations;
@@ -316,7 +359,7 @@ impl ContactSolver {
             }
         };
         let mut previous_squared = 0.0f64;
-        while report.sweeps < params.max_sweeps {
+        while report.sweeps < params.max_sweeps && !past(deadline) {
             let slot = report.sweeps as usize % TRAIL_SWEEPS;
             // Plain Gauss-Seidel keeps its own loop: the unrelaxed solver bit for bit, at its speed.
             let change = if params.relaxation == 1.0 {
@@ -337,7 +380,7 @@ impl ContactSolver {
             report.sweeps += 1;
             let residual = match params.stop {
                 StopRule::Change => change.max,
-                StopRule::Natural => {
+                StopRule::Natural | StopRule::Relative => {
                     report.natural = self.natural_residual(bodies, softness);
                     report.natural.max
                 }
@@ -349,8 +392,13 @@ impl ContactSolver {
                 break;
             }
         }
-        if params.stop != StopRule::Natural {
+        if params.stop == StopRule::Change || report.sweeps == 0 {
             report.natural = self.natural_residual(bodies, softness);
+        }
+        if report.sweeps == 0 {
+            // Out of time before the first sweep: the start is the answer.
+            report.final_residual = report.natural.max;
+            report.converged = report.natural.max <= params.tolerance;
         }
         self.finish(&report);
         report
@@ -364,9 +412,16 @@ impl ContactSolver {
         warm_start: &[Impulse],
         params: &SolveParams,
         method: SecondOrder,
+        deadline: Option<Instant>,
     ) -> Result<SolveReport, NewtonError> {
-        let problem =
-            NewtonProblem { rows, bodies, warm_start, compliance: params.compliance, tolerance: params.tolerance };
+        let problem = NewtonProblem {
+            rows,
+            bodies,
+            warm_start,
+            compliance: params.compliance,
+            tolerance: params.tolerance,
+            deadline,
+        };
         let newton = NewtonParams {
             method,
             max_iterations: params.max_sweeps.min(NewtonParams::default().max_iterations),
@@ -849,5 +904,57 @@ mod tests {
         let (mut bodies, rows) = stack(8, -0.1);
         let rep = s.solve(&rows, &mut bodies, &[Impulse::default(); 8], &SolveParams::default());
         assert_eq!(natural_residual(&rows, &bodies, s.impulses(), 0.0), rep.natural);
+    }
+
+    #[test]
+    fn the_relative_rule_scales_the_tolerance_by_the_starts_rms_impulse() {
+        // A stack of 30 balls stopping (the bottom row carries 30x the top's load), started
+        // from twice its solution: from a start of RMS impulse r, the relative rule at 1e-4 is
+        // the natural rule at 1e-4 * r exactly.
+        let (bodies, rows) = stack(30, -0.05);
+        let warm: Vec<Impulse> =
+            (0..30).map(|i| Impulse { normal: 0.1 * (30 - i) as f32, tangent: 0.01 }).collect();
+        let sum: f64 = warm.iter().map(|l| (l.normal as f64).powi(2) + (l.tangent as f64).powi(2)).sum();
+        let rms = (sum / 30.0).sqrt() as f32;
+        let relative =
+            SolveParams { stop: StopRule::Relative, tolerance: 1e-4, max_sweeps: 50_000, ..SolveParams::default() };
+        let absolute = SolveParams { stop: StopRule::Natural, tolerance: 1e-4 * rms, ..relative };
+        assert_eq!(relative.for_start(&warm), absolute);
+        let run = |params: &SolveParams| {
+            let mut b = bodies.clone();
+            let mut s = ContactSolver::new();
+            (s.solve(&rows, &mut b, &warm, params), s.impulses().to_vec())
+        };
+        let (rel, abs) = (run(&relative), run(&absolute));
+        assert!(rel.0.converged && rel.0.natural.max <= 1e-4 * rms, "{:?}", rel.0);
+        assert_eq!(rel, abs, "the same solve, bit for bit");
+        // Looser than the absolute 1e-4 here (r > 1), so fewer sweeps.
+        let strict = run(&SolveParams { stop: StopRule::Natural, ..relative });
+        assert!(rms > 1.0 && rel.0.sweeps < strict.0.sweeps, "{rms} {:?} {:?}", rel.0, strict.0);
+        // An all-zero start keeps the absolute tolerance.
+        assert_eq!(relative.for_start(&[Impulse::default(); 30]).tolerance, 1e-4);
+        assert_eq!(relative.for_start(&[Impulse { normal: f32::NAN, tangent: 0.0 }]).tolerance, 1e-4);
+    }
+
+    #[test]
+    fn a_time_budget_stops_the_solve_and_reports_where_it_stood() {
+        // 200 balls landing on a stack: far more sweeps than a microsecond allows.
+        let (mut bodies, rows) = stack(200, 0.0);
+        bodies[200].v.y = -5.0;
+        let warm = vec![Impulse::default(); 200];
+        for setting in ["pgs", "nncg:1.2", "ipm"] {
+            let free = SolveParams { stop: StopRule::Natural, tolerance: 1e-6, max_sweeps: 100_000, ..SolveParams::default() }
+                .with_setting(setting.parse().unwrap());
+            let hurried = SolveParams { time_budget_us: Some(1.0), ..free };
+            let (mut b, mut s) = (bodies.clone(), ContactSolver::new());
+            let done = s.solve(&rows, &mut b, &warm, &free);
+            assert!(done.converged, "{setting}: {done:?}");
+            let (mut b, mut s) = (bodies.clone(), ContactSolver::new());
+            let cut = s.solve(&rows, &mut b, &warm, &hurried);
+            assert!(!cut.converged && cut.sweeps < done.sweeps, "{setting}: {cut:?} vs {done:?}");
+            // What it reports is the residual of the impulses and velocities it hands back.
+            assert_eq!(natural_residual(&rows, &b, s.impulses(), 0.0), cut.natural, "{setting}");
+            assert!(cut.natural.max > free.tolerance, "{setting}: {cut:?}");
+        }
     }
 }

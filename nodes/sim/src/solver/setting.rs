@@ -108,6 +108,11 @@ pub enum StopRule {
     /// The natural residual ([`super::NaturalResidual`], the max over rows) is at most the
     /// tolerance: the same accuracy whatever the solver.
     Natural,
+    /// The natural residual is at most the tolerance times the warm start's RMS impulse (per
+    /// row, the length of its normal and tangent parts): the same relative accuracy in a deep
+    /// pile, whose bottom loads grow with its depth, as in a shallow one. A start that is all
+    /// zero keeps the absolute tolerance.
+    Relative,
 }
 
 /// An enum the command line spells by keyword: every value with its keyword.
@@ -130,7 +135,7 @@ trait Keyword: Copy + PartialEq + 'static {
 
 impl Keyword for StopRule {
     const WHAT: &'static str = "stopping rule";
-    const KEYWORDS: &'static [(Self, &'static str)] = &[(StopRule::Change, "change"), (StopRule::Natural, "natural")];
+    const KEYWORDS: &'static [(Self, &'static str)] = &[(StopRule::Change, "change"), (StopRule::Natural, "natural"), (StopRule::Relative, "relative")];
 }
 
 impl Keyword for RowOrder {

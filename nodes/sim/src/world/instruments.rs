@@ -113,8 +113,9 @@ pub struct MenuSolve {
     pub converged: bool,
     /// Wall time of the solve, microseconds (its setup, sweeps and residual passes).
     pub us: f32,
-    /// The natural residual of its final impulses.
+    /// The natural residual of its final impulses: max and RMS over the rows.
     pub natural_max: f32,
+    pub natural_rms: f32,
 }
 
 impl Instruments {
@@ -162,8 +163,9 @@ impl Instruments {
             let started = std::time::Instant::now();
             let report = self.solve_from_builtin(step, &params);
             let us = started.elapsed().as_secs_f32() * 1e6;
-            let (sweeps, converged, natural_max) = (report.sweeps, report.converged, report.natural.max);
-            self.menu_solves.push(MenuSolve { sweeps, converged, us, natural_max });
+            let (sweeps, converged) = (report.sweeps, report.converged);
+            let (natural_max, natural_rms) = (report.natural.max, report.natural.rms);
+            self.menu_solves.push(MenuSolve { sweeps, converged, us, natural_max, natural_rms });
         }
     }
 
