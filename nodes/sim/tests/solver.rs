@@ -229,3 +229,25 @@ fn the_top_down_order_is_deterministic_and_changes_the_sweeps() {
     assert_eq!(trajectory(natural("sor:1.4/down", 1e-4), 5), down);
     assert_ne!(trajectory(natural("sor:1.4", 1e-4), 5).0, down.0);
 }
+
+#[test]
+fn the_relative_rule_holds_every_model_to_builtins_scale() {
+    // A model that starts from zero would keep the absolute tolerance if it set its own scale;
+    // the world scales by builtin's start, so a loaded pile's steps stop above 1e-4 while a
+    // step's scale (builtin's RMS impulse) stays that of a 100-ball pile's loads.
+    let solve = SolveParams { tolerance: 1e-4, stop: StopRule::Relative, max_sweeps: 5_000, ..Default::default() };
+    let params = WorldParams { solve: solve.with_setting("nncg:1.2/down".parse().unwrap()), ..Default::default() };
+    let mut world = World::new(&SceneConfig { seed: 6, ..Default::default() }, params).unwrap();
+    let mut warm = ModelKind::None.starter(0).unwrap();
+    warm.begin_simulation(0, 6);
+    let (mut above, mut converged) = (0, 0);
+    for _ in 0..200 {
+        let s = world.step(&mut warm).clone();
+        if s.converged {
+            converged += 1;
+            above += (s.natural_max > 1e-4) as u32;
+            assert!(s.natural_max <= 1e-4 * 20.0, "{s:?}");
+        }
+    }
+    assert!(converged > 150 && above > 50, "{converged} converged, {above} above the absolute 1e-4");
+}

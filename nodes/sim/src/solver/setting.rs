@@ -111,7 +111,8 @@ pub enum StopRule {
     /// The natural residual is at most the tolerance times the warm start's RMS impulse (per
     /// row, the length of its normal and tangent parts): the same relative accuracy in a deep
     /// pile, whose bottom loads grow with its depth, as in a shallow one. A start that is all
-    /// zero keeps the absolute tolerance.
+    /// zero keeps the absolute tolerance. A simulation scales by builtin's start (the previous
+    /// step's impulses) whatever the model's, so that every model is held to the same accuracy.
     Relative,
 }
 

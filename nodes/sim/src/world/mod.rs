@@ -33,6 +33,7 @@ use crate::scene::{BodyKind, Scene, SceneConfig};
 use crate::solver::position::rotate;
 use crate::solver::{
     correct_positions, ContactRow, ContactSolver, Impulse, PoseBody, PositionRow, SolveParams, SolveReport, SolverBody,
+    StopRule,
 };
 use crate::warm::{ModelKind, SolvedStep, StepRows, WarmStartInput, WarmStarter};
 use collide::Collision;
@@ -292,21 +293,30 @@ impl World {
 
         // builtin on this same problem, when asked (a builtin step is its own answer); not part
         // of the step's time.
+        // The relative rule's tolerance comes from builtin's start (the previous step's impulses),
+        // whatever the model's, so that every model of a run is held to the same accuracy.
+        let solve = if self.params.solve.stop == StopRule::Relative {
+            let mut builtin = vec![Impulse::default(); self.contacts.len()];
+            self.history.fill_previous(&self.contacts, &mut builtin);
+            self.params.solve.for_start(&builtin)
+        } else {
+            self.params.solve
+        };
         let t_shadow = Instant::now();
         let shadow = (self.instruments.shadow_builtin && warm.used_name(fallback) != ModelKind::Builtin.name())
-            .then(|| self.instruments.builtin_sweeps(step_view!(self), &self.params.solve));
+            .then(|| self.instruments.builtin_sweeps(step_view!(self), &solve));
         if !self.instruments.menu.is_empty() {
             self.instruments.solve_menu(step_view!(self));
         }
         if self.instruments.error_split {
-            self.instruments.split_error(step_view!(self), &self.warm, &self.params.solve, &self.params.oracle);
+            self.instruments.split_error(step_view!(self), &self.warm, &solve, &self.params.oracle);
         } else {
             self.instruments.clear_split();
         }
         let shadow_time = t_shadow.elapsed();
 
         let t_solve = Instant::now();
-        let report = self.solver.solve(&self.rows, &mut self.solver_bodies, &self.warm, &self.params.solve);
+        let report = self.solver.solve(&self.rows, &mut self.solver_bodies, &self.warm, &solve);
         let solve_us = t_solve.elapsed().as_secs_f32() * 1e6;
         let builtin_sweeps = self.instruments.shadow_builtin.then(|| shadow.unwrap_or(report.sweeps));
 
