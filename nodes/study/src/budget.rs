@@ -475,7 +475,10 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
             let buys = time_ratio_cell(time_ratio(&rms, &median_time, s.accuracy.natural_rms, s.critical_median_us));
             let buys_against = match &against {
                 Some((_, rms, time)) => {
-                    format!(" {} |", time_ratio_cell(time_ratio(rms, time, s.accuracy.natural_rms, s.critical_median_us)))
+                    format!(
+                        " {} |",
+                        time_ratio_cell(time_ratio(rms, time, s.accuracy.natural_rms, s.critical_median_us))
+                    )
                 }
                 None => String::new(),
             };

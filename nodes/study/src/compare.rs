@@ -455,7 +455,10 @@ pub fn settling(steps: &[ComparedStep], total_steps: u32) -> String {
     }
     let mean = late.iter().sum::<f64>() / late.len() as f64;
     let max = late.iter().copied().fold(0.0, f64::max);
-    format!("kinetic energy over the last 100 steps ({} compared steps): mean {mean:.3} J, largest {max:.3} J", late.len())
+    format!(
+        "kinetic energy over the last 100 steps ({} compared steps): mean {mean:.3} J, largest {max:.3} J",
+        late.len()
+    )
 }
 
 /// The per-step CSV: seed, step, the features, then sweeps and microseconds per setting.

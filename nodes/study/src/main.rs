@@ -177,7 +177,11 @@ fn check(cli: &Cli) -> Result<()> {
                 training_seeds(list)?;
             }
             if a.sample_from >= a.scene.steps {
-                bail!("--sample-from {}: the runs have {} steps, so no step would be compared", a.sample_from, a.scene.steps);
+                bail!(
+                    "--sample-from {}: the runs have {} steps, so no step would be compared",
+                    a.sample_from,
+                    a.scene.steps
+                );
             }
             sim::Scene::build(&a.scene.scene_config(seeds[0])).context("building the scene")?;
         }

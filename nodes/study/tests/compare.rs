@@ -35,7 +35,13 @@ fn the_menu_on_the_trajectory_solvers_own_states_repeats_its_sweeps() {
 fn the_chooser_learns_which_setting_a_feature_favours() {
     // Two settings; the first is cheap when the pile is high (feature 2), the second otherwise.
     let menu: Vec<SolverSetting> = vec!["pgs".parse().unwrap(), "sor:1.4".parse().unwrap()];
-    let solve = |sweeps| sim::world::MenuSolve { sweeps, converged: true, us: sweeps as f32, natural_max: 0.0, natural_rms: 0.0 };
+    let solve = |sweeps| sim::world::MenuSolve {
+        sweeps,
+        converged: true,
+        us: sweeps as f32,
+        natural_max: 0.0,
+        natural_rms: 0.0,
+    };
     let steps: Vec<compare::ComparedStep> = (0..200)
         .map(|i| {
             let height = (i % 10) as f64;

@@ -10,8 +10,10 @@
 //!   Lagrangian in body velocities): iterations that do not grow with the pile's depth;
 //! - [`setting`]: which member of the family ([`SolverSetting`]) and which stopping rule, spelled
 //!   as the command lines spell them;
-//! - [`position`]: Box2D 2.3's position pass after integration ([`correct_positions`]).
+//! - [`position`]: Box2D 2.3's position pass after integration ([`correct_positions`]);
+//! - [`deadline`]: a solve's wall-time budget, checked by every method.
 
+pub mod deadline;
 pub mod newton;
 #[cfg(test)]
 mod newton_tests;

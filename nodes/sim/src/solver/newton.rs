@@ -34,6 +34,7 @@
 // The per-dof loops index several parallel `[f64; 3]` arrays (velocity, mass, Jacobian) at once.
 #![allow(clippy::needless_range_loop)]
 
+use super::deadline::past;
 use super::rows::{cross, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky};
@@ -245,7 +246,7 @@ impl NewtonSolver {
         while residual > tolerance
             && stats.iterations < params.max_iterations
             && stats.outer < max_outer
-            && !super::pgs::past(problem.deadline)
+            && !past(problem.deadline)
         {
             stats.outer += 1;
             if rho != weighted {
@@ -255,7 +256,7 @@ impl NewtonSolver {
             rho = (rho * params.rho_growth).min(params.rho);
             // Inner: Newton on L for this outer iterate.
             for _ in 0..params.max_inner {
-                if stats.iterations >= params.max_iterations || super::pgs::past(problem.deadline) {
+                if stats.iterations >= params.max_iterations || past(problem.deadline) {
                     break;
                 }
                 let gradient_max = self.gradient(compliance);
@@ -749,7 +750,7 @@ impl NewtonSolver {
         while residual > tolerance
             && stats.iterations < params.max_iterations
             && stats.outer < MAX_BOUND_PASSES
-            && !super::pgs::past(problem.deadline)
+            && !past(problem.deadline)
         {
             stats.outer += 1;
             if stats.outer == 1 {
@@ -762,10 +763,7 @@ impl NewtonSolver {
                 self.relative_velocities();
                 residual = self.natural_residual_with(softness, |_, r, l| r.bound(l[0]));
                 let own = self.natural_residual_with(softness, |k, _, _| self.interior.hi[k][1]);
-                if residual <= tolerance
-                    || stats.iterations >= params.max_iterations
-                    || super::pgs::past(problem.deadline)
-                {
+                if residual <= tolerance || stats.iterations >= params.max_iterations || past(problem.deadline) {
                     break;
                 }
                 if own <= 0.5 * tolerance {

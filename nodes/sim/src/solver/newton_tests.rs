@@ -29,7 +29,8 @@ fn newton(
         .map(|&method| {
             let mut solver = NewtonSolver::new();
             let (mut impulses, mut out) = (Vec::new(), bodies.to_vec());
-            let problem = NewtonProblem { rows, bodies, warm_start: warm, compliance: 0.0, tolerance: 1e-6, deadline: None };
+            let problem =
+                NewtonProblem { rows, bodies, warm_start: warm, compliance: 0.0, tolerance: 1e-6, deadline: None };
             let params = NewtonParams { method, ..NewtonParams::default() };
             let stats = solver.solve(&problem, &params, &mut impulses, &mut out).expect("solves");
             (stats, impulses, out)
@@ -160,7 +161,14 @@ fn a_jammed_stack_with_redundant_contacts_is_solved_without_a_singular_matrix() 
 fn the_reused_symbolic_factorisation_gives_the_fresh_ones_result() {
     let (rows, bodies) = jammed();
     let warm = vec![Impulse::default(); rows.len()];
-    let problem = NewtonProblem { rows: &rows, bodies: &bodies, warm_start: &warm, compliance: 0.0, tolerance: 1e-6, deadline: None };
+    let problem = NewtonProblem {
+        rows: &rows,
+        bodies: &bodies,
+        warm_start: &warm,
+        compliance: 0.0,
+        tolerance: 1e-6,
+        deadline: None,
+    };
     for method in METHODS {
         let params = NewtonParams { method, ..NewtonParams::default() };
         let mut kept = NewtonSolver::new();
@@ -250,7 +258,14 @@ fn a_second_order_solve_short_of_the_tolerance_is_finished_by_the_sweeps() {
     let room = SolveParams { max_sweeps: 20_000, ..capped };
     let mut handed = NewtonSolver::new();
     let mut start = Vec::new();
-    let problem = NewtonProblem { rows: &rows, bodies: &bodies, warm_start: &warm, compliance: 0.0, tolerance: 1e-6, deadline: None };
+    let problem = NewtonProblem {
+        rows: &rows,
+        bodies: &bodies,
+        warm_start: &warm,
+        compliance: 0.0,
+        tolerance: 1e-6,
+        deadline: None,
+    };
     let few = NewtonParams { max_iterations: 2, ..NewtonParams::default() };
     assert!(!handed.solve(&problem, &few, &mut start, &mut bodies.clone()).unwrap().converged);
     let rep = s.solve(&rows, &mut out, &start, &room.with_setting(SolverSetting::RECOMMENDED));

@@ -23,6 +23,7 @@
 //! iteration count comparable across warm-start models and the complementarity check simple.
 //! The solver owns only reusable buffers; bodies and contact rows are passed in.
 
+use super::deadline::{deadline_after, past};
 use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder};
 use super::rows::{cross, cross_sv, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use super::setting::AUTO_NEWTON_FROM;
@@ -30,7 +31,7 @@ use super::setting::{
     valid_relaxation, FrictionModel, Method, Momentum, RowOrder, SolverSetting, StopRule, RELAXATION_LIMIT,
 };
 use rapier2d::math::Vec2;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// The velocity solve's iteration and stopping rule.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -132,11 +133,6 @@ impl SolveParams {
         let rms = (sum / start.len().max(1) as f64).sqrt() as f32;
         let scale = if rms.is_finite() && rms > 0.0 { rms } else { 1.0 };
         SolveParams { stop: StopRule::Natural, tolerance: self.tolerance * scale, ..*self }
-    }
-
-    /// The instant a solve started now must stop by, if it has a budget.
-    fn deadline(&self) -> Option<Instant> {
-        self.time_budget_us.map(|us| Instant::now() + Duration::from_secs_f64(us.max(0.0) as f64 * 1e-6))
     }
 
     /// What a compliance must be, in words: `in [0, 10]`.
@@ -242,11 +238,6 @@ pub struct ContactSolver {
     solved: Vec<SolverBody>,
 }
 
-/// Whether `deadline` has passed (never without one).
-pub(crate) fn past(deadline: Option<Instant>) -> bool {
-    deadline.is_some_and(|d| Instant::now() >= d)
-}
-
 /// How many of a solve's last sweeps [`ContactSolver::trail`] keeps per row.
 pub const TRAIL_SWEEPS: usize = 4;
 
@@ -272,7 +263,7 @@ impl ContactSolver {
         warm_start: &[Impulse],
         params: &SolveParams,
     ) -> SolveReport {
-        let deadline = params.deadline();
+        let deadline = deadline_after(params.time_budget_us);
         self.solve_until(rows, bodies, warm_start, &params.for_start(warm_start), deadline)
     }
 
@@ -912,8 +903,7 @@ mod tests {
         // from twice its solution: from a start of RMS impulse r, the relative rule at 1e-4 is
         // the natural rule at 1e-4 * r exactly.
         let (bodies, rows) = stack(30, -0.05);
-        let warm: Vec<Impulse> =
-            (0..30).map(|i| Impulse { normal: 0.1 * (30 - i) as f32, tangent: 0.01 }).collect();
+        let warm: Vec<Impulse> = (0..30).map(|i| Impulse { normal: 0.1 * (30 - i) as f32, tangent: 0.01 }).collect();
         let sum: f64 = warm.iter().map(|l| (l.normal as f64).powi(2) + (l.tangent as f64).powi(2)).sum();
         let rms = (sum / 30.0).sqrt() as f32;
         let relative =
@@ -943,8 +933,9 @@ mod tests {
         bodies[200].v.y = -5.0;
         let warm = vec![Impulse::default(); 200];
         for setting in ["pgs", "nncg:1.2", "ipm"] {
-            let free = SolveParams { stop: StopRule::Natural, tolerance: 1e-6, max_sweeps: 100_000, ..SolveParams::default() }
-                .with_setting(setting.parse().unwrap());
+            let free =
+                SolveParams { stop: StopRule::Natural, tolerance: 1e-6, max_sweeps: 100_000, ..SolveParams::default() }
+                    .with_setting(setting.parse().unwrap());
             let hurried = SolveParams { time_budget_us: Some(1.0), ..free };
             let (mut b, mut s) = (bodies.clone(), ContactSolver::new());
             let done = s.solve(&rows, &mut b, &warm, &free);

@@ -136,7 +136,8 @@ trait Keyword: Copy + PartialEq + 'static {
 
 impl Keyword for StopRule {
     const WHAT: &'static str = "stopping rule";
-    const KEYWORDS: &'static [(Self, &'static str)] = &[(StopRule::Change, "change"), (StopRule::Natural, "natural"), (StopRule::Relative, "relative")];
+    const KEYWORDS: &'static [(Self, &'static str)] =
+        &[(StopRule::Change, "change"), (StopRule::Natural, "natural"), (StopRule::Relative, "relative")];
 }
 
 impl Keyword for RowOrder {
