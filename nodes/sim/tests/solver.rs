@@ -2,7 +2,15 @@
 //! oracle warm start, and the ordering of warm-start models by total sweeps.
 
 use sim::solver::{natural_residual, relative_velocity, row_masses};
-use sim::{ModelKind, SceneConfig, SolveParams, StopRule, World, WorldParams};
+use sim::{ModelKind, SceneConfig, SolveParams, StopRule, WarmStarter, World, WorldParams};
+
+/// The ball-box world of `seed` with `params`, and `model`'s warm starter begun on it.
+fn started(seed: u64, params: WorldParams, model: ModelKind) -> (World, WarmStarter) {
+    let world = World::new(&SceneConfig { seed, ..Default::default() }, params).unwrap();
+    let mut warm = model.starter(0).unwrap();
+    warm.begin_simulation(0, seed);
+    (world, warm)
+}
 
 /// Checks the velocity-level LCP of the last step to tolerance; returns the number of contacts checked.
 ///
@@ -43,9 +51,7 @@ fn check_complementarity(world: &World, tol: f32) -> usize {
 fn complementarity_conditions_hold_at_convergence_for_every_contact() {
     for (seed, model) in [(1u64, ModelKind::None), (2, ModelKind::Builtin), (3, ModelKind::Random)] {
         let params = WorldParams::default();
-        let mut world = World::new(&SceneConfig { seed, ..Default::default() }, params).unwrap();
-        let mut warm = model.starter(0).unwrap();
-        warm.begin_simulation(0, seed);
+        let (mut world, mut warm) = started(seed, params, model);
         let mut checked = 0;
         for _ in 0..250 {
             let s = world.step(&mut warm).clone();
@@ -63,9 +69,7 @@ fn over_relaxed_solves_satisfy_the_same_complementarity_conditions() {
     // solves the same problem (and a converged solve stops on a small change either way).
     let solve = SolveParams { relaxation: 1.4, ..Default::default() };
     let params = WorldParams { solve, ..Default::default() };
-    let mut world = World::new(&SceneConfig { seed: 4, ..Default::default() }, params).unwrap();
-    let mut warm = ModelKind::Builtin.starter(0).unwrap();
-    warm.begin_simulation(0, 4);
+    let (mut world, mut warm) = started(4, params, ModelKind::Builtin);
     let (mut checked, mut converged) = (0, 0);
     for _ in 0..250 {
         let s = world.step(&mut warm).clone();
@@ -181,9 +185,7 @@ type StepOutcome = (u32, bool, f32, f32);
 
 /// Every step's outcome and the final body states of a 150-step run.
 fn trajectory(params: WorldParams, seed: u64) -> (Vec<StepOutcome>, Vec<sim::world::BodyState>) {
-    let mut world = World::new(&SceneConfig { seed, ..Default::default() }, params).unwrap();
-    let mut warm = ModelKind::Builtin.starter(0).unwrap();
-    warm.begin_simulation(0, seed);
+    let (mut world, mut warm) = started(seed, params, ModelKind::Builtin);
     let stats = (0..150)
         .map(|_| {
             let s = world.step(&mut warm);
@@ -197,9 +199,7 @@ fn trajectory(params: WorldParams, seed: u64) -> (Vec<StepOutcome>, Vec<sim::wor
 fn every_solver_meets_the_natural_residual_and_the_lcp_at_convergence() {
     for setting in ["pgs", "sor:1.4", "nncg", "sor:1.4/down"] {
         let params = natural(setting, 1e-4);
-        let mut world = World::new(&SceneConfig { seed: 6, ..Default::default() }, params).unwrap();
-        let mut warm = ModelKind::Builtin.starter(0).unwrap();
-        warm.begin_simulation(0, 6);
+        let (mut world, mut warm) = started(6, params, ModelKind::Builtin);
         let (mut checked, mut converged) = (0, 0);
         for _ in 0..200 {
             let s = world.step(&mut warm).clone();
@@ -237,9 +237,7 @@ fn the_relative_rule_holds_every_model_to_builtins_scale() {
     // step's scale (builtin's RMS impulse) stays that of a 100-ball pile's loads.
     let solve = SolveParams { tolerance: 1e-4, stop: StopRule::Relative, max_sweeps: 5_000, ..Default::default() };
     let params = WorldParams { solve: solve.with_setting("nncg:1.2/down".parse().unwrap()), ..Default::default() };
-    let mut world = World::new(&SceneConfig { seed: 6, ..Default::default() }, params).unwrap();
-    let mut warm = ModelKind::None.starter(0).unwrap();
-    warm.begin_simulation(0, 6);
+    let (mut world, mut warm) = started(6, params, ModelKind::None);
     let (mut above, mut converged) = (0, 0);
     for _ in 0..200 {
         let s = world.step(&mut warm).clone();

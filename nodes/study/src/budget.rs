@@ -398,9 +398,12 @@ fn curve_of(summaries: &[RunSummary], model: &str, f: impl Fn(&RunSummary) -> f6
     summaries.iter().filter(|s| s.model == model && s.budget > 0).map(|s| (s.budget as f64, f(s))).collect()
 }
 
+/// What names builtin's runs with another solver (`--against`): `builtin+nncg`.
+const AGAINST: &str = "builtin+";
+
 /// The model name of builtin's runs with the solver `other` (`--against`): `builtin+nncg`.
 pub fn against_model(other: SolverSetting) -> String {
-    format!("builtin+{other}")
+    format!("{AGAINST}{other}")
 }
 
 /// The study's tables as markdown: builtin's curve, each judged budget's models placed on it,
@@ -410,11 +413,10 @@ pub fn markdown(summaries: &[RunSummary], budgets: &[u32]) -> String {
     let time = curve(summaries, |s| s.critical_us);
     let median_time = curve(summaries, |s| s.critical_median_us);
     // The second curve (--against), if the study ran one.
-    let against = summaries.iter().find_map(|s| s.model.strip_prefix("builtin+")).map(|name| {
-        let model = format!("builtin+{name}");
-        let rms = curve_of(summaries, &model, |s| s.accuracy.natural_rms);
-        let median_time = curve_of(summaries, &model, |s| s.critical_median_us);
-        (name.to_string(), rms, median_time)
+    let against = summaries.iter().find(|s| s.model.starts_with(AGAINST)).map(|run| {
+        let rms = curve_of(summaries, &run.model, |s| s.accuracy.natural_rms);
+        let median_time = curve_of(summaries, &run.model, |s| s.critical_median_us);
+        (run.model[AGAINST.len()..].to_string(), rms, median_time)
     });
     let mut out = String::from(
         "## Builtin's curve: accuracy after the budget\n\n\"critical path\": warm start + solve, the mean over the steps and the median over the steps with contacts.\n\n| budget | mean sweeps | RMS natural residual | max natural residual | penetration max (m) | penetration mean (m) | kinetic energy, 150-end (J) | critical path (us/step) | critical path, median (us) |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",

@@ -61,7 +61,9 @@ pub struct ComparedStep {
     pub features: StepFeatures,
     /// What extracting the features took, microseconds (a chooser pays it every step).
     pub features_us: f32,
-    /// The trajectory's kinetic energy after the step (J): whether the pile has settled.
+    /// The step's contacts, and the trajectory's kinetic energy after it (J: whether the pile
+    /// has settled).
+    pub contacts: u32,
     pub kinetic_energy: f32,
     pub solves: Vec<MenuSolve>,
 }
@@ -120,25 +122,32 @@ pub fn same_states(
         world.solver_menu(menu.clone());
         let mut warm = ModelKind::Builtin.starter(seed)?;
         warm.begin_simulation(seed as u32, seed);
+        let mut menu_on = true;
         for step in 0..spec.steps {
+            // The menu is handed over (or taken away) only where the sampling turns on or off.
             let sampled = spec.sampling.includes(step);
-            if !spec.sampling.is_every_step() {
+            if sampled != menu_on {
                 world.solver_menu(if sampled { menu.clone() } else { Vec::new() });
+                menu_on = sampled;
+            }
+            if !sampled {
+                world.step(&mut warm);
+                continue;
             }
             let started = Instant::now();
             let features = StepFeatures::of(&world);
             let features_us = started.elapsed().as_secs_f32() * 1e6;
-            world.step(&mut warm);
-            if sampled {
-                out.push(ComparedStep {
-                    seed,
-                    step,
-                    features,
-                    features_us,
-                    kinetic_energy: world.stats().kinetic_energy,
-                    solves: world.menu_solves().to_vec(),
-                });
-            }
+            let stats = world.step(&mut warm);
+            let (contacts, kinetic_energy) = (stats.contacts, stats.kinetic_energy);
+            out.push(ComparedStep {
+                seed,
+                step,
+                features,
+                features_us,
+                contacts,
+                kinetic_energy,
+                solves: world.menu_solves().to_vec(),
+            });
         }
         progress(seed);
     }
@@ -379,7 +388,7 @@ pub fn same_states_row(
     let mut with_contacts = 0u64;
     for s in steps {
         let (solve, extra_us) = pick(s);
-        if s.features.0[0] > 0.0 {
+        if s.contacts > 0 {
             row.natural_rms += solve.natural_rms as f64;
             with_contacts += 1;
         }

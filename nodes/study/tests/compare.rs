@@ -9,17 +9,23 @@ fn natural(setting: &str, tolerance: f32) -> WorldParams {
     WorldParams { solve: solve.with_setting(setting.parse().unwrap()), ..Default::default() }
 }
 
+/// The default scene for 120 steps, every step compared, the trajectory the menu's first
+/// setting's (natural residual 1e-4).
+fn every_step(menu: &[&str]) -> CompareSpec {
+    CompareSpec {
+        scene: SceneConfig::default(),
+        params: natural(menu[0], 1e-4),
+        steps: 120,
+        menu: menu.iter().map(|s| s.parse().unwrap()).collect(),
+        sampling: compare::Sampling::EVERY_STEP,
+    }
+}
+
 #[test]
 fn the_menu_on_the_trajectory_solvers_own_states_repeats_its_sweeps() {
     // The trajectory's own solver re-solving its own states from the same warm start must take
     // exactly the sweeps the run took: the comparison is on the same states, bit for bit.
-    let spec = CompareSpec {
-        scene: SceneConfig::default(),
-        params: natural("pgs", 1e-4),
-        steps: 120,
-        menu: ["pgs", "sor:1.4/down", "nncg"].iter().map(|s| s.parse().unwrap()).collect(),
-        sampling: compare::Sampling::EVERY_STEP,
-    };
+    let spec = every_step(&["pgs", "sor:1.4/down", "nncg"]);
     let steps = compare::same_states(&spec, &[40, 41], |_| ()).unwrap();
     assert_eq!(steps.len(), 240);
     let run = compare::whole_run(&spec, &[40, 41], compare::Choice::Fixed(spec.menu[0]), |_| ()).unwrap();
@@ -54,6 +60,7 @@ fn the_chooser_learns_which_setting_a_feature_favours() {
                 step: i,
                 features,
                 features_us: 0.0,
+                contacts: 10,
                 kinetic_energy: 0.0,
                 solves: vec![solve(a), solve(b)],
             }
@@ -74,20 +81,19 @@ fn the_chooser_learns_which_setting_a_feature_favours() {
 fn a_sampled_comparison_solves_the_same_states_on_the_sampled_steps_only() {
     // The trajectory runs every step whatever is compared: the sampled steps' solves are the
     // full comparison's on those steps, sweep for sweep and bit for bit in the residual.
-    let full = CompareSpec {
-        scene: SceneConfig::default(),
-        params: natural("nncg:1.2/down", 1e-4),
-        steps: 120,
-        menu: ["nncg:1.2/down", "pgs"].iter().map(|s| s.parse().unwrap()).collect(),
-        sampling: compare::Sampling::EVERY_STEP,
-    };
+    let full = every_step(&["nncg:1.2/down", "pgs"]);
     let sampled = CompareSpec { sampling: compare::Sampling { from: 50, every: 10 }, ..full.clone() };
     let all = compare::same_states(&full, &[42], |_| ()).unwrap();
     let some = compare::same_states(&sampled, &[42], |_| ()).unwrap();
     assert_eq!(some.iter().map(|s| s.step).collect::<Vec<_>>(), vec![50, 60, 70, 80, 90, 100, 110]);
     for s in &some {
         let same = &all[s.step as usize];
-        assert_eq!((s.kinetic_energy, s.features), (same.kinetic_energy, same.features), "step {}", s.step);
+        assert_eq!(
+            (s.contacts, s.kinetic_energy, s.features),
+            (same.contacts, same.kinetic_energy, same.features),
+            "step {}",
+            s.step
+        );
         for (a, b) in s.solves.iter().zip(&same.solves) {
             assert_eq!((a.sweeps, a.natural_max, a.natural_rms), (b.sweeps, b.natural_max, b.natural_rms));
         }

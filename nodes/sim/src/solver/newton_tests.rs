@@ -14,6 +14,11 @@ fn params(setting: SolverSetting) -> SolveParams {
         .with_setting(setting)
 }
 
+/// The rigid problem of `rows` on `bodies` from `warm`, to 1e-6, no deadline.
+fn exact<'a>(rows: &'a [ContactRow], bodies: &'a [SolverBody], warm: &'a [Impulse]) -> NewtonProblem<'a> {
+    NewtonProblem { rows, bodies, warm_start: warm, compliance: 0.0, tolerance: 1e-6, deadline: None }
+}
+
 /// Both second-order methods.
 const METHODS: [SecondOrder; 2] = [SecondOrder::InteriorPoint, SecondOrder::Proximal];
 
@@ -29,8 +34,7 @@ fn newton(
         .map(|&method| {
             let mut solver = NewtonSolver::new();
             let (mut impulses, mut out) = (Vec::new(), bodies.to_vec());
-            let problem =
-                NewtonProblem { rows, bodies, warm_start: warm, compliance: 0.0, tolerance: 1e-6, deadline: None };
+            let problem = exact(rows, bodies, warm);
             let params = NewtonParams { method, ..NewtonParams::default() };
             let stats = solver.solve(&problem, &params, &mut impulses, &mut out).expect("solves");
             (stats, impulses, out)
@@ -161,14 +165,7 @@ fn a_jammed_stack_with_redundant_contacts_is_solved_without_a_singular_matrix() 
 fn the_reused_symbolic_factorisation_gives_the_fresh_ones_result() {
     let (rows, bodies) = jammed();
     let warm = vec![Impulse::default(); rows.len()];
-    let problem = NewtonProblem {
-        rows: &rows,
-        bodies: &bodies,
-        warm_start: &warm,
-        compliance: 0.0,
-        tolerance: 1e-6,
-        deadline: None,
-    };
+    let problem = exact(&rows, &bodies, &warm);
     for method in METHODS {
         let params = NewtonParams { method, ..NewtonParams::default() };
         let mut kept = NewtonSolver::new();
@@ -190,14 +187,8 @@ fn the_reused_symbolic_factorisation_gives_the_fresh_ones_result() {
 fn a_row_with_a_non_finite_value_is_refused_naming_it() {
     let (mut rows, bodies) = corner();
     rows[1].normal.x = f32::NAN;
-    let problem = NewtonProblem {
-        rows: &rows,
-        bodies: &bodies,
-        warm_start: &[Impulse::default(); 2],
-        compliance: 0.0,
-        tolerance: 1e-6,
-        deadline: None,
-    };
+    let zero = [Impulse::default(); 2];
+    let problem = exact(&rows, &bodies, &zero);
     let err = NewtonSolver::new()
         .solve(&problem, &NewtonParams::default(), &mut Vec::new(), &mut bodies.clone())
         .unwrap_err();
@@ -258,14 +249,7 @@ fn a_second_order_solve_short_of_the_tolerance_is_finished_by_the_sweeps() {
     let room = SolveParams { max_sweeps: 20_000, ..capped };
     let mut handed = NewtonSolver::new();
     let mut start = Vec::new();
-    let problem = NewtonProblem {
-        rows: &rows,
-        bodies: &bodies,
-        warm_start: &warm,
-        compliance: 0.0,
-        tolerance: 1e-6,
-        deadline: None,
-    };
+    let problem = exact(&rows, &bodies, &warm);
     let few = NewtonParams { max_iterations: 2, ..NewtonParams::default() };
     assert!(!handed.solve(&problem, &few, &mut start, &mut bodies.clone()).unwrap().converged);
     let rep = s.solve(&rows, &mut out, &start, &room.with_setting(SolverSetting::RECOMMENDED));

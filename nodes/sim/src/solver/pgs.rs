@@ -126,11 +126,20 @@ impl SolveParams {
     /// rule at `tolerance` times the start's RMS impulse (the absolute tolerance when the start
     /// is all zero or not finite).
     pub fn for_start(&self, start: &[Impulse]) -> SolveParams {
+        self.relative_to(start.iter().copied())
+    }
+
+    /// [`Self::for_start`] of the start `impulses` yields (no buffer needed).
+    pub fn relative_to(&self, impulses: impl IntoIterator<Item = Impulse>) -> SolveParams {
         if self.stop != StopRule::Relative {
             return *self;
         }
-        let sum: f64 = start.iter().map(|l| (l.normal as f64).powi(2) + (l.tangent as f64).powi(2)).sum();
-        let rms = (sum / start.len().max(1) as f64).sqrt() as f32;
+        let (mut sum, mut rows) = (0.0f64, 0usize);
+        for l in impulses {
+            sum += (l.normal as f64).powi(2) + (l.tangent as f64).powi(2);
+            rows += 1;
+        }
+        let rms = (sum / rows.max(1) as f64).sqrt() as f32;
         let scale = if rms.is_finite() && rms > 0.0 { rms } else { 1.0 };
         SolveParams { stop: StopRule::Natural, tolerance: self.tolerance * scale, ..*self }
     }

@@ -163,9 +163,13 @@ impl Instruments {
             let started = std::time::Instant::now();
             let report = self.solve_from_builtin(step, &params);
             let us = started.elapsed().as_secs_f32() * 1e6;
-            let (sweeps, converged) = (report.sweeps, report.converged);
-            let (natural_max, natural_rms) = (report.natural.max, report.natural.rms);
-            self.menu_solves.push(MenuSolve { sweeps, converged, us, natural_max, natural_rms });
+            self.menu_solves.push(MenuSolve {
+                sweeps: report.sweeps,
+                converged: report.converged,
+                us,
+                natural_max: report.natural.max,
+                natural_rms: report.natural.rms,
+            });
         }
     }
 

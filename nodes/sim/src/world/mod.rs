@@ -33,7 +33,6 @@ use crate::scene::{BodyKind, Scene, SceneConfig};
 use crate::solver::position::rotate;
 use crate::solver::{
     correct_positions, ContactRow, ContactSolver, Impulse, PoseBody, PositionRow, SolveParams, SolveReport, SolverBody,
-    StopRule,
 };
 use crate::warm::{ModelKind, SolvedStep, StepRows, WarmStartInput, WarmStarter};
 use collide::Collision;
@@ -291,17 +290,13 @@ impl World {
         let fallback = self.warm_start(warm);
         let warm_start_us = t_warm.elapsed().as_secs_f32() * 1e6;
 
-        // builtin on this same problem, when asked (a builtin step is its own answer); not part
-        // of the step's time.
         // The relative rule's tolerance comes from builtin's start (the previous step's impulses),
         // whatever the model's, so that every model of a run is held to the same accuracy.
-        let solve = if self.params.solve.stop == StopRule::Relative {
-            let mut builtin = vec![Impulse::default(); self.contacts.len()];
-            self.history.fill_previous(&self.contacts, &mut builtin);
-            self.params.solve.for_start(&builtin)
-        } else {
-            self.params.solve
-        };
+        let builtin_start = self.history.pasts(self.contacts.iter().map(|c| &c.key));
+        let solve = self.params.solve.relative_to(builtin_start.map(|p| p.previous.unwrap_or_default()));
+
+        // builtin on this same problem, when asked (a builtin step is its own answer); not part
+        // of the step's time.
         let t_shadow = Instant::now();
         let shadow = (self.instruments.shadow_builtin && warm.used_name(fallback) != ModelKind::Builtin.name())
             .then(|| self.instruments.builtin_sweeps(step_view!(self), &solve));
