@@ -145,6 +145,12 @@ pub const MODELS: &[ModelInfo] = &[
     plain("rough-error", ModelGroup::Reference, "the oracle plus the rest of builtin's error (its local, high-frequency part)"),
     plain("gnn", ModelGroup::Product, "the contact-graph network's correction to builtin (in the simulator, `--gnn-model FILE`)"),
     with_param(
+        "gnn-every",
+        ModelGroup::Product,
+        Param { what: "N: the network runs every N-th step", default: 4.0, min: 1.0, max: 1000.0 },
+        "the contact-graph network every N-th step, its correction to builtin carried on the persisting contacts in between: builtin plus the correction of the last step the network ran (`--gnn-model FILE`)",
+    ),
+    with_param(
         "gnn-subspace",
         ModelGroup::Probe,
         Param { what: "K: the previous solve's last K sweeps beside the network's direction", default: 2.0, min: 0.0, max: 4.0 },

@@ -422,3 +422,70 @@ fn a_gnn_model_that_is_not_a_regular_file_is_refused_before_reading() {
     assert!(started.elapsed() < std::time::Duration::from_secs(20), "{:?}", started.elapsed());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The shipped small budget network, for tests of how a trained network is deployed.
+fn shipped_network() -> sim::ModelFiles {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/gnn-budget8-small.dcg");
+    sim::ModelFiles { gnn: Some(path) }
+}
+
+/// Every step of seed 0 (ball-box, 8 PGS sweeps a step) with `spec`: the step's contact keys,
+/// the warm start it used and its final impulses.
+type StepRecord = (Vec<sim::ContactKey>, Vec<sim::Impulse>, Vec<sim::Impulse>);
+
+fn network_run(spec: &str, files: &sim::ModelFiles, steps: u32) -> Vec<StepRecord> {
+    let spec: ModelSpec = spec.parse().unwrap();
+    let mut warm = WarmStarter::new(
+        spec.build_with(0, sim::warm::Served::default(), files).unwrap(),
+        ModelKind::Builtin.build(0).unwrap(),
+    );
+    warm.begin_simulation(0, 0);
+    let mut params = WorldParams::default();
+    params.solve.max_sweeps = 8;
+    let mut world = World::new(&SceneConfig::default(), params).unwrap();
+    (0..steps)
+        .map(|_| {
+            assert!(!world.step(&mut warm).fallback);
+            let keys = world.contacts().iter().map(|c| c.key).collect();
+            (keys, world.warm_start_used().to_vec(), world.impulses().to_vec())
+        })
+        .collect()
+}
+
+#[test]
+fn the_network_every_n_steps_carries_its_correction_on_persisting_contacts() {
+    let files = shipped_network();
+    let (gnn, every_1) = (network_run("gnn", &files, 80), network_run("gnn-every:1", &files, 80));
+    assert!(gnn == every_1, "gnn-every:1 is gnn, bit for bit");
+    let every_3 = network_run("gnn-every:3", &files, 120);
+    let builtin_start = |s: usize, key: &sim::ContactKey| -> Option<sim::Impulse> {
+        let (keys, _, impulses) = &every_3[s.checked_sub(1)?];
+        keys.binary_search(key).ok().map(|i| impulses[i])
+    };
+    let mut correction = std::collections::BTreeMap::new();
+    let (mut corrected, mut moved) = (0, 0);
+    for (s, (keys, used, _)) in every_3.iter().enumerate() {
+        if s % 3 == 0 {
+            // The network ran: keep its correction to builtin's start.
+            correction.clear();
+            for (k, u) in keys.iter().zip(used) {
+                let b = builtin_start(s, k).unwrap_or_default();
+                correction.insert(*k, sim::Impulse { normal: u.normal - b.normal, tangent: u.tangent - b.tangent });
+            }
+            continue;
+        }
+        for (k, u) in keys.iter().zip(used) {
+            let expected = match (builtin_start(s, k), correction.get(k)) {
+                (Some(b), Some(d)) => {
+                    corrected += 1;
+                    moved += usize::from(d.normal != 0.0 || d.tangent != 0.0);
+                    sim::Impulse { normal: b.normal + d.normal, tangent: b.tangent + d.tangent }
+                }
+                (b, _) => b.unwrap_or_default(),
+            };
+            assert_eq!(*u, expected, "step {s}, contact {k:?}");
+        }
+    }
+    // The test sees carried corrections, most of them non-zero (a trained network).
+    assert!(corrected > 1000 && moved * 2 > corrected, "{moved} of {corrected} carried corrections non-zero");
+}

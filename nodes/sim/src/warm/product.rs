@@ -151,6 +151,74 @@ impl WarmStartModel for GnnModel {
     }
 }
 
+/// `gnn-every:N`: the network amortised over N steps. On the step it runs, its warm start is
+/// `gnn`'s, and it keeps its correction to builtin (prediction minus builtin's start) per contact;
+/// on the N-1 steps after, builtin's start plus that correction on the contacts that persist (new
+/// ones get builtin's). Between inferences the step's problem is not even captured: the warm start
+/// costs builtin's plus one merge, so the network's time is paid once every N steps.
+pub struct GnnEveryModel {
+    name: String,
+    network: GnnModel,
+    every: u32,
+    /// Steps until the network runs again (0: this step).
+    due_in: u32,
+    /// The last inference's correction per contact, sorted by key (the step's contacts are).
+    correction: Vec<(crate::contact::ContactKey, Impulse)>,
+}
+
+impl GnnEveryModel {
+    /// The network `net` every `every`-th step (at least 1: every step, `gnn` itself).
+    pub fn new(name: String, net: gnn::net::Net, every: u32) -> GnnEveryModel {
+        GnnEveryModel { name, network: GnnModel::new(net), every: every.max(1), due_in: 0, correction: Vec::new() }
+    }
+}
+
+impl WarmStartModel for GnnEveryModel {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn begin_simulation(&mut self, _simulation: u32, _seed: u64) {
+        self.due_in = 0;
+        self.correction.clear();
+    }
+
+    fn needs(&self) -> Needs {
+        if self.due_in == 0 {
+            Needs::PROBLEM
+        } else {
+            Needs::default()
+        }
+    }
+
+    fn warm_start(&mut self, input: &WarmStartInput<'_>, out: &mut [Impulse]) -> Result<(), Unavailable> {
+        if self.due_in == 0 {
+            self.network.warm_start(input, out)?;
+            self.due_in = self.every - 1;
+            self.correction.clear();
+            let builtin = input.history.pasts(input.contacts.iter().map(|c| &c.key));
+            for ((c, o), past) in input.contacts.iter().zip(out.iter()).zip(builtin) {
+                let start = past.previous.unwrap_or_default();
+                self.correction.push((c.key, Impulse { normal: o.normal - start.normal, tangent: o.tangent - start.tangent }));
+            }
+            return Ok(());
+        }
+        self.due_in -= 1;
+        // Both lists sorted by key: one merge.
+        let mut kept = self.correction.iter().peekable();
+        let pasts = input.history.pasts(input.contacts.iter().map(|c| &c.key));
+        for ((c, o), past) in input.contacts.iter().zip(out.iter_mut()).zip(pasts) {
+            while kept.next_if(|(k, _)| *k < c.key).is_some() {}
+            let correction = kept.next_if(|(k, _)| *k == c.key).map(|(_, d)| *d);
+            *o = match (past.previous, correction) {
+                (Some(p), Some(d)) => Impulse { normal: p.normal + d.normal, tangent: p.tangent + d.tangent },
+                (previous, _) => previous.unwrap_or_default(),
+            };
+        }
+        Ok(())
+    }
+}
+
 /// Sends a step's problem to the node that serves warm starts.
 pub type ProblemSender = Box<dyn FnMut(&Problem) -> Result<(), String>>;
 

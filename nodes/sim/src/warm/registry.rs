@@ -7,7 +7,7 @@ use crate::error::SimError;
 use crate::solver::rows::Impulse;
 use crate::warm::model::{ContactWarmSource, GridSource, WarmStartModel, WarmStarter};
 use crate::warm::probes::{BuiltinReappear, Coarse, ConjugateGradient, Continue, Extrapolate, Subspace};
-use crate::warm::product::{Builtin, Constant, GnnModel, GnnNodeModel, GnnPipelinedModel, GridModel, ProblemSender};
+use crate::warm::product::{Builtin, Constant, GnnEveryModel, GnnModel, GnnNodeModel, GnnPipelinedModel, GridModel, ProblemSender};
 use crate::warm::references::{Ablation, Copy, OracleAblation, Random};
 use msgs::models::ModelGroup;
 use std::str::FromStr;
@@ -66,6 +66,8 @@ pub enum ModelKind {
     RoughError,
     /// The contact-graph network.
     Gnn,
+    /// The network every N-th step, its correction carried on in between.
+    GnnEvery,
     /// The network's correction as a direction, amplitudes from the step's Galerkin system.
     GnnSubspace,
     /// The contact-graph network over the bus.
@@ -88,7 +90,7 @@ pub enum ModelKind {
 
 impl ModelKind {
     /// Every model, in the order of the thesis's table.
-    pub const ALL: [ModelKind; 30] = [
+    pub const ALL: [ModelKind; 31] = [
         ModelKind::None,
         ModelKind::Builtin,
         ModelKind::Copy,
@@ -110,6 +112,7 @@ impl ModelKind {
         ModelKind::SmoothError,
         ModelKind::RoughError,
         ModelKind::Gnn,
+        ModelKind::GnnEvery,
         ModelKind::GnnSubspace,
         ModelKind::GnnNode,
         ModelKind::GnnPipelined,
@@ -255,11 +258,11 @@ impl ModelSpec {
     ) -> Result<Box<dyn WarmStartModel>, SimError> {
         let param = self.param.unwrap_or_default();
         let ablation = |a: Ablation| -> Box<dyn WarmStartModel> { Box::new(OracleAblation::new(self.name(), a, seed)) };
-        let network = || -> Result<Box<dyn WarmStartModel>, SimError> {
+        let net = || -> Result<gnn::net::Net, SimError> {
             let path = files.gnn.as_ref().ok_or_else(|| SimError::NoModelFile(self.name()))?;
-            let file = gnn::ModelFile::load(path).map_err(|e| SimError::ModelFile(e.to_string()))?;
-            Ok(Box::new(GnnModel::new(file.net)))
+            Ok(gnn::ModelFile::load(path).map_err(|e| SimError::ModelFile(e.to_string()))?.net)
         };
+        let network = || -> Result<Box<dyn WarmStartModel>, SimError> { Ok(Box::new(GnnModel::new(net()?))) };
         let no_source = || SimError::NoGridSource(self.name());
         Ok(match self.kind {
             // Product.
@@ -270,6 +273,7 @@ impl ModelSpec {
             }
             ModelKind::UnetDelta => Box::new(GridModel::delta(self.kind.name(), served.grid.ok_or_else(no_source)?)),
             ModelKind::Gnn => network()?,
+            ModelKind::GnnEvery => Box::new(GnnEveryModel::new(self.name(), net()?, param.round() as u32)),
             ModelKind::GnnNode => {
                 let (send, source) = served.contact.ok_or_else(no_source)?;
                 Box::new(GnnNodeModel::new(send, source))
