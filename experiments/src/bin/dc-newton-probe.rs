@@ -7,7 +7,9 @@
 use anyhow::Result;
 use clap::Parser;
 use sim::problem::{bodies_of, builtin_warm_start, rows_of};
-use sim::solver::{FrictionModel, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder, SolveParams};
+use sim::solver::{
+    FrictionModel, KrylovProblem, KrylovSolver, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder, SolveParams,
+};
 use sim::{ModelKind, SceneConfig, World, WorldParams};
 
 #[derive(Parser, Debug)]
@@ -28,7 +30,8 @@ struct Args {
     #[arg(long, default_value = "box")]
     friction: String,
     /// Tunings `rho/max_inner/inner_tolerance[/rho_start/rho_growth]` (the proximal method) or
-    /// `ipm` (the interior-point method), comma separated.
+    /// `ipm` (the interior-point method), or `mprgp` (conjugate gradients on the QP), comma
+    /// separated.
     #[arg(long, default_value = "1e4/8/0.01")]
     tunings: String,
     #[arg(long, default_value_t = 100)]
@@ -44,9 +47,11 @@ fn main() -> std::process::ExitCode {
 
 fn probe(args: Args) -> Result<()> {
     let friction: FrictionModel = args.friction.parse().map_err(anyhow::Error::msg)?;
+    let with_mprgp = args.tunings.split(',').any(|t| t == "mprgp");
     let tunings: Vec<NewtonParams> = args
         .tunings
         .split(',')
+        .filter(|t| *t != "mprgp")
         .map(|t| {
             let p: Vec<f64> = t
                 .trim_start_matches("ipm")
@@ -74,6 +79,7 @@ fn probe(args: Args) -> Result<()> {
     world.capture_problems(None);
     let mut solvers: Vec<NewtonSolver> = tunings.iter().map(|_| NewtonSolver::new()).collect();
     let mut totals = vec![(0u32, 0u32, 0u32, 0.0f64); tunings.len()];
+    let (mut krylov, mut krylov_total) = (KrylovSolver::new(), (0u32, 0u32, 0u32, 0.0f64));
     for _ in 0..args.steps {
         let report = world.step(&mut warm).clone();
         let step = report.step;
@@ -107,7 +113,46 @@ fn probe(args: Args) -> Result<()> {
                 print!("\n    {}", r.join(" "));
             }
         }
+        if with_mprgp {
+            let kp = KrylovProblem {
+                rows: &rows,
+                bodies: &bodies,
+                warm_start: &warm_start,
+                compliance: problem.header.compliance,
+                tolerance: problem.header.tolerance,
+                max_iterations: 20 * args.max_iterations,
+                deadline: None,
+            };
+            let (mut impulses, mut out) = (Vec::new(), bodies.clone());
+            let clock = std::time::Instant::now();
+            let stats = krylov.solve(&kp, &mut impulses, &mut out);
+            krylov_total.3 += clock.elapsed().as_secs_f64();
+            krylov_total.0 += stats.iterations;
+            krylov_total.1 += stats.converged as u32;
+            krylov_total.2 += 1;
+            print!(
+                " | mprgp it {:4} exp {:4} prop {:4} passes {:3} products {:4} res {:.1e}",
+                stats.iterations,
+                stats.expansions,
+                stats.proportionings,
+                stats.bound_passes,
+                stats.products,
+                stats.natural_max
+            );
+            if args.trace {
+                let r: Vec<String> = krylov.residuals().iter().step_by(10).map(|x| format!("{x:.1e}")).collect();
+                print!("\n    {}", r.join(" "));
+            }
+        }
         println!();
+    }
+    if with_mprgp {
+        let (it, conv, n, seconds) = krylov_total;
+        println!(
+            "mprgp: {conv}/{n} converged, {:.1} iterations per step, {:.3} ms per step",
+            it as f64 / n as f64,
+            1e3 * seconds / n as f64
+        );
     }
     for (t, (it, conv, n, seconds)) in tunings.iter().zip(&totals) {
         println!(

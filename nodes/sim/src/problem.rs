@@ -93,6 +93,7 @@ pub fn header_of(step: StepHeader, bodies: u32, solve: &SolveParams) -> ProblemH
             Method::Newton => 1,
             Method::Auto => 2,
             Method::InteriorPoint => 3,
+            Method::Mprgp => 4,
         },
         friction: (solve.friction == FrictionModel::PerStep) as u32,
         ..ProblemHeader::default()
@@ -119,6 +120,7 @@ impl Problem {
                 1 => Method::Newton,
                 2 => Method::Auto,
                 3 => Method::InteriorPoint,
+                4 => Method::Mprgp,
                 _ => Method::Sweeps,
             },
             friction: if h.friction == 1 { FrictionModel::PerStep } else { FrictionModel::Box },

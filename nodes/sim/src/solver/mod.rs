@@ -8,12 +8,14 @@
 //!   ([`ContactSolver::solve`]);
 //! - [`newton`]: Newton's method with a sparse Cholesky per iteration (proximal augmented
 //!   Lagrangian in body velocities): iterations that do not grow with the pile's depth;
+//! - [`krylov`]: MPRGP, conjugate gradients on the step's box-constrained QP (no factorisation);
 //! - [`setting`]: which member of the family ([`SolverSetting`]) and which stopping rule, spelled
 //!   as the command lines spell them;
 //! - [`position`]: Box2D 2.3's position pass after integration ([`correct_positions`]);
 //! - [`deadline`]: a solve's wall-time budget, checked by every method.
 
 pub mod deadline;
+pub mod krylov;
 pub mod newton;
 #[cfg(test)]
 mod newton_tests;
@@ -22,6 +24,7 @@ pub mod position;
 pub mod rows;
 pub mod setting;
 
+pub use krylov::{KrylovProblem, KrylovSolver, KrylovStats};
 pub use newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, SecondOrder};
 pub use pgs::{
     convergence_rate, natural_residual, ContactSolver, NaturalResidual, SolveParams, SolveReport, RATE_WINDOW,

@@ -275,3 +275,96 @@ fn auto_solves_with_the_fastest_measured_method_the_sweeps_so_far() {
         (sweeps, impulses)
     });
 }
+
+/// MPRGP alone (no sweeps to finish) on `rows` from `warm`, to `tolerance`.
+fn mprgp(
+    rows: &[ContactRow],
+    bodies: &[SolverBody],
+    warm: &[Impulse],
+    tolerance: f32,
+) -> (crate::solver::KrylovStats, Vec<Impulse>, Vec<SolverBody>) {
+    use crate::solver::{KrylovProblem, KrylovSolver};
+    let problem = KrylovProblem {
+        rows,
+        bodies,
+        warm_start: warm,
+        compliance: 0.0,
+        tolerance,
+        max_iterations: 5_000,
+        deadline: None,
+    };
+    let (mut impulses, mut out) = (Vec::new(), bodies.to_vec());
+    let stats = KrylovSolver::new().solve(&problem, &mut impulses, &mut out);
+    (stats, impulses, out)
+}
+
+#[test]
+fn mprgp_reaches_the_sweeps_solution_on_the_hand_checked_cases() {
+    // The stack of three: unique loads, every ball at rest.
+    let (bodies, rows) = stack(3, -0.1);
+    let (stats, l, out) = mprgp(&rows, &bodies, &[Impulse::default(); 3], 1e-6);
+    assert!(stats.converged, "{stats:?}");
+    let (swept, _) = sweeps(&rows, &bodies, &[Impulse::default(); 3]);
+    assert!(close(&l, &swept, 1e-5), "{l:?} vs {swept:?}");
+    assert!(out[1..].iter().all(|b| b.v.length() < 1e-5));
+    // The ball in a corner with friction (impulses not unique: the ball at rest, within the cone).
+    let wall = ContactRow { ra: Vec2::ZERO, rb: Vec2::new(-0.5, 0.0), normal: Vec2::X, height: 0.5, ..floor_row(1) };
+    let corner = [floor_row(1), wall];
+    let bodies = [SolverBody::default(), ball(Vec2::new(-2.0, -1.0))];
+    let (stats, l, out) = mprgp(&corner, &bodies, &[Impulse::default(); 2], 1e-6);
+    assert!(stats.converged && out[1].v.length() < 1e-5 && out[1].w.abs() < 1e-5, "{stats:?} {out:?}");
+    assert!(l.iter().all(|x| x.normal > 0.0 && x.tangent.abs() <= 0.5 * x.normal + 1e-6), "{l:?}");
+    assert!(natural_residual(&corner, &out, &l, 0.0).max <= 1e-6);
+    // The sliding ball on the floor: friction at its bound, Box2D's law through the bound passes.
+    let bodies = [SolverBody::default(), ball(Vec2::new(3.0, -1.0))];
+    let (stats, l, out) = mprgp(&[floor_row(1)], &bodies, &[Impulse::default()], 1e-6);
+    let (swept, swept_bodies) = sweeps(&[floor_row(1)], &bodies, &[Impulse::default()]);
+    assert!(stats.converged && close(&l, &swept, 1e-5), "{stats:?} {l:?} vs {swept:?}");
+    assert!((out[1].v - swept_bodies[1].v).length() < 1e-5);
+}
+
+#[test]
+fn mprgp_solves_a_jammed_stack_and_leaves_zero_bound_friction_alone() {
+    // Redundant rows (rank-deficient operator): converges, both boxes at rest, the same loads.
+    let (rows, bodies) = jammed();
+    let warm = vec![Impulse::default(); rows.len()];
+    let (stats, l, out) = mprgp(&rows, &bodies, &warm, 1e-6);
+    assert!(stats.converged, "{stats:?}");
+    assert!(out[1..].iter().all(|b| b.v.length() < 1e-4 && b.w.abs() < 1e-4), "{out:?}");
+    let load = |range: std::ops::Range<usize>| l[range].iter().map(|x| x.normal).sum::<f32>();
+    assert!((load(0..4) - 0.6).abs() < 1e-4 && (load(4..8) - 0.4).abs() < 1e-4, "{l:?}");
+    // The per-step law with a zero bound on the lower interface (no load there last step): its
+    // tangents stay at zero and the rest still converges (a fixed part is never "released").
+    let frozen: Vec<ContactRow> = rows
+        .iter()
+        .enumerate()
+        .map(|(i, r)| ContactRow { friction_bound: Some(if i < 4 { 0.0 } else { 0.3 }), ..*r })
+        .collect();
+    let (stats, l, out) = mprgp(&frozen, &bodies, &warm, 1e-6);
+    assert!(stats.converged && stats.proportionings < 100, "{stats:?}");
+    assert!(l[..4].iter().all(|x| x.tangent == 0.0), "{l:?}");
+    assert!(natural_residual(&frozen, &out, &l, 0.0).max <= 1e-5);
+}
+
+#[test]
+fn mprgp_refuses_nothing_silently_and_reports_where_it_stood() {
+    // Capped at 2 iterations on the jammed stack: not converged, and the residual it reports is
+    // the natural residual of the impulses and velocities it returns.
+    let (rows, bodies) = jammed();
+    let warm = vec![Impulse::default(); rows.len()];
+    use crate::solver::{KrylovProblem, KrylovSolver};
+    let problem = KrylovProblem {
+        rows: &rows,
+        bodies: &bodies,
+        warm_start: &warm,
+        compliance: 0.0,
+        tolerance: 1e-9,
+        max_iterations: 2,
+        deadline: None,
+    };
+    let (mut l, mut out) = (Vec::new(), bodies.clone());
+    let stats = KrylovSolver::new().solve(&problem, &mut l, &mut out);
+    assert!(!stats.converged && stats.iterations == 2, "{stats:?}");
+    let measured = natural_residual(&rows, &out, &l, 0.0).max as f64;
+    assert!((measured - stats.natural_max).abs() <= 1e-5 * (1.0 + measured), "{measured} vs {stats:?}");
+}

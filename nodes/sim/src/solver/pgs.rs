@@ -24,6 +24,7 @@
 //! The solver owns only reusable buffers; bodies and contact rows are passed in.
 
 use super::deadline::{deadline_after, past};
+use super::krylov::{KrylovProblem, KrylovSolver};
 use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder};
 use super::rows::{cross, cross_sv, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use super::setting::AUTO_NEWTON_FROM;
@@ -241,6 +242,8 @@ pub struct ContactSolver {
     trail: Vec<[Impulse; TRAIL_SWEEPS]>,
     /// The Newton method's state (pattern, symbolic factorisation), kept across steps.
     newton: NewtonSolver,
+    /// MPRGP's buffers.
+    krylov: KrylovSolver,
     /// The impulses a second-order method hands the sweeps that finish its solve, and its
     /// velocities before they are handed to the caller.
     handed: Vec<Impulse>,
@@ -292,10 +295,16 @@ impl ContactSolver {
             Method::Auto => AUTO_NEWTON_FROM
                 .is_some_and(|from| dynamic_bodies(bodies) >= from)
                 .then_some(SecondOrder::InteriorPoint),
-            Method::Sweeps => None,
+            Method::Sweeps | Method::Mprgp => None,
         };
-        if let (Some(method), false) = (second_order, rows.is_empty()) {
-            match self.solve_newton(rows, bodies, warm_start, params, method, deadline) {
+        let first = match (params.method, second_order) {
+            _ if rows.is_empty() => None,
+            (Method::Mprgp, _) => Some(Ok(self.solve_krylov(rows, bodies, warm_start, params, deadline))),
+            (_, Some(method)) => Some(self.solve_newton(rows, bodies, warm_start, params, method, deadline)),
+            (_, None) => None,
+        };
+        if let Some(first) = first {
+            match first {
                 Ok(report) if report.converged => return report,
                 Ok(report) => {
                     // Short of the tolerance (the bodies untouched): the sweeps finish from its
@@ -310,7 +319,11 @@ impl ContactSolver {
                 }
                 // The bodies are untouched: the sweeps solve the same problem.
                 Err(e) => {
-                    tracing::warn!("{method:?} solver: {e}; this step is solved by {}", params.setting().sweeps())
+                    tracing::warn!(
+                        "{} solver: {e}; this step is solved by {}",
+                        params.setting(),
+                        params.setting().sweeps()
+                    )
                 }
             }
         }
@@ -430,6 +443,48 @@ impl ContactSolver {
         self.solved.clear();
         self.solved.extend_from_slice(bodies);
         let stats = self.newton.solve(&problem, &newton, &mut self.impulses, &mut self.solved)?;
+        self.residuals.clear();
+        self.residuals.extend_from_slice(self.newton.residuals());
+        Ok(self.second_order_report(rows, bodies, params, stats.iterations, stats.iterations))
+    }
+
+    /// The MPRGP solve ([`super::krylov`]); its iterations are the report's sweeps.
+    fn solve_krylov(
+        &mut self,
+        rows: &[ContactRow],
+        bodies: &mut [SolverBody],
+        warm_start: &[Impulse],
+        params: &SolveParams,
+        deadline: Option<Instant>,
+    ) -> SolveReport {
+        let problem = KrylovProblem {
+            rows,
+            bodies,
+            warm_start,
+            compliance: params.compliance,
+            tolerance: params.tolerance,
+            max_iterations: params.max_sweeps,
+            deadline,
+        };
+        self.solved.clear();
+        self.solved.extend_from_slice(bodies);
+        let stats = self.krylov.solve(&problem, &mut self.impulses, &mut self.solved);
+        self.residuals.clear();
+        self.residuals.extend_from_slice(self.krylov.residuals());
+        self.second_order_report(rows, bodies, params, stats.iterations, 0)
+    }
+
+    /// A solve outside the sweeps done (its impulses in `impulses`, their velocities in
+    /// `solved`, its residuals in `residuals`): the report on the natural residual of the f32
+    /// impulses; the velocities go to the caller only with a solution.
+    fn second_order_report(
+        &mut self,
+        rows: &[ContactRow],
+        bodies: &mut [SolverBody],
+        params: &SolveParams,
+        iterations: u32,
+        factorisations: u32,
+    ) -> SolveReport {
         self.prepared.clear();
         self.prepared.extend(rows.iter().map(|r| Prepared::of(r, &self.solved)));
         let natural =
@@ -439,17 +494,15 @@ impl ContactSolver {
         if natural.max <= params.tolerance {
             bodies.copy_from_slice(&self.solved);
         }
-        self.residuals.clear();
-        self.residuals.extend_from_slice(self.newton.residuals());
         self.trail.clear();
         self.trail.resize(rows.len(), [Impulse::default(); TRAIL_SWEEPS]);
-        Ok(SolveReport {
-            sweeps: stats.iterations,
+        SolveReport {
+            sweeps: iterations,
             converged: natural.max <= params.tolerance,
             final_residual: natural.max,
             natural,
-            factorisations: stats.iterations,
-        })
+            factorisations,
+        }
     }
 
     /// The final impulses and trail back in row order, the trail's last sweep first.
@@ -766,7 +819,7 @@ mod tests {
 
     /// Every member of the family the issue names, each under the natural rule.
     fn family() -> Vec<SolveParams> {
-        ["pgs", "sor:1.4", "sor:0.8", "nncg", "pgs/down", "sor:1.4/down", "nncg/down"]
+        ["pgs", "sor:1.4", "sor:0.8", "nncg", "pgs/down", "sor:1.4/down", "nncg/down", "mprgp"]
             .iter()
             .map(|s| SolveParams {
                 tolerance: 1e-6,

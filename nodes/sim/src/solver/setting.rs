@@ -35,6 +35,8 @@ pub enum Method {
     /// The primal-dual interior-point method on the step's QP, a sparse Cholesky per
     /// iteration ([`super::newton`]).
     InteriorPoint,
+    /// MPRGP, conjugate gradients on the step's box-constrained QP ([`super::krylov`]).
+    Mprgp,
     /// The fastest measured at the problem's size: the interior-point method from
     /// [`AUTO_NEWTON_FROM`] dynamic bodies on (if ever), the sweeps below.
     Auto,
@@ -225,8 +227,10 @@ impl SolverSetting {
     /// the recommended sweeps below.
     pub const AUTO: SolverSetting = SolverSetting { method: Method::Auto, ..SolverSetting::RECOMMENDED };
 
+    pub const MPRGP: SolverSetting = SolverSetting { method: Method::Mprgp, ..SolverSetting::RECOMMENDED };
+
     /// What `--solver` accepts, in words.
-    pub const SPELLING: &'static str = "ipm (interior point), newton (proximal Newton), auto (ipm from 200 bodies, nncg:1.2/down below), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down) or /recorded";
+    pub const SPELLING: &'static str = "ipm (interior point), newton (proximal Newton), mprgp (conjugate gradients on the QP), auto (ipm from 200 bodies, nncg:1.2/down below), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down) or /recorded";
 
     /// The sweeps of this setting (what a second-order method falls back to and finishes with;
     /// itself for the sweeps).
@@ -251,6 +255,7 @@ impl fmt::Display for SolverSetting {
             Method::Newton => return f.write_str("newton"),
             Method::InteriorPoint => return f.write_str("ipm"),
             Method::Auto => return f.write_str("auto"),
+            Method::Mprgp => return f.write_str("mprgp"),
             Method::Sweeps => {}
         }
         match (self.momentum, self.relaxation) {
@@ -282,6 +287,7 @@ impl FromStr for SolverSetting {
             "newton" => return Ok(SolverSetting::NEWTON),
             "ipm" => return Ok(SolverSetting::INTERIOR_POINT),
             "auto" => return Ok(SolverSetting::AUTO),
+            "mprgp" => return Ok(SolverSetting::MPRGP),
             _ => {}
         }
         let (method, order) = match s.split_once('/') {

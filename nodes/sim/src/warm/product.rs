@@ -199,7 +199,8 @@ impl WarmStartModel for GnnEveryModel {
             let builtin = input.history.pasts(input.contacts.iter().map(|c| &c.key));
             for ((c, o), past) in input.contacts.iter().zip(out.iter()).zip(builtin) {
                 let start = past.previous.unwrap_or_default();
-                self.correction.push((c.key, Impulse { normal: o.normal - start.normal, tangent: o.tangent - start.tangent }));
+                self.correction
+                    .push((c.key, Impulse { normal: o.normal - start.normal, tangent: o.tangent - start.tangent }));
             }
             return Ok(());
         }

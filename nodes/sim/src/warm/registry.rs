@@ -7,7 +7,9 @@ use crate::error::SimError;
 use crate::solver::rows::Impulse;
 use crate::warm::model::{ContactWarmSource, GridSource, WarmStartModel, WarmStarter};
 use crate::warm::probes::{BuiltinReappear, Coarse, ConjugateGradient, Continue, Extrapolate, Subspace};
-use crate::warm::product::{Builtin, Constant, GnnEveryModel, GnnModel, GnnNodeModel, GnnPipelinedModel, GridModel, ProblemSender};
+use crate::warm::product::{
+    Builtin, Constant, GnnEveryModel, GnnModel, GnnNodeModel, GnnPipelinedModel, GridModel, ProblemSender,
+};
 use crate::warm::references::{Ablation, Copy, OracleAblation, Random};
 use msgs::models::ModelGroup;
 use std::str::FromStr;
