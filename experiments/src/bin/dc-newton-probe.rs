@@ -36,6 +36,9 @@ struct Args {
     tunings: String,
     #[arg(long, default_value_t = 100)]
     max_iterations: u32,
+    /// Start every method from builtin's warm start after this many `nncg:1.2/down` sweeps.
+    #[arg(long, default_value_t = 0)]
+    pre_sweeps: u32,
     /// Print the residual after each outer iteration.
     #[arg(long)]
     trace: bool,
@@ -89,7 +92,14 @@ fn probe(args: Args) -> Result<()> {
         let problem = world.problem().expect("capturing");
         let rows = rows_of(&problem.contacts, friction);
         let bodies = bodies_of(&problem.bodies);
-        let warm_start = builtin_warm_start(&problem.contacts);
+        let mut warm_start = builtin_warm_start(&problem.contacts);
+        if args.pre_sweeps > 0 {
+            // The second-order methods start where this many sweeps of the default solver left.
+            let (mut swept, mut sweeps) = (bodies.clone(), sim::ContactSolver::new());
+            let pre = SolveParams { max_sweeps: args.pre_sweeps, tolerance: 0.0, friction, ..SolveParams::default() };
+            sweeps.solve(&rows, &mut swept, &warm_start, &pre.with_setting(sim::SolverSetting::RECOMMENDED));
+            warm_start = sweeps.impulses().to_vec();
+        }
         let np = NewtonProblem {
             rows: &rows,
             bodies: &bodies,

@@ -230,7 +230,7 @@ impl SolverSetting {
     pub const MPRGP: SolverSetting = SolverSetting { method: Method::Mprgp, ..SolverSetting::RECOMMENDED };
 
     /// What `--solver` accepts, in words.
-    pub const SPELLING: &'static str = "ipm (interior point), newton (proximal Newton), mprgp (conjugate gradients on the QP), auto (ipm from 200 bodies, nncg:1.2/down below), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down) or /recorded";
+    pub const SPELLING: &'static str = "ipm (interior point), newton (proximal Newton), mprgp (conjugate gradients on the QP), auto (the fastest measured at the size: nncg:1.2/down at every size so far), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down) or /recorded";
 
     /// The sweeps of this setting (what a second-order method falls back to and finishes with;
     /// itself for the sweeps).
