@@ -25,6 +25,9 @@
 //! Everything inside is f64; the stopping rule is the PGS family's natural residual of the
 //! unregularised problem.
 
+// The per-part loops index several parallel arrays (impulse, gradient, scale) at once.
+#![allow(clippy::needless_range_loop)]
+
 use super::deadline::past;
 use super::rows::{cross, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use rapier2d::math::Vec2;
