@@ -141,3 +141,21 @@ impl Problem {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::SolverSetting;
+
+    #[test]
+    fn a_recorded_header_gives_back_the_solver_it_was_solved_with() {
+        for setting in ["pgs", "nncg:1.2/down", "newton", "ipm", "mprgp", "auto"] {
+            let solve =
+                SolveParams { stop: StopRule::Relative, friction: FrictionModel::PerStep, ..SolveParams::default() }
+                    .with_setting(setting.parse::<SolverSetting>().unwrap());
+            let problem =
+                Problem { header: header_of(StepHeader::default(), 3, &solve), bodies: vec![], contacts: vec![] };
+            assert_eq!(problem.params(), solve, "{setting}");
+        }
+    }
+}

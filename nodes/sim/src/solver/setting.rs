@@ -350,6 +350,7 @@ mod tests {
         for s in [
             "newton",
             "ipm",
+            "mprgp",
             "auto",
             "pgs",
             "sor:1.4",
