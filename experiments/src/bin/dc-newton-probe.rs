@@ -108,7 +108,20 @@ fn probe(args: Args) -> Result<()> {
             tolerance: problem.header.tolerance,
             deadline: None,
         };
-        print!("step {step:3} rows {:4} sweeps {:5}", rows.len(), report.sweeps);
+        // The default solver from builtin's start to the step's tolerance, for scale.
+        let nncg = {
+            let (mut swept, mut sweeps) = (bodies.clone(), sim::ContactSolver::new());
+            let to_tolerance = SolveParams {
+                max_sweeps: 10_000,
+                tolerance: problem.header.tolerance,
+                stop: sim::StopRule::Natural,
+                friction,
+                ..SolveParams::default()
+            };
+            let start = builtin_warm_start(&problem.contacts);
+            sweeps.solve(&rows, &mut swept, &start, &to_tolerance.with_setting(sim::SolverSetting::RECOMMENDED)).sweeps
+        };
+        print!("step {step:3} rows {:4} sweeps {:5} nncg from builtin {nncg:5}", rows.len(), report.sweeps);
         for ((t, solver), total) in tunings.iter().zip(&mut solvers).zip(&mut totals) {
             let (mut impulses, mut out) = (Vec::new(), bodies.clone());
             let clock = std::time::Instant::now();
