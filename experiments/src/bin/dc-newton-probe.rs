@@ -148,7 +148,7 @@ fn probe(args: Args) -> Result<()> {
             };
             let (mut impulses, mut out) = (Vec::new(), bodies.clone());
             let clock = std::time::Instant::now();
-            let stats = krylov.solve(&kp, &mut impulses, &mut out);
+            let stats = krylov.solve(&kp, &mut impulses, &mut out)?;
             krylov_total.3 += clock.elapsed().as_secs_f64();
             krylov_total.0 += stats.iterations;
             krylov_total.1 += stats.converged as u32;

@@ -29,6 +29,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::deadline::past;
+use super::newton::{check, NewtonError};
 use super::rows::{cross, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use rapier2d::math::Vec2;
 use std::time::Instant;
@@ -126,13 +127,15 @@ impl KrylovSolver {
     }
 
     /// Solves `problem` from its warm start; the impulses go to `impulses` (row order), the
-    /// velocities they give to `bodies`.
+    /// velocities they give to `bodies`. Refuses a problem with a non-finite value or a row
+    /// naming a body that is not there, before touching anything.
     pub fn solve(
         &mut self,
         problem: &KrylovProblem<'_>,
         impulses: &mut Vec<Impulse>,
         bodies: &mut [SolverBody],
-    ) -> KrylovStats {
+    ) -> Result<KrylovStats, NewtonError> {
+        check(problem.rows, problem.bodies)?;
         let mut stats = KrylovStats::default();
         self.setup(problem);
         let tolerance = problem.tolerance as f64;
@@ -159,7 +162,7 @@ impl KrylovSolver {
         stats.converged = residual <= tolerance;
         stats.natural_max = residual;
         self.finish(impulses, bodies);
-        stats
+        Ok(stats)
     }
 
     /// One MPRGP step: conjugate gradients in the face, an expansion step when CG would leave the

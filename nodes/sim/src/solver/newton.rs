@@ -222,7 +222,7 @@ impl NewtonSolver {
         impulses: &mut Vec<Impulse>,
         bodies: &mut [SolverBody],
     ) -> Result<NewtonStats, NewtonError> {
-        check(problem)?;
+        check(problem.rows, problem.bodies)?;
         let mut stats = NewtonStats::default();
         self.setup(problem);
         stats.symbolic_reused = self.prepare_pattern()?;
@@ -1062,10 +1062,11 @@ fn add_outer(block: &mut [f64; 9], w: f64, a: &[f64; 3], b: &[f64; 3]) {
     }
 }
 
-/// Refuses a problem with a non-finite value or a row naming a missing body.
-fn check(problem: &NewtonProblem<'_>) -> Result<(), NewtonError> {
-    let bodies = problem.bodies.len();
-    for (i, b) in problem.bodies.iter().enumerate() {
+/// Refuses a problem with a non-finite value or a row naming a missing body (every method
+/// outside the sweeps checks this before touching anything).
+pub(super) fn check(rows: &[ContactRow], bodies: &[SolverBody]) -> Result<(), NewtonError> {
+    let count = bodies.len();
+    for (i, b) in bodies.iter().enumerate() {
         for (what, x) in [
             ("velocity", b.v.x),
             ("velocity", b.v.y),
@@ -1078,10 +1079,10 @@ fn check(problem: &NewtonProblem<'_>) -> Result<(), NewtonError> {
             }
         }
     }
-    for (row, r) in problem.rows.iter().enumerate() {
+    for (row, r) in rows.iter().enumerate() {
         for body in [r.body_a, r.body_b] {
-            if body as usize >= bodies {
-                return Err(NewtonError::NoSuchBody { row, body, bodies });
+            if body as usize >= count {
+                return Err(NewtonError::NoSuchBody { row, body, bodies: count });
             }
         }
         for (what, x) in [

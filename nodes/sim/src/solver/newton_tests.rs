@@ -203,6 +203,20 @@ fn a_row_with_a_non_finite_value_is_refused_naming_it() {
         .solve(&problem, &NewtonParams::default(), &mut Vec::new(), &mut bad_body.clone())
         .unwrap_err();
     assert_eq!(err, NewtonError::NonFiniteBody { body: 1, what: "velocity" });
+    // MPRGP refuses the same rows, naming the same value.
+    let (mut rows, bodies) = corner();
+    rows[1].normal.x = f32::NAN;
+    let kp = crate::solver::KrylovProblem {
+        rows: &rows,
+        bodies: &bodies,
+        warm_start: &zero,
+        compliance: 0.0,
+        tolerance: 1e-6,
+        max_iterations: 100,
+        deadline: None,
+    };
+    let err = crate::solver::KrylovSolver::new().solve(&kp, &mut Vec::new(), &mut bodies.clone()).unwrap_err();
+    assert_eq!(err, NewtonError::NonFiniteRow { row: 1, what: "normal" });
 }
 
 #[test]
@@ -294,7 +308,7 @@ fn mprgp(
         deadline: None,
     };
     let (mut impulses, mut out) = (Vec::new(), bodies.to_vec());
-    let stats = KrylovSolver::new().solve(&problem, &mut impulses, &mut out);
+    let stats = KrylovSolver::new().solve(&problem, &mut impulses, &mut out).expect("finite rows");
     (stats, impulses, out)
 }
 
@@ -363,7 +377,7 @@ fn mprgp_refuses_nothing_silently_and_reports_where_it_stood() {
         deadline: None,
     };
     let (mut l, mut out) = (Vec::new(), bodies.clone());
-    let stats = KrylovSolver::new().solve(&problem, &mut l, &mut out);
+    let stats = KrylovSolver::new().solve(&problem, &mut l, &mut out).unwrap();
     assert!(!stats.converged && stats.iterations == 2, "{stats:?}");
     let measured = natural_residual(&rows, &out, &l, 0.0).max as f64;
     assert!((measured - stats.natural_max).abs() <= 1e-5 * (1.0 + measured), "{measured} vs {stats:?}");

@@ -299,7 +299,7 @@ impl ContactSolver {
         };
         let first = match (params.method, second_order) {
             _ if rows.is_empty() => None,
-            (Method::Mprgp, _) => Some(Ok(self.solve_krylov(rows, bodies, warm_start, params, deadline))),
+            (Method::Mprgp, _) => Some(self.solve_krylov(rows, bodies, warm_start, params, deadline)),
             (_, Some(method)) => Some(self.solve_newton(rows, bodies, warm_start, params, method, deadline)),
             (_, None) => None,
         };
@@ -456,7 +456,7 @@ impl ContactSolver {
         warm_start: &[Impulse],
         params: &SolveParams,
         deadline: Option<Instant>,
-    ) -> SolveReport {
+    ) -> Result<SolveReport, NewtonError> {
         let problem = KrylovProblem {
             rows,
             bodies,
@@ -468,10 +468,10 @@ impl ContactSolver {
         };
         self.solved.clear();
         self.solved.extend_from_slice(bodies);
-        let stats = self.krylov.solve(&problem, &mut self.impulses, &mut self.solved);
+        let stats = self.krylov.solve(&problem, &mut self.impulses, &mut self.solved)?;
         self.residuals.clear();
         self.residuals.extend_from_slice(self.krylov.residuals());
-        self.second_order_report(rows, bodies, params, stats.iterations, 0)
+        Ok(self.second_order_report(rows, bodies, params, stats.iterations, 0))
     }
 
     /// A solve outside the sweeps done (its impulses in `impulses`, their velocities in
