@@ -80,10 +80,19 @@ impl ImpulseHistory {
 
     /// builtin's warm start: each contact's impulse in the previous step, 0 for new ones.
     pub fn fill_previous(&self, contacts: &[ContactPoint], out: &mut [Impulse]) {
-        let mut previous = Cursor::new(&self.previous);
-        for (c, o) in contacts.iter().zip(out.iter_mut()) {
-            *o = previous.find(&c.key).map(|e| e.impulse).unwrap_or_default();
+        for (o, previous) in out.iter_mut().zip(self.previous_each(contacts.iter().map(|c| &c.key))) {
+            *o = previous.unwrap_or_default();
         }
+    }
+
+    /// Each contact's impulse in the previous step (None: new), in order: one walk along the
+    /// previous step only (what [`Self::pasts`] does for both past steps).
+    pub fn previous_each<'a>(
+        &'a self,
+        keys: impl Iterator<Item = &'a ContactKey> + 'a,
+    ) -> impl Iterator<Item = Option<Impulse>> + 'a {
+        let mut previous = Cursor::new(&self.previous);
+        keys.map(move |key| previous.find(key).map(|e| e.impulse))
     }
 
     /// Each contact's past, in order: its age, its impulse in the previous step and in the one

@@ -196,22 +196,22 @@ impl WarmStartModel for GnnEveryModel {
             self.network.warm_start(input, out)?;
             self.due_in = self.every - 1;
             self.correction.clear();
-            let builtin = input.history.pasts(input.contacts.iter().map(|c| &c.key));
-            for ((c, o), past) in input.contacts.iter().zip(out.iter()).zip(builtin) {
-                let start = past.previous.unwrap_or_default();
-                self.correction
-                    .push((c.key, Impulse { normal: o.normal - start.normal, tangent: o.tangent - start.tangent }));
+            // The captured problem carries builtin's start (`previous`, 0 on new contacts).
+            let problem = step_problem(input)?;
+            for ((c, o), p) in input.contacts.iter().zip(out.iter()).zip(&problem.contacts) {
+                let d = Impulse { normal: o.normal - p.previous[0], tangent: o.tangent - p.previous[1] };
+                self.correction.push((c.key, d));
             }
             return Ok(());
         }
         self.due_in -= 1;
         // Both lists sorted by key: one merge.
         let mut kept = self.correction.iter().peekable();
-        let pasts = input.history.pasts(input.contacts.iter().map(|c| &c.key));
-        for ((c, o), past) in input.contacts.iter().zip(out.iter_mut()).zip(pasts) {
+        let previous = input.history.previous_each(input.contacts.iter().map(|c| &c.key));
+        for ((c, o), previous) in input.contacts.iter().zip(out.iter_mut()).zip(previous) {
             while kept.next_if(|(k, _)| *k < c.key).is_some() {}
             let correction = kept.next_if(|(k, _)| *k == c.key).map(|(_, d)| *d);
-            *o = match (past.previous, correction) {
+            *o = match (previous, correction) {
                 (Some(p), Some(d)) => Impulse { normal: p.normal + d.normal, tangent: p.tangent + d.tangent },
                 (previous, _) => previous.unwrap_or_default(),
             };

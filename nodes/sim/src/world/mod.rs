@@ -292,8 +292,8 @@ impl World {
 
         // The relative rule's tolerance comes from builtin's start (the previous step's impulses),
         // whatever the model's, so that every model of a run is held to the same accuracy.
-        let builtin_start = self.history.pasts(self.contacts.iter().map(|c| &c.key));
-        let solve = self.params.solve.relative_to(builtin_start.map(|p| p.previous.unwrap_or_default()));
+        let builtin_start = self.history.previous_each(self.contacts.iter().map(|c| &c.key));
+        let solve = self.params.solve.relative_to(builtin_start.map(Option::unwrap_or_default));
 
         // builtin on this same problem, when asked (a builtin step is its own answer); not part
         // of the step's time.
