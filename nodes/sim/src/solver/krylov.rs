@@ -29,8 +29,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::deadline::past;
-use super::newton::{check, NewtonError};
-use super::rows::{cross, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
+use super::newton::{check, NewtonError, Row};
+use super::rows::{ContactRow, Impulse, SolverBody};
 use rapier2d::math::Vec2;
 use std::time::Instant;
 
@@ -65,25 +65,6 @@ pub struct KrylovStats {
     pub converged: bool,
     /// The natural residual's max over rows at the end (f64).
     pub natural_max: f64,
-}
-
-/// A row in f64: bodies, Jacobians `[normal, tangent]` (per body `(x, y, angular)`, body a's
-/// negated), effective masses and friction law.
-#[derive(Debug, Clone, Copy)]
-struct Row {
-    a: usize,
-    b: usize,
-    j: [[f64; 6]; 2],
-    mass: [f64; 2],
-    mu: f64,
-    fixed_bound: Option<f64>,
-}
-
-impl Row {
-    /// The tangent bound the law gives with normal impulse `normal`.
-    fn bound(&self, normal: f64) -> f64 {
-        self.fixed_bound.unwrap_or(self.mu * normal.max(0.0))
-    }
 }
 
 /// The solver's reusable buffers (per row part `2 * row + {0: normal, 1: tangent}`).
@@ -330,30 +311,14 @@ impl KrylovSolver {
     fn gradient(&mut self, stats: &mut KrylovStats) {
         stats.products += 1;
         self.w.clone_from(&self.v0);
-        scatter(&self.rows, &self.inv, &self.scale, &self.y, &mut self.w);
-        for (i, r) in self.rows.iter().enumerate() {
-            let jv = apply(r, &self.w);
-            for part in 0..2 {
-                let k = 2 * i + part;
-                let s = self.scale[k];
-                self.g[k] = s * (jv[part] + self.soft[k] * s * self.y[k]);
-            }
-        }
+        operator(&self.rows, &self.inv, &self.scale, &self.soft, &self.y, &mut self.w, &mut self.g);
     }
 
     /// `ap = S (A + R) S p`.
     fn product(&mut self, stats: &mut KrylovStats) {
         stats.products += 1;
         self.w.iter_mut().for_each(|w| *w = [0.0; 3]);
-        scatter(&self.rows, &self.inv, &self.scale, &self.p, &mut self.w);
-        for (i, r) in self.rows.iter().enumerate() {
-            let jw = apply(r, &self.w);
-            for part in 0..2 {
-                let k = 2 * i + part;
-                let s = self.scale[k];
-                self.ap[k] = s * (jw[part] + self.soft[k] * s * self.p[k]);
-            }
-        }
+        operator(&self.rows, &self.inv, &self.scale, &self.soft, &self.p, &mut self.w, &mut self.ap);
     }
 
     /// The operator's largest eigenvalue, from a few power iterations (at least 1: the diagonal
@@ -389,36 +354,14 @@ impl KrylovSolver {
         self.w.clear();
         self.w.resize(bodies.len(), [0.0; 3]);
         self.rows.clear();
-        for r in problem.rows {
-            let (a, b) = (r.body_a as usize, r.body_b as usize);
-            let t = tangent_of(r.normal);
-            let jac = |d: Vec2| {
-                let (ca, cb) = (cross(r.ra, d) as f64, cross(r.rb, d) as f64);
-                [-d.x as f64, -d.y as f64, -ca, d.x as f64, d.y as f64, cb]
-            };
-            let (ba, bb) = (&bodies[a], &bodies[b]);
-            self.rows.push(Row {
-                a,
-                b,
-                j: [jac(r.normal), jac(t)],
-                mass: [
-                    effective_mass(ba, bb, r.ra, r.rb, r.normal) as f64,
-                    effective_mass(ba, bb, r.ra, r.rb, t) as f64,
-                ],
-                mu: r.friction as f64,
-                fixed_bound: r.friction_bound.map(|c| c as f64),
-            });
-        }
+        self.rows.extend(problem.rows.iter().map(|r| Row::of(r, bodies)));
         let parts = 2 * self.rows.len();
         for buf in [&mut self.scale, &mut self.soft, &mut self.lo, &mut self.hi, &mut self.y] {
             buf.clear();
         }
         let gamma = problem.compliance as f64;
         for (r, w) in self.rows.iter().zip(problem.warm_start) {
-            let n = if w.normal.is_finite() { (w.normal as f64).max(0.0) } else { 0.0 };
-            let c = r.bound(n);
-            let t = if w.tangent.is_finite() { (w.tangent as f64).clamp(-c, c) } else { 0.0 };
-            for (part, x) in [(0, n), (1, t)] {
+            for (part, x) in r.projected(w).into_iter().enumerate() {
                 let m = r.mass[part];
                 let s = if m > 0.0 && m.is_finite() { m.sqrt() } else { 0.0 };
                 self.scale.push(s);
@@ -449,14 +392,7 @@ impl KrylovSolver {
         }
         // The velocities of the f32 impulses the caller gets, so that its residual is theirs.
         self.w.clone_from(&self.v0);
-        for (r, l) in self.rows.iter().zip(impulses.iter()) {
-            let x = [l.normal as f64, l.tangent as f64];
-            for (body, offset) in [(r.a, 0), (r.b, 3)] {
-                for c in 0..3 {
-                    self.w[body][c] += self.inv[body][c] * (r.j[0][offset + c] * x[0] + r.j[1][offset + c] * x[1]);
-                }
-            }
-        }
+        scatter(&self.rows, &self.inv, |i| [impulses[i].normal as f64, impulses[i].tangent as f64], &mut self.w);
         for (b, v) in bodies.iter_mut().zip(&self.w) {
             b.v = Vec2::new(v[0] as f32, v[1] as f32);
             b.w = v[2] as f32;
@@ -464,23 +400,37 @@ impl KrylovSolver {
     }
 }
 
-/// `w += M^-1 J^T (S y)`.
-fn scatter(rows: &[Row], inv: &[[f64; 3]], scale: &[f64], y: &[f64], w: &mut [[f64; 3]]) {
+/// `out = S (J w + R S x)` after `w += M^-1 J^T (S x)`: with `w` the free velocities the gradient
+/// at `x`, from rest the operator `S (A + R) S` on `x`.
+fn operator(
+    rows: &[Row],
+    inv: &[[f64; 3]],
+    scale: &[f64],
+    soft: &[f64],
+    x: &[f64],
+    w: &mut [[f64; 3]],
+    out: &mut [f64],
+) {
+    scatter(rows, inv, |i| [scale[2 * i] * x[2 * i], scale[2 * i + 1] * x[2 * i + 1]], w);
     for (i, r) in rows.iter().enumerate() {
-        let x = [scale[2 * i] * y[2 * i], scale[2 * i + 1] * y[2 * i + 1]];
+        let jw = r.apply(w);
+        for part in 0..2 {
+            let k = 2 * i + part;
+            out[k] = scale[k] * (jw[part] + soft[k] * scale[k] * x[k]);
+        }
+    }
+}
+
+/// `w += M^-1 J^T l`, row `i`'s impulse `l(i)` (`[normal, tangent]`).
+fn scatter(rows: &[Row], inv: &[[f64; 3]], l: impl Fn(usize) -> [f64; 2], w: &mut [[f64; 3]]) {
+    for (i, r) in rows.iter().enumerate() {
+        let x = l(i);
         for (body, offset) in [(r.a, 0), (r.b, 3)] {
             for c in 0..3 {
                 w[body][c] += inv[body][c] * (r.j[0][offset + c] * x[0] + r.j[1][offset + c] * x[1]);
             }
         }
     }
-}
-
-/// `J w` of one row: `[normal, tangent]`.
-#[inline]
-fn apply(r: &Row, w: &[[f64; 3]]) -> [f64; 2] {
-    let (wa, wb) = (&w[r.a], &w[r.b]);
-    r.j.map(|j| j[0] * wa[0] + j[1] * wa[1] + j[2] * wa[2] + j[3] * wb[0] + j[4] * wb[1] + j[5] * wb[2])
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {

@@ -117,15 +117,16 @@ pub struct NewtonStats {
 }
 
 /// A row in f64: its bodies, Jacobians (normal, tangent; per body `(x, y, angular)`, body a's
-/// negated), effective masses and friction law.
+/// negated), effective masses and friction law. Shared with MPRGP ([`super::krylov`]), which
+/// leaves the Hessian's block fields alone.
 #[derive(Debug, Clone, Copy)]
-struct Row {
-    a: usize,
-    b: usize,
+pub(super) struct Row {
+    pub(super) a: usize,
+    pub(super) b: usize,
     /// Jacobian rows: `[normal, tangent]`, each `[body a (3), body b (3)]`.
-    j: [[f64; 6]; 2],
+    pub(super) j: [[f64; 6]; 2],
     /// Effective masses `[normal, tangent]` (0 when both bodies are fixed).
-    mass: [f64; 2],
+    pub(super) mass: [f64; 2],
     mu: f64,
     fixed_bound: Option<f64>,
     /// Where the row's three Hessian blocks live in the block list: (a, a), (b, b), (a, b);
@@ -331,36 +332,10 @@ impl NewtonSolver {
             self.v0.push([b.v.x as f64, b.v.y as f64, b.w as f64]);
         }
         self.rows.clear();
-        for r in problem.rows {
-            let (a, b) = (r.body_a as usize, r.body_b as usize);
-            let t = tangent_of(r.normal);
-            let jac = |d: Vec2| {
-                let (ca, cb) = (cross(r.ra, d) as f64, cross(r.rb, d) as f64);
-                [-d.x as f64, -d.y as f64, -ca, d.x as f64, d.y as f64, cb]
-            };
-            let (ba, bb) = (&bodies[a], &bodies[b]);
-            self.rows.push(Row {
-                a,
-                b,
-                j: [jac(r.normal), jac(t)],
-                mass: [
-                    effective_mass(ba, bb, r.ra, r.rb, r.normal) as f64,
-                    effective_mass(ba, bb, r.ra, r.rb, t) as f64,
-                ],
-                mu: r.friction as f64,
-                fixed_bound: r.friction_bound.map(|c| c as f64),
-                blocks: [NONE; 3],
-                a_first: true,
-            });
-        }
+        self.rows.extend(problem.rows.iter().map(|r| Row::of(r, bodies)));
         // The warm start projected onto the rows' intervals (a learned guess may be outside).
         self.lambda.clear();
-        for (r, w) in self.rows.iter().zip(problem.warm_start) {
-            let n = if w.normal.is_finite() { (w.normal as f64).max(0.0) } else { 0.0 };
-            let c = r.bound(n);
-            let t = if w.tangent.is_finite() { (w.tangent as f64).clamp(-c, c) } else { 0.0 };
-            self.lambda.push([n, t]);
-        }
+        self.lambda.extend(self.rows.iter().zip(problem.warm_start).map(|(r, w)| r.projected(w)));
         let dofs = blocks as usize;
         self.v.clear();
         self.v.extend_from_slice(&self.v0);
@@ -1000,9 +975,39 @@ impl NewtonSolver {
 }
 
 impl Row {
+    /// Row `r` of a problem on `bodies`, in f64.
+    pub(super) fn of(r: &ContactRow, bodies: &[SolverBody]) -> Row {
+        let (a, b) = (r.body_a as usize, r.body_b as usize);
+        let t = tangent_of(r.normal);
+        let jac = |d: Vec2| {
+            let (ca, cb) = (cross(r.ra, d) as f64, cross(r.rb, d) as f64);
+            [-d.x as f64, -d.y as f64, -ca, d.x as f64, d.y as f64, cb]
+        };
+        let (ba, bb) = (&bodies[a], &bodies[b]);
+        Row {
+            a,
+            b,
+            j: [jac(r.normal), jac(t)],
+            mass: [effective_mass(ba, bb, r.ra, r.rb, r.normal) as f64, effective_mass(ba, bb, r.ra, r.rb, t) as f64],
+            mu: r.friction as f64,
+            fixed_bound: r.friction_bound.map(|c| c as f64),
+            blocks: [NONE; 3],
+            a_first: true,
+        }
+    }
+
+    /// A warm start's impulse projected onto the row's intervals (a learned guess may be
+    /// outside; a non-finite part becomes 0).
+    pub(super) fn projected(&self, w: &Impulse) -> [f64; 2] {
+        let n = if w.normal.is_finite() { (w.normal as f64).max(0.0) } else { 0.0 };
+        let c = self.bound(n);
+        let t = if w.tangent.is_finite() { (w.tangent as f64).clamp(-c, c) } else { 0.0 };
+        [n, t]
+    }
+
     /// `J x` of per-body vectors `x`: `[normal, tangent]`.
     #[inline]
-    fn apply(&self, x: &[[f64; 3]]) -> [f64; 2] {
+    pub(super) fn apply(&self, x: &[[f64; 3]]) -> [f64; 2] {
         let (xa, xb) = (&x[self.a], &x[self.b]);
         self.j.map(|j| j[0] * xa[0] + j[1] * xa[1] + j[2] * xa[2] + j[3] * xb[0] + j[4] * xb[1] + j[5] * xb[2])
     }
@@ -1015,7 +1020,7 @@ impl Row {
 
     /// The tangent bound with normal impulse `normal`.
     #[inline]
-    fn bound(&self, normal: f64) -> f64 {
+    pub(super) fn bound(&self, normal: f64) -> f64 {
         self.fixed_bound.unwrap_or(self.mu * normal.max(0.0))
     }
 
