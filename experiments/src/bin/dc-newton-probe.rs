@@ -7,9 +7,7 @@
 use anyhow::Result;
 use clap::Parser;
 use sim::problem::{bodies_of, builtin_warm_start, rows_of};
-use sim::solver::{
-    FrictionModel, KrylovProblem, KrylovSolver, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder, SolveParams,
-};
+use sim::solver::{FrictionModel, KrylovSolver, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder, SolveParams};
 use sim::{ModelKind, SceneConfig, World, WorldParams};
 
 #[derive(Parser, Debug)]
@@ -137,18 +135,9 @@ fn probe(args: Args) -> Result<()> {
             }
         }
         if with_mprgp {
-            let kp = KrylovProblem {
-                rows: &rows,
-                bodies: &bodies,
-                warm_start: &warm_start,
-                compliance: problem.header.compliance,
-                tolerance: problem.header.tolerance,
-                max_iterations: 20 * args.max_iterations,
-                deadline: None,
-            };
             let (mut impulses, mut out) = (Vec::new(), bodies.clone());
             let clock = std::time::Instant::now();
-            let stats = krylov.solve(&kp, &mut impulses, &mut out)?;
+            let stats = krylov.solve(&np, 20 * args.max_iterations, &mut impulses, &mut out)?;
             krylov_total.3 += clock.elapsed().as_secs_f64();
             krylov_total.0 += stats.iterations;
             krylov_total.1 += stats.converged as u32;

@@ -29,25 +29,9 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::deadline::past;
-use super::newton::{check, NewtonError, Row};
-use super::rows::{ContactRow, Impulse, SolverBody};
+use super::newton::{check, NewtonError, NewtonProblem, Row};
+use super::rows::{Impulse, SolverBody};
 use rapier2d::math::Vec2;
-use std::time::Instant;
-
-/// The problem a solve is given.
-pub struct KrylovProblem<'a> {
-    pub rows: &'a [ContactRow],
-    pub bodies: &'a [SolverBody],
-    pub warm_start: &'a [Impulse],
-    /// Relative compliance `gamma` of every row.
-    pub compliance: f32,
-    /// Natural residual (max over rows) to reach.
-    pub tolerance: f32,
-    /// Iterations at most (each about a sweep and a half of work).
-    pub max_iterations: u32,
-    /// Stop at the first check past this instant, converged or not.
-    pub deadline: Option<Instant>,
-}
 
 /// What one solve did.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -107,12 +91,14 @@ impl KrylovSolver {
         &self.residuals
     }
 
-    /// Solves `problem` from its warm start; the impulses go to `impulses` (row order), the
-    /// velocities they give to `bodies`. Refuses a problem with a non-finite value or a row
+    /// Solves `problem` from its warm start in at most `max_iterations` iterations (each about a
+    /// sweep and a half of work); the impulses go to `impulses` (row order), the velocities they
+    /// give to `bodies`. Refuses a problem with a non-finite value or a row
     /// naming a body that is not there, before touching anything.
     pub fn solve(
         &mut self,
-        problem: &KrylovProblem<'_>,
+        problem: &NewtonProblem<'_>,
+        max_iterations: u32,
         impulses: &mut Vec<Impulse>,
         bodies: &mut [SolverBody],
     ) -> Result<KrylovStats, NewtonError> {
@@ -128,7 +114,7 @@ impl KrylovSolver {
         self.residuals.clear();
         self.residuals.push(residual as f32);
         self.free_gradient_into_p();
-        while residual > tolerance && stats.iterations < problem.max_iterations && !past(problem.deadline) {
+        while residual > tolerance && stats.iterations < max_iterations && !past(problem.deadline) {
             // The frozen problem solved well ahead of the bounds' own error: refresh them.
             if frozen <= 0.25 * residual && self.freeze_bounds() {
                 stats.bound_passes += 1;
@@ -343,7 +329,7 @@ impl KrylovSolver {
     }
 
     /// Rows, bodies, masses, scales and the projected warm start in f64.
-    fn setup(&mut self, problem: &KrylovProblem<'_>) {
+    fn setup(&mut self, problem: &NewtonProblem<'_>) {
         let bodies = problem.bodies;
         self.inv.clear();
         self.v0.clear();

@@ -24,7 +24,7 @@ pub mod position;
 pub mod rows;
 pub mod setting;
 
-pub use krylov::{KrylovProblem, KrylovSolver, KrylovStats};
+pub use krylov::{KrylovSolver, KrylovStats};
 pub use newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, SecondOrder};
 pub use pgs::{
     convergence_rate, natural_residual, ContactSolver, NaturalResidual, SolveParams, SolveReport, RATE_WINDOW,

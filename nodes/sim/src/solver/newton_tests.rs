@@ -206,16 +206,9 @@ fn a_row_with_a_non_finite_value_is_refused_naming_it() {
     // MPRGP refuses the same rows, naming the same value.
     let (mut rows, bodies) = corner();
     rows[1].normal.x = f32::NAN;
-    let kp = crate::solver::KrylovProblem {
-        rows: &rows,
-        bodies: &bodies,
-        warm_start: &zero,
-        compliance: 0.0,
-        tolerance: 1e-6,
-        max_iterations: 100,
-        deadline: None,
-    };
-    let err = crate::solver::KrylovSolver::new().solve(&kp, &mut Vec::new(), &mut bodies.clone()).unwrap_err();
+    let problem = exact(&rows, &bodies, &zero);
+    let err =
+        crate::solver::KrylovSolver::new().solve(&problem, 100, &mut Vec::new(), &mut bodies.clone()).unwrap_err();
     assert_eq!(err, NewtonError::NonFiniteRow { row: 1, what: "normal" });
 }
 
@@ -297,18 +290,10 @@ fn mprgp(
     warm: &[Impulse],
     tolerance: f32,
 ) -> (crate::solver::KrylovStats, Vec<Impulse>, Vec<SolverBody>) {
-    use crate::solver::{KrylovProblem, KrylovSolver};
-    let problem = KrylovProblem {
-        rows,
-        bodies,
-        warm_start: warm,
-        compliance: 0.0,
-        tolerance,
-        max_iterations: 5_000,
-        deadline: None,
-    };
+    let problem = NewtonProblem { tolerance, ..exact(rows, bodies, warm) };
     let (mut impulses, mut out) = (Vec::new(), bodies.to_vec());
-    let stats = KrylovSolver::new().solve(&problem, &mut impulses, &mut out).expect("finite rows");
+    let stats =
+        crate::solver::KrylovSolver::new().solve(&problem, 5_000, &mut impulses, &mut out).expect("finite rows");
     (stats, impulses, out)
 }
 
@@ -366,18 +351,9 @@ fn mprgp_refuses_nothing_silently_and_reports_where_it_stood() {
     // the natural residual of the impulses and velocities it returns.
     let (rows, bodies) = jammed();
     let warm = vec![Impulse::default(); rows.len()];
-    use crate::solver::{KrylovProblem, KrylovSolver};
-    let problem = KrylovProblem {
-        rows: &rows,
-        bodies: &bodies,
-        warm_start: &warm,
-        compliance: 0.0,
-        tolerance: 1e-9,
-        max_iterations: 2,
-        deadline: None,
-    };
+    let problem = NewtonProblem { tolerance: 1e-9, ..exact(&rows, &bodies, &warm) };
     let (mut l, mut out) = (Vec::new(), bodies.clone());
-    let stats = KrylovSolver::new().solve(&problem, &mut l, &mut out).unwrap();
+    let stats = crate::solver::KrylovSolver::new().solve(&problem, 2, &mut l, &mut out).unwrap();
     assert!(!stats.converged && stats.iterations == 2, "{stats:?}");
     let measured = natural_residual(&rows, &out, &l, 0.0).max as f64;
     assert!((measured - stats.natural_max).abs() <= 1e-5 * (1.0 + measured), "{measured} vs {stats:?}");

@@ -24,7 +24,7 @@
 //! The solver owns only reusable buffers; bodies and contact rows are passed in.
 
 use super::deadline::{deadline_after, past};
-use super::krylov::{KrylovProblem, KrylovSolver};
+use super::krylov::KrylovSolver;
 use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder};
 use super::rows::{cross, cross_sv, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use super::setting::AUTO_NEWTON_FROM;
@@ -224,6 +224,15 @@ impl Prepared {
     }
 }
 
+/// A method outside the sweeps, which hands its impulses to them short of the tolerance.
+#[derive(Debug, Clone, Copy)]
+enum Outside {
+    /// A sparse Cholesky per iteration ([`super::newton`]).
+    Newton(SecondOrder),
+    /// Conjugate gradients on the QP ([`super::krylov`]).
+    Mprgp,
+}
+
 /// Sequential-impulse contact solver: reusable buffers only, no world state.
 #[derive(Debug, Default, Clone)]
 pub struct ContactSolver {
@@ -289,22 +298,17 @@ impl ContactSolver {
         deadline: Option<Instant>,
     ) -> SolveReport {
         assert_eq!(rows.len(), warm_start.len(), "one warm-start impulse per contact row");
-        let second_order = match params.method {
-            Method::Newton => Some(SecondOrder::Proximal),
-            Method::InteriorPoint => Some(SecondOrder::InteriorPoint),
+        let outside = match params.method {
+            Method::Newton => Some(Outside::Newton(SecondOrder::Proximal)),
+            Method::InteriorPoint => Some(Outside::Newton(SecondOrder::InteriorPoint)),
             Method::Auto => AUTO_NEWTON_FROM
                 .is_some_and(|from| dynamic_bodies(bodies) >= from)
-                .then_some(SecondOrder::InteriorPoint),
-            Method::Sweeps | Method::Mprgp => None,
+                .then_some(Outside::Newton(SecondOrder::InteriorPoint)),
+            Method::Mprgp => Some(Outside::Mprgp),
+            Method::Sweeps => None,
         };
-        let first = match (params.method, second_order) {
-            _ if rows.is_empty() => None,
-            (Method::Mprgp, _) => Some(self.solve_krylov(rows, bodies, warm_start, params, deadline)),
-            (_, Some(method)) => Some(self.solve_newton(rows, bodies, warm_start, params, method, deadline)),
-            (_, None) => None,
-        };
-        if let Some(first) = first {
-            match first {
+        if let (Some(method), false) = (outside, rows.is_empty()) {
+            match self.solve_outside(rows, bodies, warm_start, params, method, deadline) {
                 Ok(report) if report.converged => return report,
                 Ok(report) => {
                     // Short of the tolerance (the bodies untouched): the sweeps finish from its
@@ -417,14 +421,14 @@ impl ContactSolver {
         report
     }
 
-    /// The Newton solve ([`super::newton`]); its iterations are the report's sweeps.
-    fn solve_newton(
+    /// A solve by a method outside the sweeps; its iterations are the report's sweeps.
+    fn solve_outside(
         &mut self,
         rows: &[ContactRow],
         bodies: &mut [SolverBody],
         warm_start: &[Impulse],
         params: &SolveParams,
-        method: SecondOrder,
+        method: Outside,
         deadline: Option<Instant>,
     ) -> Result<SolveReport, NewtonError> {
         let problem = NewtonProblem {
@@ -435,43 +439,27 @@ impl ContactSolver {
             tolerance: params.tolerance,
             deadline,
         };
-        let newton = NewtonParams {
-            method,
-            max_iterations: params.max_sweeps.min(NewtonParams::default().max_iterations),
-            ..NewtonParams::default()
-        };
         self.solved.clear();
         self.solved.extend_from_slice(bodies);
-        let stats = self.newton.solve(&problem, &newton, &mut self.impulses, &mut self.solved)?;
         self.residuals.clear();
-        self.residuals.extend_from_slice(self.newton.residuals());
-        Ok(self.second_order_report(rows, bodies, params, stats.iterations, stats.iterations))
-    }
-
-    /// The MPRGP solve ([`super::krylov`]); its iterations are the report's sweeps.
-    fn solve_krylov(
-        &mut self,
-        rows: &[ContactRow],
-        bodies: &mut [SolverBody],
-        warm_start: &[Impulse],
-        params: &SolveParams,
-        deadline: Option<Instant>,
-    ) -> Result<SolveReport, NewtonError> {
-        let problem = KrylovProblem {
-            rows,
-            bodies,
-            warm_start,
-            compliance: params.compliance,
-            tolerance: params.tolerance,
-            max_iterations: params.max_sweeps,
-            deadline,
+        let (iterations, factorisations) = match method {
+            Outside::Newton(method) => {
+                let newton = NewtonParams {
+                    method,
+                    max_iterations: params.max_sweeps.min(NewtonParams::default().max_iterations),
+                    ..NewtonParams::default()
+                };
+                let stats = self.newton.solve(&problem, &newton, &mut self.impulses, &mut self.solved)?;
+                self.residuals.extend_from_slice(self.newton.residuals());
+                (stats.iterations, stats.iterations)
+            }
+            Outside::Mprgp => {
+                let stats = self.krylov.solve(&problem, params.max_sweeps, &mut self.impulses, &mut self.solved)?;
+                self.residuals.extend_from_slice(self.krylov.residuals());
+                (stats.iterations, 0)
+            }
         };
-        self.solved.clear();
-        self.solved.extend_from_slice(bodies);
-        let stats = self.krylov.solve(&problem, &mut self.impulses, &mut self.solved)?;
-        self.residuals.clear();
-        self.residuals.extend_from_slice(self.krylov.residuals());
-        Ok(self.second_order_report(rows, bodies, params, stats.iterations, 0))
+        Ok(self.second_order_report(rows, bodies, params, iterations, factorisations))
     }
 
     /// A solve outside the sweeps done (its impulses in `impulses`, their velocities in
