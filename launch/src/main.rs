@@ -192,6 +192,11 @@ struct EvalArgs {
     /// one SPH node and one dc-unet); 1 keeps timings clean.
     #[arg(long, default_value_t = 1)]
     jobs: usize,
+    /// Sweep threads of each simulator (`dc-sim --threads`: the colour order's rows on that many
+    /// threads; the answer is the same on any number). Default: the simulator's own, the
+    /// machine's cores.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=sim_threads_limit()))]
+    threads: Option<u32>,
     /// Report folder (default reports/eval-<unix seconds>).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -716,6 +721,11 @@ fn external_servers(args: &EvalArgs) -> Result<Vec<NodeSpec>> {
         .collect()
 }
 
+/// The most sweep threads a simulator accepts (`dc-sim --threads`).
+const fn sim_threads_limit() -> i64 {
+    1024
+}
+
 /// The arguments of an evaluation's simulator running `models` (with a solver and a budget).
 fn simulator_args(args: &EvalArgs, models: &[&str], solver: Option<&str>, budget: Option<u32>) -> Vec<String> {
     let mut sim_args = vec![
@@ -735,6 +745,9 @@ fn simulator_args(args: &EvalArgs, models: &[&str], solver: Option<&str>, budget
     }
     if args.error_split {
         sim_args.push("--error-split".into());
+    }
+    if let Some(threads) = args.threads {
+        sim_args.push(format!("--threads={threads}"));
     }
     sim_args.extend(args.sim_args.iter().cloned());
     if let Some(solver) = solver {

@@ -88,7 +88,7 @@ pub struct ProblemHeader {
     pub momentum: u32,
     #[serde(default)]
     pub restart: f32,
-    /// Row order: 0 recorded, 1 top-down (absent in older recordings: recorded).
+    /// Row order: 0 recorded, 1 top-down, 2 coloured (absent in older recordings: recorded).
     #[serde(default)]
     pub order: u32,
     /// Stopping rule: 0 the largest change of a sweep, 1 the natural residual, 2 the natural

@@ -4,7 +4,7 @@
 
 use crate::error::SimError;
 use crate::scene::{SamplerKind, SceneConfig, SceneKind};
-use crate::solver::{FrictionModel, RowOrder, SolveParams, SolverSetting, StopRule};
+use crate::solver::{FrictionModel, RowOrder, SolveParams, SolverSetting, StopRule, ThreadsError, MAX_THREADS};
 use crate::world::WorldParams;
 use std::time::Duration;
 
@@ -36,6 +36,16 @@ fn compliance(s: &str) -> Result<f32, String> {
 /// An over-relaxation factor (`SolveParams::valid_relaxation`).
 fn relaxation(s: &str) -> Result<f32, String> {
     f32_where(s, SolveParams::valid_relaxation, &format!("a number {}", SolveParams::relaxation_range()))
+}
+
+/// A thread count for `--threads`: 1 to [`MAX_THREADS`].
+fn threads(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(0) => Err("at least 1 thread".to_string()),
+        Ok(n) if n > MAX_THREADS => Err(format!("at most {MAX_THREADS} threads")),
+        Ok(n) => Ok(n),
+        Err(e) => Err(format!("a whole number of threads: {e}")),
+    }
 }
 
 /// A duration that must be given (`10ms`, `2s`), never `none`.
@@ -186,9 +196,20 @@ pub struct SolveArgs {
     /// oracle and the reference solves never have one.
     #[arg(long, value_parser = positive_f32)]
     pub time_budget_ms: Option<f32>,
+    /// Threads the colour order sweeps on (`--solver nncg:1.2/colour`, `--order colour`): each
+    /// colour's rows are updated on all of them at once. Default: the machine's cores; 1 sweeps
+    /// on the calling thread. The answer is the same, bit for bit, on any number of threads.
+    #[arg(long, default_value_t = crate::solver::machine_cores(), value_parser = threads)]
+    pub threads: usize,
 }
 
 impl SolveArgs {
+    /// Starts the process's sweep threads (`--threads`); the error says how many could not be
+    /// started. Call once, before the first solve.
+    pub fn start_threads(&self) -> Result<(), ThreadsError> {
+        crate::solver::set_process_threads(self.threads)
+    }
+
     /// The world's parameters; `budget`: exactly that many sweeps a step, stopping earlier
     /// only at the tolerance of the natural residual (the real-time regime).
     pub fn world_params(&self, budget: Option<u32>) -> WorldParams {

@@ -143,6 +143,7 @@ fn main() -> std::process::ExitCode {
 fn try_main() -> Result<()> {
     let Some(args) = runtime::parse_args_checked::<Args, _>(check) else { return Ok(()) };
     runtime::init_logging();
+    args.solve.start_threads().with_context(|| format!("--threads {}", args.solve.threads))?;
     let seeds = args.scene.seeds()?;
     let models = args.models();
 

@@ -82,7 +82,11 @@ pub fn header_of(step: StepHeader, bodies: u32, solve: &SolveParams) -> ProblemH
         relaxation: solve.relaxation,
         momentum,
         restart,
-        order: (solve.order == RowOrder::Down) as u32,
+        order: match solve.order {
+            RowOrder::Recorded => 0,
+            RowOrder::Down => 1,
+            RowOrder::Colour => 2,
+        },
         stop: match solve.stop {
             StopRule::Change => 0,
             StopRule::Natural => 1,
@@ -110,7 +114,11 @@ impl Problem {
             compliance: h.compliance,
             relaxation: msgs::recorded_relaxation(h.relaxation),
             momentum: if h.momentum == 1 { Momentum::Nncg { restart: h.restart } } else { Momentum::None },
-            order: if h.order == 1 { RowOrder::Down } else { RowOrder::Recorded },
+            order: match h.order {
+                1 => RowOrder::Down,
+                2 => RowOrder::Colour,
+                _ => RowOrder::Recorded,
+            },
             stop: match h.stop {
                 1 => StopRule::Natural,
                 2 => StopRule::Relative,
@@ -149,7 +157,7 @@ mod tests {
 
     #[test]
     fn a_recorded_header_gives_back_the_solver_it_was_solved_with() {
-        for setting in ["pgs", "nncg:1.2/down", "newton", "ipm", "mprgp", "auto"] {
+        for setting in ["pgs", "nncg:1.2/down", "nncg:1.2/colour", "newton", "ipm", "mprgp", "auto"] {
             let solve =
                 SolveParams { stop: StopRule::Relative, friction: FrictionModel::PerStep, ..SolveParams::default() }
                     .with_setting(setting.parse::<SolverSetting>().unwrap());

@@ -197,7 +197,7 @@ fn trajectory(params: WorldParams, seed: u64) -> (Vec<StepOutcome>, Vec<sim::wor
 
 #[test]
 fn every_solver_meets_the_natural_residual_and_the_lcp_at_convergence() {
-    for setting in ["pgs", "sor:1.4", "nncg", "sor:1.4/down"] {
+    for setting in ["pgs", "sor:1.4", "nncg", "sor:1.4/down", "nncg:1.2/colour"] {
         let params = natural(setting, 1e-4);
         let (mut world, mut warm) = started(6, params, ModelKind::Builtin);
         let (mut checked, mut converged) = (0, 0);
@@ -248,4 +248,49 @@ fn the_relative_rule_holds_every_model_to_builtins_scale() {
         }
     }
     assert!(converged > 150 && above > 50, "{converged} converged, {above} above the absolute 1e-4");
+}
+
+#[test]
+fn the_colour_order_solves_a_falling_pile_to_the_same_bits_on_any_thread_count() {
+    // A 400-body pile (about 1,000 rows: the threads take part) at three steps of its fall,
+    // under both friction laws: each captured problem solved in the colour order on 1 to 4
+    // threads gives the same impulses, velocities, sweeps and residuals, bit for bit.
+    use sim::problem::{bodies_of, builtin_warm_start, rows_of};
+    use sim::solver::{ContactSolver, FrictionModel, SweepThreads};
+    for friction in [FrictionModel::Box, FrictionModel::PerStep] {
+        let mut params = natural("nncg:1.2/down", 1e-4);
+        params.solve.friction = friction;
+        let mut world = World::new(&SceneConfig { seed: 2000, n: 400, ..Default::default() }, params).unwrap();
+        let mut warm = ModelKind::Builtin.starter(0).unwrap();
+        warm.begin_simulation(0, 2000);
+        world.capture_problems(None);
+        let mut problems = Vec::new();
+        for step in 0..120 {
+            world.step(&mut warm);
+            if [60, 90, 119].contains(&step) {
+                problems.push(world.problem().unwrap().clone());
+            }
+        }
+        for problem in &problems {
+            let rows = rows_of(&problem.contacts, friction);
+            let start = builtin_warm_start(&problem.contacts);
+            assert!(rows.len() > 500, "{} rows", rows.len());
+            for setting in ["pgs/colour", "nncg:1.2/colour"] {
+                let solve = SolveParams { max_sweeps: 5_000, friction, ..params.solve }.with_setting(setting.parse().unwrap());
+                let on = |threads: usize| {
+                    let mut s = ContactSolver::with_threads(SweepThreads::new(threads).unwrap());
+                    let mut bodies = bodies_of(&problem.bodies);
+                    let report = s.solve(&rows, &mut bodies, &start, &solve);
+                    (report, s.impulses().to_vec(), bodies, s.residuals().to_vec())
+                };
+                let one = on(1);
+                assert!(one.0.converged, "{friction} {setting}: {:?}", one.0);
+                let measured = natural_residual(&rows, &one.2, &one.1, 0.0);
+                assert_eq!(measured.max, one.0.natural.max, "{friction} {setting}: measured from outside");
+                for threads in [2, 3, 4] {
+                    assert!(on(threads) == one, "{friction} {setting}: {threads} threads differ from one");
+                }
+            }
+        }
+    }
 }

@@ -369,6 +369,12 @@ fn main() -> std::process::ExitCode {
 fn try_main() -> Result<()> {
     let Some(cli) = runtime::parse_args_checked::<Cli, _>(check) else { return Ok(()) };
     runtime::init_logging();
+    let solve = match &cli.study {
+        Study::Solvers(a) => &a.solve,
+        Study::Budget(a) => &a.solve,
+        Study::Bench(a) => &a.solve,
+    };
+    solve.start_threads().with_context(|| format!("--threads {}", solve.threads))?;
     match &cli.study {
         Study::Solvers(a) => solvers(a),
         Study::Budget(a) => budget_study(a),

@@ -9,11 +9,14 @@
 //! - [`newton`]: Newton's method with a sparse Cholesky per iteration (proximal augmented
 //!   Lagrangian in body velocities): iterations that do not grow with the pile's depth;
 //! - [`krylov`]: MPRGP, conjugate gradients on the step's box-constrained QP (no factorisation);
+//! - [`colour`]: the colour order: rows coloured so that a colour's rows share no moving body,
+//!   each colour swept on all threads (`--threads`), the same bits on any thread count;
 //! - [`setting`]: which member of the family ([`SolverSetting`]) and which stopping rule, spelled
 //!   as the command lines spell them;
 //! - [`position`]: Box2D 2.3's position pass after integration ([`correct_positions`]);
 //! - [`deadline`]: a solve's wall-time budget, checked by every method.
 
+pub mod colour;
 pub mod deadline;
 pub mod krylov;
 pub mod newton;
@@ -24,6 +27,7 @@ pub mod position;
 pub mod rows;
 pub mod setting;
 
+pub use colour::{machine_cores, process_threads, set_process_threads, SweepThreads, ThreadsError, MAX_THREADS};
 pub use krylov::{KrylovSolver, KrylovStats};
 pub use newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, SecondOrder};
 pub use pgs::{

@@ -23,6 +23,7 @@
 //! iteration count comparable across warm-start models and the complementarity check simple.
 //! The solver owns only reusable buffers; bodies and contact rows are passed in.
 
+use super::colour::{self, ColouredSolve, Colouring, SweepThreads};
 use super::deadline::{deadline_after, past};
 use super::krylov::KrylovSolver;
 use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder};
@@ -184,19 +185,22 @@ pub struct SolveReport {
 
 /// A row with its precomputed effective masses.
 #[derive(Debug, Clone, Copy)]
-struct Prepared {
-    a: usize,
-    b: usize,
-    ra: Vec2,
-    rb: Vec2,
-    n: Vec2,
-    t: Vec2,
+pub(super) struct Prepared {
+    pub(super) a: usize,
+    pub(super) b: usize,
+    pub(super) ra: Vec2,
+    pub(super) rb: Vec2,
+    pub(super) n: Vec2,
+    pub(super) t: Vec2,
     /// The tangent bound is `mu * normal + fixed_bound`: the Box2D law (`fixed_bound` 0) or the
     /// per-step model's fixed bound (`mu` 0), without a branch in the sweep.
     mu: f32,
     fixed_bound: f32,
     normal_mass: f32,
     tangent_mass: f32,
+    /// Whether body a and body b move under impulses (the coloured sweeps never write a static
+    /// body, which rows of one colour may share).
+    pub(super) moves: [bool; 2],
 }
 
 impl Prepared {
@@ -220,8 +224,78 @@ impl Prepared {
             fixed_bound: r.friction_bound.unwrap_or(0.0),
             normal_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, r.normal),
             tangent_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, t),
+            moves: [colour::moves(&bodies[a]), colour::moves(&bodies[b])],
         }
     }
+}
+
+/// Where a sweep reads and writes the body velocities: the body slice (one thread), or the
+/// coloured sweeps' shared view ([`colour`], several threads, each on its own rows).
+pub(super) trait Velocities {
+    /// Relative velocity of b with respect to a at the row's contact point.
+    fn relative(&self, c: &Prepared) -> Vec2;
+    /// Applies impulse `p` (on b; `-p` on a) at the row's contact point.
+    fn apply(&mut self, c: &Prepared, p: Vec2);
+}
+
+impl Velocities for [SolverBody] {
+    #[inline(always)]
+    fn relative(&self, c: &Prepared) -> Vec2 {
+        relative(self, c)
+    }
+
+    #[inline(always)]
+    fn apply(&mut self, c: &Prepared, p: Vec2) {
+        apply(self, c, p)
+    }
+}
+
+/// One row's projected Gauss-Seidel (or SOR) update, tangent first, bounded by the current
+/// normal impulse (Box2D's order); returns the row's change.
+#[inline(always)]
+pub(super) fn update_row<const RELAXED: bool, V: Velocities + ?Sized>(
+    bodies: &mut V,
+    c: &Prepared,
+    l: &mut Impulse,
+    softness: f32,
+    relaxation: f32,
+) -> Impulse {
+    let relax = |old: f32, target: f32| if RELAXED { old + relaxation * (target - old) } else { target };
+    let vt = bodies.relative(c).dot(c.t);
+    let max_t = c.bound(l.normal);
+    let new_t = relax(l.tangent, (l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t);
+    let dt = new_t - l.tangent;
+    l.tangent = new_t;
+    bodies.apply(c, c.t * dt);
+
+    let vn = bodies.relative(c).dot(c.n);
+    let new_n = relax(l.normal, (l.normal - c.normal_mass * vn) * softness).max(0.0);
+    let dn = new_n - l.normal;
+    l.normal = new_n;
+    bodies.apply(c, c.n * dn);
+    Impulse { normal: dn, tangent: dt }
+}
+
+/// One row of NNCG's vector update: move `beta` along the direction `p` (projected onto the
+/// friction cone, the velocities following), then extend the direction by the sweep's change.
+#[inline(always)]
+pub(super) fn momentum_row<V: Velocities + ?Sized>(
+    bodies: &mut V,
+    c: &Prepared,
+    l: &mut Impulse,
+    p: &mut Impulse,
+    dx: Impulse,
+    beta: f32,
+) {
+    if beta > 0.0 {
+        let normal = (l.normal + beta * p.normal).max(0.0);
+        let max_t = c.bound(normal);
+        let tangent = (l.tangent + beta * p.tangent).clamp(-max_t, max_t);
+        let (dn, dt) = (normal - l.normal, tangent - l.tangent);
+        *l = Impulse { normal, tangent };
+        bodies.apply(c, c.n * dn + c.t * dt);
+    }
+    *p = Impulse { normal: beta * p.normal + dx.normal, tangent: beta * p.tangent + dx.tangent };
 }
 
 /// A method outside the sweeps, which hands its impulses to them short of the tolerance.
@@ -257,21 +331,50 @@ pub struct ContactSolver {
     /// velocities before they are handed to the caller.
     handed: Vec<Impulse>,
     solved: Vec<SolverBody>,
+    /// The colour order's colours ([`colour`]).
+    colouring: Colouring,
+    /// The threads the colour order runs on; none: the process's ([`colour::process_threads`]).
+    threads: Option<SweepThreads>,
 }
 
 /// How many of a solve's last sweeps [`ContactSolver::trail`] keeps per row.
 pub const TRAIL_SWEEPS: usize = 4;
 
 /// What one sweep did: its largest absolute change and the sum of the squared changes.
-struct SweepChange {
-    max: f32,
-    squared: f64,
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct SweepChange {
+    pub(super) max: f32,
+    pub(super) squared: f64,
+}
+
+impl SweepChange {
+    /// Counts one row's change.
+    #[inline(always)]
+    pub(super) fn add(&mut self, d: Impulse) {
+        self.max = self.max.max(d.tangent.abs()).max(d.normal.abs());
+        self.squared += (d.normal as f64).powi(2) + (d.tangent as f64).powi(2);
+    }
+
+    /// Two parts' changes as one (the earlier part first).
+    pub(super) fn merge(self, later: SweepChange) -> SweepChange {
+        SweepChange { max: self.max.max(later.max), squared: self.squared + later.squared }
+    }
 }
 
 impl ContactSolver {
     /// An empty solver (buffers grow on first use).
     pub fn new() -> ContactSolver {
         ContactSolver::default()
+    }
+
+    /// An empty solver whose colour order runs on `threads` (not the process's).
+    pub fn with_threads(threads: SweepThreads) -> ContactSolver {
+        ContactSolver { threads: Some(threads), ..ContactSolver::default() }
+    }
+
+    /// The threads the colour order runs on.
+    pub fn threads(&self) -> &SweepThreads {
+        self.threads.as_ref().unwrap_or_else(|| colour::process_threads())
     }
 
     /// Solves the velocity-level contact problem of `rows` starting from `warm_start` (one impulse
@@ -333,9 +436,12 @@ impl ContactSolver {
         }
         self.visit.clear();
         self.visit.extend(0..rows.len() as u32);
-        if params.order == RowOrder::Down {
+        if matches!(params.order, RowOrder::Down | RowOrder::Colour) {
             // Top first; a stable sort keeps the recorded order between equal heights.
             self.visit.sort_by(|&i, &j| rows[j as usize].height.total_cmp(&rows[i as usize].height));
+        }
+        if params.order == RowOrder::Colour {
+            self.colouring.colour(rows, bodies, &mut self.visit);
         }
         self.prepared.clear();
         self.prepared.extend(self.visit.iter().map(|&i| Prepared::of(&rows[i as usize], bodies)));
@@ -375,6 +481,28 @@ impl ContactSolver {
                 Some(restart)
             }
         };
+        if params.order == RowOrder::Colour {
+            let threads = self.threads.clone().unwrap_or_else(|| colour::process_threads().clone());
+            let solve = ColouredSolve {
+                prepared: &self.prepared,
+                colouring: &self.colouring,
+                work: &mut self.work,
+                trail: &mut self.work_trail,
+                direction: &mut self.direction,
+                bodies,
+            };
+            let mut report = colour::sweep_coloured(solve, params, softness, deadline, &threads, &mut self.residuals);
+            if params.stop == StopRule::Change || report.sweeps == 0 {
+                report.natural = colour::natural_residual_chunked(&self.prepared, &self.work, bodies, softness);
+            }
+            if report.sweeps == 0 {
+                // Out of time before the first sweep: the start is the answer.
+                report.final_residual = report.natural.max;
+                report.converged = report.natural.max <= params.tolerance;
+            }
+            self.finish(&report);
+            return report;
+        }
         let mut previous_squared = 0.0f64;
         while report.sweeps < params.max_sweeps && !past(deadline) {
             let slot = report.sweeps as usize % TRAIL_SWEEPS;
@@ -514,28 +642,11 @@ impl ContactSolver {
         softness: f32,
         relaxation: f32,
     ) -> SweepChange {
-        let relax = |old: f32, target: f32| if RELAXED { old + relaxation * (target - old) } else { target };
-        let mut change = SweepChange { max: 0.0, squared: 0.0 };
+        let mut change = SweepChange::default();
         for ((c, l), trail) in self.prepared.iter().zip(self.work.iter_mut()).zip(self.work_trail.iter_mut()) {
-            // Tangent first, bounded by the current normal impulse (Box2D's order).
-            let dv = relative(bodies, c);
-            let vt = dv.dot(c.t);
-            let max_t = c.bound(l.normal);
-            let new_t = relax(l.tangent, (l.tangent - c.tangent_mass * vt) * softness).clamp(-max_t, max_t);
-            let dt = new_t - l.tangent;
-            l.tangent = new_t;
-            apply(bodies, c, c.t * dt);
-
-            let dv = relative(bodies, c);
-            let vn = dv.dot(c.n);
-            let new_n = relax(l.normal, (l.normal - c.normal_mass * vn) * softness).max(0.0);
-            let dn = new_n - l.normal;
-            l.normal = new_n;
-            apply(bodies, c, c.n * dn);
-
-            trail[slot] = Impulse { normal: dn, tangent: dt };
-            change.max = change.max.max(dt.abs()).max(dn.abs());
-            change.squared += (dn as f64).powi(2) + (dt as f64).powi(2);
+            let d = update_row::<RELAXED, _>(bodies, c, l, softness, relaxation);
+            trail[slot] = d;
+            change.add(d);
         }
         change
     }
@@ -552,16 +663,7 @@ impl ContactSolver {
         for (((c, l), p), trail) in
             self.prepared.iter().zip(self.work.iter_mut()).zip(self.direction.iter_mut()).zip(&self.work_trail)
         {
-            if beta > 0.0 {
-                let normal = (l.normal + beta * p.normal).max(0.0);
-                let max_t = c.bound(normal);
-                let tangent = (l.tangent + beta * p.tangent).clamp(-max_t, max_t);
-                let (dn, dt) = (normal - l.normal, tangent - l.tangent);
-                *l = Impulse { normal, tangent };
-                apply(bodies, c, c.n * dn + c.t * dt);
-            }
-            let dx = trail[slot];
-            *p = Impulse { normal: beta * p.normal + dx.normal, tangent: beta * p.tangent + dx.tangent };
+            momentum_row(bodies, c, l, p, trail[slot], beta);
         }
     }
 
@@ -619,9 +721,22 @@ fn natural_residual_of(
     bodies: &[SolverBody],
     softness: f32,
 ) -> NaturalResidual {
+    let (max, squared) = natural_residual_rows(prepared, impulses, bodies, softness);
+    let parts = 2 * prepared.len().max(1);
+    NaturalResidual { max, rms: (squared / parts as f64).sqrt() as f32 }
+}
+
+/// The natural residual's parts over some rows: the largest, and the sum of the squares.
+#[inline]
+pub(super) fn natural_residual_rows<V: Velocities + ?Sized>(
+    prepared: &[Prepared],
+    impulses: &[Impulse],
+    bodies: &V,
+    softness: f32,
+) -> (f32, f64) {
     let (mut max, mut squared) = (0.0f32, 0.0f64);
     for (c, l) in prepared.iter().zip(impulses) {
-        let dv = relative(bodies, c);
+        let dv = bodies.relative(c);
         let (vn, vt) = (dv.dot(c.n), dv.dot(c.t));
         let rn = (l.normal - ((l.normal - c.normal_mass * vn) * softness).max(0.0)).abs();
         let max_t = c.bound(l.normal);
@@ -629,8 +744,7 @@ fn natural_residual_of(
         max = max.max(rn).max(rt);
         squared += (rn as f64).powi(2) + (rt as f64).powi(2);
     }
-    let parts = 2 * prepared.len().max(1);
-    NaturalResidual { max, rms: (squared / parts as f64).sqrt() as f32 }
+    (max, squared)
 }
 
 /// Bodies that move under impulses (a positive inverse mass or inertia).

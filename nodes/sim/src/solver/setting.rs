@@ -97,6 +97,10 @@ pub enum RowOrder {
     /// By contact height, top first, every step (ties in the recorded order): a pile's weight
     /// reaches the floor within one sweep.
     Down,
+    /// Coloured (Box2D v3's graph colouring): the rows split greedily, top-down, into colours no
+    /// two rows of which share a moving body, visited colour after colour, each colour's rows
+    /// updated on all threads at once ([`super::colour`]). The same bits on any thread count.
+    Colour,
 }
 
 /// When a solve has converged.
@@ -144,7 +148,7 @@ impl Keyword for StopRule {
 
 impl Keyword for RowOrder {
     const WHAT: &'static str = "row order";
-    const KEYWORDS: &'static [(Self, &'static str)] = &[(RowOrder::Recorded, "recorded"), (RowOrder::Down, "down")];
+    const KEYWORDS: &'static [(Self, &'static str)] = &[(RowOrder::Recorded, "recorded"), (RowOrder::Down, "down"), (RowOrder::Colour, "colour")];
 }
 
 impl StopRule {
@@ -230,7 +234,7 @@ impl SolverSetting {
     pub const MPRGP: SolverSetting = SolverSetting { method: Method::Mprgp, ..SolverSetting::RECOMMENDED };
 
     /// What `--solver` accepts, in words.
-    pub const SPELLING: &'static str = "ipm (interior point), newton (proximal Newton), mprgp (conjugate gradients on the QP), auto (the fastest measured at the size: nncg:1.2/down at every size so far), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down) or /recorded";
+    pub const SPELLING: &'static str = "ipm (interior point), newton (proximal Newton), mprgp (conjugate gradients on the QP), auto (the fastest measured at the size: nncg:1.2/down at every size so far), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down), /colour (rows coloured, swept on --threads threads) or /recorded";
 
     /// The sweeps of this setting (what a second-order method falls back to and finishes with;
     /// itself for the sweeps).
@@ -272,8 +276,8 @@ impl fmt::Display for SolverSetting {
                 }
             }
         }
-        if self.order == RowOrder::Down {
-            write!(f, "/down")?
+        if self.order != RowOrder::Recorded {
+            write!(f, "/{}", self.order.name())?
         }
         Ok(())
     }
@@ -360,6 +364,8 @@ mod tests {
             "pgs/down",
             "sor:1.2/down",
             "nncg/down",
+            "nncg:1.2/colour",
+            "pgs/colour",
             "nncg+sor:1.3",
         ] {
             let setting: SolverSetting = s.parse().unwrap();

@@ -1,0 +1,755 @@
+//! Coloured sweeps on every core, as Box2D v3 (`solver_set.c`, `constraint_graph.c`), PhysX and
+//! rapier's parallel solver do it: the rows are split into colours, no two rows of a colour on
+//! the same moving body, and a colour's rows are updated on all threads at once.
+//!
+//! The colour order fixes the arithmetic: the rows of a colour touch disjoint moving bodies, so
+//! updating them at once or one after another gives the same bits, and every sum (a sweep's
+//! squared change, the natural residual's) is taken over fixed chunks of rows, in chunk order,
+//! whatever the thread count. A solve in the colour order is therefore the same on 1 thread as
+//! on 16, and a solve that cannot have its threads (the pool is busy with another solve) runs on
+//! the calling thread alone and gets the same answer.
+//!
+//! Rows are coloured greedily in the top-down order (highest contact first), so each colour is a
+//! set of rows spread over the whole pile, visited top-down; a row that finds no free colour among
+//! [`MAX_COLOURS`] goes to an overflow set swept by one thread (Box2D's overflow constraints). A
+//! row on no moving body (both bodies static or kinematic) never moves anything and takes colour 0.
+//!
+//! Threads meet at a spin barrier between phases (a colour's updates, NNCG's momentum step per
+//! colour, the natural residual): a condition variable's wake-up costs more than a colour's work
+//! on a 1,000-body pile. Waiting threads spin briefly, then yield, so an oversubscribed machine
+//! still makes progress.
+
+use super::pgs::{momentum_row, natural_residual_rows, update_row, Prepared, SweepChange, Velocities};
+use super::rows::{cross, ContactRow, Impulse, SolverBody};
+use super::setting::{Momentum, StopRule};
+use super::{SolveParams, SolveReport, TRAIL_SWEEPS};
+use rapier2d::math::Vec2;
+use std::ops::Range;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::Instant;
+
+/// Colours a row may take; a row with all of them used by its bodies' rows goes to the overflow.
+pub const MAX_COLOURS: usize = 32;
+
+/// Rows per chunk: the unit of work a thread takes and of every partial sum.
+pub const CHUNK: usize = 32;
+
+/// Below this many rows a solve in the colour order runs on the calling thread alone (same bits:
+/// only the time differs): the barriers would cost more than the rows.
+pub const PARALLEL_FROM_ROWS: usize = 256;
+
+/// The most threads `--threads` accepts.
+pub const MAX_THREADS: usize = 1024;
+
+/// Why the sweep threads could not be had.
+#[derive(Debug, thiserror::Error)]
+pub enum ThreadsError {
+    #[error("{0} sweep threads: at least 1 is needed")]
+    Zero(usize),
+    #[error("{0} sweep threads: at most {MAX_THREADS}")]
+    TooMany(usize),
+    #[error("cannot start {threads} sweep threads: {why}")]
+    Start { threads: usize, why: String },
+    #[error("the process's sweep threads were already set to {0}")]
+    AlreadySet(usize),
+}
+
+/// The threads a solve in the colour order may run on: a pool of its own (shared by clones), or
+/// none (one thread). Whoever finds the pool busy runs on its own thread: the same answer.
+#[derive(Clone)]
+pub struct SweepThreads {
+    threads: usize,
+    pool: Option<Arc<Mutex<rayon::ThreadPool>>>,
+}
+
+impl std::fmt::Debug for SweepThreads {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "SweepThreads({})", self.threads)
+    }
+}
+
+impl SweepThreads {
+    /// `threads` threads (1: the calling thread, no pool).
+    pub fn new(threads: usize) -> Result<SweepThreads, ThreadsError> {
+        if threads == 0 {
+            return Err(ThreadsError::Zero(threads));
+        }
+        if threads > MAX_THREADS {
+            return Err(ThreadsError::TooMany(threads));
+        }
+        let pool = if threads == 1 {
+            None
+        } else {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .thread_name(|i| format!("dc-sweep-{i}"))
+                .build()
+                .map_err(|e| ThreadsError::Start { threads, why: e.to_string() })?;
+            Some(Arc::new(Mutex::new(pool)))
+        };
+        Ok(SweepThreads { threads, pool })
+    }
+
+    /// One thread: the calling one.
+    pub fn single() -> SweepThreads {
+        SweepThreads { threads: 1, pool: None }
+    }
+
+    pub fn threads(&self) -> usize {
+        self.threads
+    }
+}
+
+/// The machine's cores (1 where it cannot say).
+pub fn machine_cores() -> usize {
+    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+}
+
+static PROCESS_THREADS: OnceLock<SweepThreads> = OnceLock::new();
+
+/// Sets the process's sweep threads (`--threads`), once, before the first solve; every solver
+/// without threads of its own uses them.
+pub fn set_process_threads(threads: usize) -> Result<(), ThreadsError> {
+    let made = SweepThreads::new(threads)?;
+    PROCESS_THREADS.set(made).map_err(|_| ThreadsError::AlreadySet(process_threads().threads()))
+}
+
+/// The process's sweep threads: those set by [`set_process_threads`], else the machine's cores
+/// (one thread if a pool cannot be made).
+pub fn process_threads() -> &'static SweepThreads {
+    PROCESS_THREADS.get_or_init(|| {
+        SweepThreads::new(machine_cores()).unwrap_or_else(|e| {
+            tracing::warn!("{e}; the colour order runs on one thread");
+            SweepThreads::single()
+        })
+    })
+}
+
+/// Whether a body moves under impulses.
+#[inline(always)]
+pub(super) fn moves(body: &SolverBody) -> bool {
+    body.inv_mass > 0.0 || body.inv_inertia > 0.0
+}
+
+/// The rows in colour order and the colours' bounds, with the buffers that make them.
+#[derive(Debug, Default, Clone)]
+pub(super) struct Colouring {
+    /// Colour `k`'s rows are positions `bounds[k]..bounds[k + 1]` of the visit order.
+    bounds: Vec<usize>,
+    /// Whether the last colour is the overflow (swept by one thread).
+    overflow: bool,
+    /// Sweep chunks (positions of the visit order), colour after colour.
+    chunks: Vec<Range<usize>>,
+    /// Colour `k`'s chunks are `chunks[colour_chunks[k]]`.
+    colour_chunks: Vec<Range<usize>>,
+    used: Vec<u64>,
+    colour_of: Vec<u8>,
+    sorted: Vec<u32>,
+}
+
+impl Colouring {
+    /// Colours the rows of `visit` (already in the top-down order) greedily and reorders `visit`
+    /// colour by colour, each colour keeping the top-down order.
+    pub fn colour(&mut self, rows: &[ContactRow], bodies: &[SolverBody], visit: &mut [u32]) {
+        self.used.clear();
+        self.used.resize(bodies.len(), 0);
+        self.colour_of.clear();
+        let mut counts = [0usize; MAX_COLOURS + 1];
+        for &i in visit.iter() {
+            let r = &rows[i as usize];
+            let ends = [r.body_a as usize, r.body_b as usize].map(|b| moves(&bodies[b]).then_some(b));
+            let taken = ends.iter().flatten().fold(0u64, |m, &b| m | self.used[b]);
+            let free = (!taken).trailing_zeros() as usize;
+            let colour = if free < MAX_COLOURS {
+                for &b in ends.iter().flatten() {
+                    self.used[b] |= 1 << free;
+                }
+                free
+            } else {
+                MAX_COLOURS
+            };
+            self.colour_of.push(colour as u8);
+            counts[colour] += 1;
+        }
+        // A stable counting sort by colour.
+        let mut start = [0usize; MAX_COLOURS + 2];
+        for k in 0..=MAX_COLOURS {
+            start[k + 1] = start[k] + counts[k];
+        }
+        self.sorted.clear();
+        self.sorted.resize(visit.len(), 0);
+        let mut next = start;
+        for (&i, &colour) in visit.iter().zip(&self.colour_of) {
+            self.sorted[next[colour as usize]] = i;
+            next[colour as usize] += 1;
+        }
+        visit.copy_from_slice(&self.sorted);
+        self.bounds.clear();
+        self.bounds.push(0);
+        for k in 0..=MAX_COLOURS {
+            if counts[k] > 0 {
+                self.bounds.push(start[k + 1]);
+            }
+        }
+        self.overflow = counts[MAX_COLOURS] > 0;
+        self.chunks.clear();
+        self.colour_chunks.clear();
+        for k in 0..self.colours() {
+            let first = self.chunks.len();
+            let (lo, hi) = (self.bounds[k], self.bounds[k + 1]);
+            self.chunks.extend((lo..hi).step_by(CHUNK).map(|s| s..(s + CHUNK).min(hi)));
+            self.colour_chunks.push(first..self.chunks.len());
+        }
+    }
+
+    /// How many colours (the overflow counted as one).
+    pub fn colours(&self) -> usize {
+        self.bounds.len().saturating_sub(1)
+    }
+
+    /// Each colour's rows (positions of the visit order).
+    #[cfg(test)]
+    pub fn colour_rows(&self) -> impl Iterator<Item = Range<usize>> + '_ {
+        self.bounds.windows(2).map(|w| w[0]..w[1])
+    }
+
+    /// Rows in the overflow (0 when every row found a colour).
+    #[cfg(test)]
+    pub fn overflow_rows(&self) -> usize {
+        if self.overflow {
+            self.bounds[self.bounds.len() - 1] - self.bounds[self.bounds.len() - 2]
+        } else {
+            0
+        }
+    }
+
+    /// Worker `t` of `n`'s chunks of colour `k` (the overflow's all go to worker 0).
+    fn share(&self, k: usize, t: usize, n: usize) -> Range<usize> {
+        let all = self.colour_chunks[k].clone();
+        if self.overflow && k + 1 == self.colours() {
+            return if t == 0 { all } else { all.start..all.start };
+        }
+        let m = all.len();
+        all.start + m * t / n..all.start + m * (t + 1) / n
+    }
+}
+
+/// The body velocities as the threads of a coloured sweep see them: shared, each thread writing
+/// only the moving bodies of its own rows (disjoint within a colour), none writing a static
+/// body (which rows of one colour may share).
+struct SharedBodies(*mut SolverBody);
+
+impl Velocities for SharedBodies {
+    #[inline(always)]
+    fn relative(&self, c: &Prepared) -> Vec2 {
+        // SAFETY: the row's bodies exist (checked when the rows were prepared); within a phase
+        // no other thread writes them (the colouring), and phases are separated by barriers.
+        let (a, b) = unsafe { (&*self.0.add(c.a), &*self.0.add(c.b)) };
+        b.v + super::rows::cross_sv(b.w, c.rb) - a.v - super::rows::cross_sv(a.w, c.ra)
+    }
+
+    #[inline(always)]
+    fn apply(&mut self, c: &Prepared, p: Vec2) {
+        // SAFETY: as above; a moving body of a row is written only by the thread updating that
+        // row, and no row of the same colour moves it.
+        unsafe {
+            if c.moves[0] {
+                let a = &mut *self.0.add(c.a);
+                a.v -= p * a.inv_mass;
+                a.w -= a.inv_inertia * cross(c.ra, p);
+            }
+            if c.moves[1] {
+                let b = &mut *self.0.add(c.b);
+                b.v += p * b.inv_mass;
+                b.w += b.inv_inertia * cross(c.rb, p);
+            }
+        }
+    }
+}
+
+/// A slice the threads share, each element written by one thread in a phase.
+struct Shared<T>(*mut T);
+
+impl<T> Shared<T> {
+    /// SAFETY: the caller owns element `i` in this phase (or only reads it while nobody writes).
+    #[allow(clippy::mut_from_ref)]
+    unsafe fn at(&self, i: usize) -> &mut T {
+        &mut *self.0.add(i)
+    }
+}
+
+// SAFETY: the raw pointers are only dereferenced under the phase discipline described above.
+unsafe impl<T> Sync for Shared<T> {}
+unsafe impl<T> Send for Shared<T> {}
+unsafe impl Sync for SharedBodies {}
+unsafe impl Send for SharedBodies {}
+
+/// A sense-reversing spin barrier; poisoned when a thread panics, so the others stop waiting.
+struct SpinBarrier {
+    threads: usize,
+    arrived: AtomicUsize,
+    generation: AtomicUsize,
+    poisoned: AtomicBool,
+}
+
+impl SpinBarrier {
+    fn new(threads: usize) -> SpinBarrier {
+        SpinBarrier {
+            threads,
+            arrived: AtomicUsize::new(0),
+            generation: AtomicUsize::new(0),
+            poisoned: AtomicBool::new(false),
+        }
+    }
+
+    fn wait(&self) {
+        if self.threads == 1 {
+            return;
+        }
+        let generation = self.generation.load(Ordering::Acquire);
+        if self.arrived.fetch_add(1, Ordering::AcqRel) + 1 == self.threads {
+            self.arrived.store(0, Ordering::Relaxed);
+            self.generation.fetch_add(1, Ordering::Release);
+            return;
+        }
+        let mut spins = 0u32;
+        while self.generation.load(Ordering::Acquire) == generation {
+            assert!(!self.poisoned.load(Ordering::Relaxed), "another sweep thread panicked");
+            if spins < 2_000 {
+                std::hint::spin_loop();
+                spins += 1;
+            } else {
+                std::thread::yield_now();
+            }
+        }
+    }
+}
+
+/// Poisons the barrier when its thread unwinds.
+struct PoisonOnPanic<'a>(&'a SpinBarrier);
+
+impl Drop for PoisonOnPanic<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.poisoned.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
+/// The buffers of a solve in the colour order, in the visit order.
+pub(super) struct ColouredSolve<'a> {
+    pub prepared: &'a [Prepared],
+    pub colouring: &'a Colouring,
+    pub work: &'a mut [Impulse],
+    pub trail: &'a mut [[Impulse; TRAIL_SWEEPS]],
+    pub direction: &'a mut [Impulse],
+    pub bodies: &'a mut [SolverBody],
+}
+
+/// What the leading thread hands back.
+struct Outcome {
+    report: SolveReport,
+    residuals: Vec<f32>,
+}
+
+/// The sweeps of a solve in the colour order (the warm start already applied), on `threads`
+/// where the pool is free and the rows many, else on this thread: the same bits either way.
+/// The stopping rule's residual after every sweep is appended to `residuals`.
+pub(super) fn sweep_coloured(
+    solve: ColouredSolve<'_>,
+    params: &SolveParams,
+    softness: f32,
+    deadline: Option<Instant>,
+    threads: &SweepThreads,
+    residuals: &mut Vec<f32>,
+) -> SolveReport {
+    let rows = solve.prepared.len();
+    let residual_chunks: Vec<Range<usize>> = (0..rows).step_by(CHUNK).map(|s| s..(s + CHUNK).min(rows)).collect();
+    let mut sweep_partials = vec![SweepChange::default(); solve.colouring.chunks.len()];
+    let mut residual_partials = vec![(0.0f32, 0.0f64); residual_chunks.len()];
+    let mut job = Job {
+        prepared: solve.prepared,
+        colouring: solve.colouring,
+        residual_chunks: &residual_chunks,
+        work: Shared(solve.work.as_mut_ptr()),
+        trail: Shared(solve.trail.as_mut_ptr()),
+        direction: Shared(solve.direction.as_mut_ptr()),
+        bodies: SharedBodies(solve.bodies.as_mut_ptr()),
+        sweep_partials: Shared(sweep_partials.as_mut_ptr()),
+        residual_partials: Shared(residual_partials.as_mut_ptr()),
+        params,
+        softness,
+        deadline,
+        time_up: AtomicBool::new(false),
+        barrier: SpinBarrier::new(1),
+    };
+    let pool = match (&threads.pool, rows >= PARALLEL_FROM_ROWS) {
+        (Some(pool), true) => pool.try_lock().ok(),
+        _ => None,
+    };
+    let outcome = match pool {
+        Some(pool) => {
+            job.barrier = SpinBarrier::new(pool.current_num_threads());
+            let job = &job;
+            let mut outcomes = pool.broadcast(|ctx| job.work(ctx.index(), ctx.num_threads()));
+            outcomes.swap_remove(0).expect("the leading thread reports")
+        }
+        None => job.work(0, 1).expect("the leading thread reports"),
+    };
+    // The buffers were written through the job's pointers; keep them alive until here.
+    drop((sweep_partials, residual_partials));
+    residuals.extend_from_slice(&outcome.residuals);
+    outcome.report
+}
+
+/// One solve's shared state: what every thread reads, and the pointers it writes through.
+struct Job<'a> {
+    prepared: &'a [Prepared],
+    colouring: &'a Colouring,
+    residual_chunks: &'a [Range<usize>],
+    work: Shared<Impulse>,
+    trail: Shared<[Impulse; TRAIL_SWEEPS]>,
+    direction: Shared<Impulse>,
+    bodies: SharedBodies,
+    sweep_partials: Shared<SweepChange>,
+    residual_partials: Shared<(f32, f64)>,
+    params: &'a SolveParams,
+    softness: f32,
+    deadline: Option<Instant>,
+    /// Set by the leading thread before the last barrier of a sweep: the budget is spent.
+    time_up: AtomicBool,
+    barrier: SpinBarrier,
+}
+
+// SAFETY: the pointers are written under the phase discipline (one writer per element a phase).
+unsafe impl Sync for Job<'_> {}
+
+impl Job<'_> {
+    /// Thread `t` of `n`: every sweep's phases, in step with the others. Each thread takes the
+    /// same decisions (all from the same partial sums, in the same order, and the leader's
+    /// clock); the leader (`t == 0`) reports.
+    fn work(&self, t: usize, n: usize) -> Option<Outcome> {
+        let _poison = PoisonOnPanic(&self.barrier);
+        let leader = t == 0;
+        let params = self.params;
+        let colours = self.colouring.colours();
+        let restart = match params.momentum {
+            Momentum::None => None,
+            Momentum::Nncg { restart } => Some(restart as f64),
+        };
+        let relaxed = params.relaxation != 1.0;
+        let mut bodies = SharedBodies(self.bodies.0);
+        let mut report = SolveReport::default();
+        let mut residuals = Vec::new();
+        let mut previous_squared = 0.0f64;
+        let mut sweeps = 0u32;
+        let mine = |all: &[Range<usize>]| {
+            let m = all.len();
+            m * t / n..m * (t + 1) / n
+        };
+        let my_rows = {
+            let chunks = mine(self.residual_chunks);
+            if chunks.is_empty() {
+                0..0
+            } else {
+                self.residual_chunks[chunks.start].start..self.residual_chunks[chunks.end - 1].end
+            }
+        };
+        if params.max_sweeps == 0 || super::deadline::past(self.deadline) {
+            return leader.then_some(Outcome { report, residuals });
+        }
+        loop {
+            let slot = sweeps as usize % TRAIL_SWEEPS;
+            for k in 0..colours {
+                for chunk in self.colouring.share(k, t, n) {
+                    let mut change = SweepChange::default();
+                    for i in self.colouring.chunks[chunk].clone() {
+                        let c = &self.prepared[i];
+                        // SAFETY: row i is this thread's in this phase.
+                        let (l, trail) = unsafe { (self.work.at(i), self.trail.at(i)) };
+                        let d = if relaxed {
+                            update_row::<true, _>(&mut bodies, c, l, self.softness, params.relaxation)
+                        } else {
+                            update_row::<false, _>(&mut bodies, c, l, self.softness, 1.0)
+                        };
+                        trail[slot] = d;
+                        change.add(d);
+                    }
+                    // SAFETY: chunk `chunk` is this thread's.
+                    unsafe { *self.sweep_partials.at(chunk) = change };
+                }
+                self.barrier.wait();
+            }
+            let change = (0..self.colouring.chunks.len())
+                // SAFETY: read after the barrier, written by nobody in this phase.
+                .map(|k| unsafe { *self.sweep_partials.at(k) })
+                .fold(SweepChange::default(), SweepChange::merge);
+            if let Some(restart) = restart {
+                // The first sweep has no earlier change: it starts the direction.
+                let beta =
+                    if sweeps == 0 || previous_squared == 0.0 { f64::INFINITY } else { change.squared / previous_squared };
+                if beta.is_nan() || beta > restart {
+                    for i in my_rows.clone() {
+                        // SAFETY: row i is this thread's in this phase (the residual split).
+                        unsafe { *self.direction.at(i) = Impulse::default() };
+                    }
+                } else {
+                    for k in 0..colours {
+                        for chunk in self.colouring.share(k, t, n) {
+                            for i in self.colouring.chunks[chunk].clone() {
+                                // SAFETY: row i is this thread's in this phase.
+                                let (l, p, dx) = unsafe { (self.work.at(i), self.direction.at(i), self.trail.at(i)[slot]) };
+                                momentum_row(&mut bodies, &self.prepared[i], l, p, dx, beta as f32);
+                            }
+                        }
+                        self.barrier.wait();
+                    }
+                }
+                previous_squared = change.squared;
+            }
+            sweeps += 1;
+            let residual = match params.stop {
+                StopRule::Change => {
+                    if leader {
+                        self.time_up.store(super::deadline::past(self.deadline), Ordering::Relaxed);
+                    }
+                    self.barrier.wait();
+                    change.max
+                }
+                StopRule::Natural | StopRule::Relative => {
+                    for chunk in mine(self.residual_chunks) {
+                        let rows = self.residual_chunks[chunk].clone();
+                        // SAFETY: the impulses are read, nobody writes them in this phase.
+                        let work = unsafe { std::slice::from_raw_parts(self.work.0.add(rows.start), rows.len()) };
+                        let partial = natural_residual_rows(&self.prepared[rows], work, &bodies, self.softness);
+                        // SAFETY: chunk `chunk` is this thread's.
+                        unsafe { *self.residual_partials.at(chunk) = partial };
+                    }
+                    if leader {
+                        self.time_up.store(super::deadline::past(self.deadline), Ordering::Relaxed);
+                    }
+                    self.barrier.wait();
+                    report.natural = self.natural_of_partials();
+                    report.natural.max
+                }
+            };
+            let time_up = self.time_up.load(Ordering::Relaxed);
+            if leader {
+                residuals.push(residual);
+            }
+            report.final_residual = residual;
+            report.sweeps = sweeps;
+            if residual <= params.tolerance {
+                report.converged = true;
+                break;
+            }
+            if sweeps >= params.max_sweeps || time_up {
+                break;
+            }
+        }
+        leader.then_some(Outcome { report, residuals })
+    }
+
+    /// The natural residual from the chunks' partials, in chunk order.
+    fn natural_of_partials(&self) -> super::NaturalResidual {
+        let (mut max, mut squared) = (0.0f32, 0.0f64);
+        for k in 0..self.residual_chunks.len() {
+            // SAFETY: read after the barrier.
+            let (m, s) = unsafe { *self.residual_partials.at(k) };
+            max = max.max(m);
+            squared += s;
+        }
+        super::NaturalResidual { max, rms: (squared / (2 * self.prepared.len().max(1)) as f64).sqrt() as f32 }
+    }
+}
+
+/// The natural residual of prepared rows as the colour order sums it (chunk by chunk), on one
+/// thread: the report's measure after a solve whose rule is not the natural residual.
+pub(super) fn natural_residual_chunked(
+    prepared: &[Prepared],
+    impulses: &[Impulse],
+    bodies: &[SolverBody],
+    softness: f32,
+) -> super::NaturalResidual {
+    let (mut max, mut squared) = (0.0f32, 0.0f64);
+    for (rows, work) in prepared.chunks(CHUNK).zip(impulses.chunks(CHUNK)) {
+        let (m, s) = natural_residual_rows(rows, work, bodies, softness);
+        max = max.max(m);
+        squared += s;
+    }
+    super::NaturalResidual { max, rms: (squared / (2 * prepared.len().max(1)) as f64).sqrt() as f32 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::rows::fixtures::ball;
+    use crate::solver::{ContactSolver, RowOrder, SolverSetting};
+
+    /// A pile of unit balls on a triangular lattice, `wide` x `high`, on a floor (body 0) and
+    /// falling at 1 m/s: rows to the floor, to the left neighbour and to both below; and one
+    /// row between the floor and a second static body (no moving body).
+    fn lattice(wide: usize, high: usize) -> (Vec<SolverBody>, Vec<ContactRow>) {
+        let mut bodies = vec![SolverBody::default(), SolverBody::default()];
+        let id = |i: usize, j: usize| (2 + j * wide + i) as u32;
+        bodies.extend((0..wide * high).map(|_| ball(Vec2::new(0.1, -1.0))));
+        let mut rows = Vec::new();
+        let row = |a: u32, b: u32, normal: Vec2, height: f32| ContactRow {
+            body_a: a,
+            body_b: b,
+            ra: if a < 2 { Vec2::ZERO } else { normal * 0.5 },
+            rb: -normal * 0.5,
+            normal,
+            friction: 0.5,
+            height,
+            friction_bound: None,
+        };
+        let diagonal = Vec2::new(0.5, 0.75f32.sqrt());
+        for j in 0..high {
+            let height = j as f32 * 0.87 + 0.5;
+            for i in 0..wide {
+                if j == 0 {
+                    rows.push(row(0, id(i, j), Vec2::Y, 0.0));
+                } else {
+                    rows.push(row(id(i, j - 1), id(i, j), diagonal, height - 0.43));
+                    if i + 1 < wide {
+                        rows.push(row(id(i + 1, j - 1), id(i, j), Vec2::new(-diagonal.x, diagonal.y), height - 0.43));
+                    }
+                }
+                if i > 0 {
+                    rows.push(row(id(i - 1, j), id(i, j), Vec2::X, height));
+                }
+            }
+        }
+        rows.push(row(0, 1, Vec2::Y, 0.0));
+        (bodies, rows)
+    }
+
+    fn params(setting: &str) -> SolveParams {
+        SolveParams { tolerance: 1e-5, max_sweeps: 20_000, stop: StopRule::Natural, ..SolveParams::default() }
+            .with_setting(setting.parse::<SolverSetting>().unwrap())
+    }
+
+    type Outcome = (SolveReport, Vec<Impulse>, Vec<SolverBody>, Vec<f32>);
+
+    fn solve_on(threads: &SweepThreads, bodies: &[SolverBody], rows: &[ContactRow], params: &SolveParams) -> Outcome {
+        let mut b = bodies.to_vec();
+        let mut s = ContactSolver::with_threads(threads.clone());
+        let warm = vec![Impulse::default(); rows.len()];
+        let report = s.solve(rows, &mut b, &warm, params);
+        (report, s.impulses().to_vec(), b, s.residuals().to_vec())
+    }
+
+    #[test]
+    fn no_two_rows_of_a_colour_share_a_moving_body_and_each_colour_goes_top_down() {
+        let (bodies, rows) = lattice(20, 15);
+        let mut visit: Vec<u32> = (0..rows.len() as u32).collect();
+        visit.sort_by(|&i, &j| rows[j as usize].height.total_cmp(&rows[i as usize].height));
+        let mut colouring = Colouring::default();
+        colouring.colour(&rows, &bodies, &mut visit);
+        let mut seen = visit.clone();
+        seen.sort();
+        assert_eq!(seen, (0..rows.len() as u32).collect::<Vec<_>>(), "every row once");
+        assert_eq!(colouring.overflow_rows(), 0);
+        assert!(colouring.colours() <= 8, "{} colours for a lattice of degree 6", colouring.colours());
+        for range in colouring.colour_rows() {
+            let mut owner = std::collections::HashMap::new();
+            let colour = &visit[range];
+            for (k, &i) in colour.iter().enumerate() {
+                let r = &rows[i as usize];
+                for b in [r.body_a, r.body_b].into_iter().filter(|&b| moves(&bodies[b as usize])) {
+                    assert!(owner.insert(b, i).is_none(), "body {b} in two rows of one colour");
+                }
+                if k > 0 {
+                    assert!(rows[colour[k - 1] as usize].height >= r.height, "a colour keeps the top-down order");
+                }
+            }
+        }
+        // The row between two static bodies took a colour and moves nothing.
+        assert!(visit.contains(&(rows.len() as u32 - 1)));
+    }
+
+    #[test]
+    fn the_colour_order_gives_the_same_bits_on_one_two_and_three_threads() {
+        let (bodies, rows) = lattice(20, 15);
+        assert!(rows.len() >= PARALLEL_FROM_ROWS);
+        for setting in ["pgs/colour", "sor:1.3/colour", "nncg:1.2/colour"] {
+            let p = params(setting);
+            let one = solve_on(&SweepThreads::single(), &bodies, &rows, &p);
+            assert!(one.0.converged && one.0.natural.max <= 1e-5, "{setting}: {:?}", one.0);
+            for threads in [2, 3] {
+                let many = SweepThreads::new(threads).unwrap();
+                assert_eq!(solve_on(&many, &bodies, &rows, &p), one, "{setting} on {threads} threads");
+                assert_eq!(solve_on(&many, &bodies, &rows, &p), one, "{setting} on {threads} threads, again");
+            }
+            // The same problem solved top-down: another order, the same solution's accuracy.
+            let down = solve_on(&SweepThreads::single(), &bodies, &rows, &params(&setting.replace("colour", "down")));
+            assert!(down.0.converged && down.0.sweeps != one.0.sweeps, "{setting}: {:?} {:?}", down.0, one.0);
+        }
+    }
+
+    #[test]
+    fn a_busy_pool_solves_on_the_calling_thread_with_the_same_answer() {
+        let (bodies, rows) = lattice(20, 15);
+        let threads = SweepThreads::new(2).unwrap();
+        let p = params("nncg:1.2/colour");
+        let free = solve_on(&threads, &bodies, &rows, &p);
+        let held = threads.pool.as_ref().unwrap().lock().unwrap();
+        assert_eq!(solve_on(&threads, &bodies, &rows, &p), free);
+        drop(held);
+    }
+
+    #[test]
+    fn rows_past_the_last_colour_go_to_the_overflow_and_still_solve() {
+        // One heavy plank (body 2) under 40 balls: every ball's row is on the plank, so 40
+        // rows need 40 colours; 8 overflow. The plank rests on the floor.
+        let mut bodies = vec![SolverBody::default(), SolverBody::default()];
+        bodies.push(SolverBody { v: Vec2::new(0.0, -1.0), w: 0.0, inv_mass: 0.01, inv_inertia: 0.0001 });
+        let mut rows = vec![ContactRow {
+            body_a: 0,
+            body_b: 2,
+            ra: Vec2::ZERO,
+            rb: Vec2::new(0.0, -0.5),
+            normal: Vec2::Y,
+            friction: 0.5,
+            height: 0.0,
+            friction_bound: None,
+        }];
+        for k in 0..40 {
+            bodies.push(ball(Vec2::new(0.0, -1.0)));
+            rows.push(ContactRow {
+                body_a: 2,
+                body_b: 3 + k,
+                ra: Vec2::new(k as f32 - 19.5, 0.5),
+                rb: Vec2::new(0.0, -0.5),
+                normal: Vec2::Y,
+                friction: 0.5,
+                height: 1.0,
+                friction_bound: None,
+            });
+        }
+        // Enough other rows for the pool to take part: a lattice beside it.
+        let (more_bodies, more_rows) = lattice(12, 12);
+        let offset = bodies.len() as u32;
+        bodies.extend_from_slice(&more_bodies);
+        rows.extend(more_rows.iter().map(|r| ContactRow { body_a: r.body_a + offset, body_b: r.body_b + offset, ..*r }));
+        let mut visit: Vec<u32> = (0..rows.len() as u32).collect();
+        visit.sort_by(|&i, &j| rows[j as usize].height.total_cmp(&rows[i as usize].height));
+        let mut colouring = Colouring::default();
+        colouring.colour(&rows, &bodies, &mut visit);
+        assert_eq!(colouring.overflow_rows(), 41 - MAX_COLOURS);
+        let p = params("nncg:1.2/colour");
+        let one = solve_on(&SweepThreads::single(), &bodies, &rows, &p);
+        assert!(one.0.converged, "{:?}", one.0);
+        assert_eq!(solve_on(&SweepThreads::new(2).unwrap(), &bodies, &rows, &p), one);
+    }
+
+    #[test]
+    fn thread_counts_outside_the_range_are_refused() {
+        assert!(matches!(SweepThreads::new(0), Err(ThreadsError::Zero(0))));
+        assert!(SweepThreads::new(MAX_THREADS + 1).unwrap_err().to_string().contains("at most"));
+        assert_eq!(SweepThreads::new(1).unwrap().threads(), 1);
+        assert_eq!(RowOrder::Colour.name(), "colour");
+    }
+}
