@@ -441,7 +441,7 @@ impl ContactSolver {
             self.visit.sort_by(|&i, &j| rows[j as usize].height.total_cmp(&rows[i as usize].height));
         }
         if params.order == RowOrder::Colour {
-            self.colouring.colour(rows, bodies, &mut self.visit);
+            self.colouring.colour(rows, bodies, &mut self.visit, colour::bands_for(rows.len()));
         }
         self.prepared.clear();
         self.prepared.extend(self.visit.iter().map(|&i| Prepared::of(&rows[i as usize], bodies)));
