@@ -5,8 +5,10 @@
 //!   per-step choice of solver (`dc study solvers`);
 //! - [`budget`]: the real-time regime, a fixed sweep budget per step, each model's accuracy
 //!   after it placed on builtin's curve of accuracy against budget (`dc study budget`);
-//! - [`bench`]: ms/step of our world against rapier's full pipeline (`dc study bench`).
+//! - [`bench`]: ms/step of our world against rapier's full pipeline (`dc study bench`);
+//! - [`threads`]: what the colour order's threads buy, on the same states (`dc study threads`).
 
 pub mod bench;
 pub mod budget;
 pub mod compare;
+pub mod threads;

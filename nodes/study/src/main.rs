@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 use sim::cli::{SceneArgs, SolveArgs, EVALUATION_SEEDS};
 use sim::{ModelKind, ModelSpec, SolverSetting};
 use std::path::{Path, PathBuf};
-use study::{bench, budget, compare};
+use study::{bench, budget, compare, threads};
 
 #[derive(Parser, Debug)]
 #[command(name = "dc-study", about = "Deep Contact studies of the simulator (no bus): solvers, budget, bench")]
@@ -30,6 +30,36 @@ enum Study {
     Budget(BudgetArgs),
     /// The benchmark: ms/step of our world beside rapier's full pipeline on the same scenes.
     Bench(BenchArgs),
+    /// What threads buy: every setting of SETTINGS solves the sampled steps' problems of --seeds
+    /// (the trajectory --solver's) on every thread count of --counts, the median of --repeats
+    /// timings kept; the answers compared across counts bit for bit (docs/solvers.md).
+    Threads(ThreadsArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct ThreadsArgs {
+    /// The settings timed (`pgs/colour,nncg:1.2/colour,nncg:1.2/down`).
+    #[arg(value_name = "SETTINGS", value_parser = |s: &str| sim::solver::parse_settings(s).map(SolverMenu))]
+    menu: SolverMenu,
+    #[command(flatten)]
+    scene: SceneArgs,
+    #[command(flatten)]
+    solve: SolveArgs,
+    /// Thread counts, the first each setting's reference (default: 1 and the machine's cores).
+    #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u32).range(1..=sim::solver::MAX_THREADS as i64))]
+    counts: Vec<u32>,
+    /// Time the solves of every E-th step only (from --sample-from).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..))]
+    sample_every: u32,
+    /// The first timed step.
+    #[arg(long, default_value_t = 0)]
+    sample_from: u32,
+    /// Timings per solve (the median kept).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=15))]
+    repeats: u32,
+    /// The folder for `threads.md`.
+    #[arg(long)]
+    out: Option<PathBuf>,
 }
 
 /// A list of solver settings. A newtype because clap reads `Vec<T>` as "many values".
@@ -189,6 +219,13 @@ fn check(cli: &Cli) -> Result<()> {
             let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
             a.spec(seeds[0])?.validate()?;
         }
+        Study::Threads(a) => {
+            let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
+            if a.sample_from >= a.scene.steps {
+                bail!("--sample-from {}: the runs have {} steps, so no step would be timed", a.sample_from, a.scene.steps);
+            }
+            sim::Scene::build(&a.scene.scene_config(seeds[0])).context("building the scene")?;
+        }
         Study::Bench(a) => {
             // Each case is a run of its own size: the same bounds (counts, sizes, memory).
             for (n, steps) in a.cases()? {
@@ -340,6 +377,53 @@ fn budget_study(args: &BudgetArgs) -> Result<()> {
     Ok(())
 }
 
+/// `dc study threads`: what the colour order's threads buy on the same states.
+fn threads_study(args: &ThreadsArgs) -> Result<()> {
+    let seeds = args.scene.seeds()?;
+    let counts: Vec<usize> = if args.counts.is_empty() {
+        let cores = sim::solver::machine_cores();
+        if cores > 1 { vec![1, cores] } else { vec![1] }
+    } else {
+        args.counts.iter().map(|&c| c as usize).collect()
+    };
+    let spec = threads::ThreadsSpec {
+        scene: args.scene.scene_config(seeds[0]),
+        params: args.solve.world_params(None),
+        steps: args.scene.steps,
+        settings: args.menu.0.clone(),
+        counts: counts.clone(),
+        from: args.sample_from,
+        every: args.sample_every,
+        repeats: args.repeats,
+    };
+    let bar = seed_bar(seeds.len(), "thread study");
+    let table = threads::run(&spec, &seeds, || bar.inc(1))?;
+    bar.finish_and_clear();
+    let report = format!(
+        "# Threads on the same states\n\n`dc study {}`\n\nSeeds {}, {} bodies, friction {}, stop {} <= {}, cap {}; every {}th step from {} of the trajectory ({}), solved from builtin's warm start; the median of {} timings per solve, summed over the problems; {} cores. Every setting gave the same answer on every thread count.\n\n{}",
+        command_line(),
+        args.scene.seeds_label(),
+        args.scene.n,
+        spec.params.solve.friction,
+        spec.params.solve.stop.name(),
+        spec.params.solve.tolerance,
+        spec.params.solve.max_sweeps,
+        args.sample_every,
+        args.sample_from,
+        spec.params.solve.setting(),
+        args.repeats,
+        sim::solver::machine_cores(),
+        threads::markdown(&table)
+    );
+    runtime::print_out(&format!("{report}\n"))?;
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        write_in(dir, "threads.md", &report)?;
+        eprintln!("wrote {}/threads.md", dir.display());
+    }
+    Ok(())
+}
+
 /// `dc study bench`: ms/step against rapier's pipeline.
 fn run_bench(args: &BenchArgs) -> Result<()> {
     let cases = args.cases()?;
@@ -373,11 +457,13 @@ fn try_main() -> Result<()> {
         Study::Solvers(a) => &a.solve,
         Study::Budget(a) => &a.solve,
         Study::Bench(a) => &a.solve,
+        Study::Threads(a) => &a.solve,
     };
     solve.start_threads().with_context(|| format!("--threads {}", solve.threads))?;
     match &cli.study {
         Study::Solvers(a) => solvers(a),
         Study::Budget(a) => budget_study(a),
         Study::Bench(a) => run_bench(a),
+        Study::Threads(a) => threads_study(a),
     }
 }

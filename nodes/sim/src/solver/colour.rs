@@ -39,15 +39,10 @@ pub const CHUNK: usize = 32;
 /// only the time differs): the barriers would cost more than the rows.
 pub const PARALLEL_FROM_ROWS: usize = 256;
 
-/// Bands of the colour order for `rows` rows (see [`Colouring::colour`]): a function of the
-/// problem alone, never of the thread count.
-pub(super) fn bands_for(rows: usize) -> usize {
-    if let Some(b) = std::env::var("DC_COLOUR_BANDS").ok().and_then(|v| v.parse::<usize>().ok()) {
-        return b.max(1);
-    }
-    let _ = rows;
-    1
-}
+/// Bands of the colour order (see [`Colouring::colour`]): one. Cutting the pile into bands
+/// costs sweeps at 1,000 bodies (NNCG 2,842 -> 3,326 with 3 bands, 3,724 with 6, on the same
+/// problems) and halves what the threads buy (more, smaller phases): docs/solvers.md.
+pub(super) const BANDS: usize = 1;
 
 /// The most threads `--threads` accepts.
 pub const MAX_THREADS: usize = 1024;
@@ -255,6 +250,47 @@ impl Colouring {
     }
 }
 
+/// The bodies of a solve in the colour order, renumbered by first appearance in the visit order
+/// (colour 0 goes top-down through the whole pile), so that the bodies one thread moves lie
+/// together in memory: in the world's order (spawn order, random in height) nearly every cache
+/// line would hold bodies of both threads' parts of the pile, and bounce between the cores.
+#[derive(Debug, Default, Clone)]
+pub(super) struct Layout {
+    local_of: Vec<u32>,
+    global_of: Vec<u32>,
+    pub bodies: Vec<SolverBody>,
+}
+
+impl Layout {
+    /// Copies the bodies of `prepared`'s rows into [`Self::bodies`] in their new order and
+    /// points the rows at them.
+    pub fn gather(&mut self, prepared: &mut [Prepared], bodies: &[SolverBody]) {
+        const NONE: u32 = u32::MAX;
+        self.local_of.clear();
+        self.local_of.resize(bodies.len(), NONE);
+        self.global_of.clear();
+        self.bodies.clear();
+        for c in prepared.iter_mut() {
+            for end in [&mut c.a, &mut c.b] {
+                let global = *end;
+                if self.local_of[global] == NONE {
+                    self.local_of[global] = self.global_of.len() as u32;
+                    self.global_of.push(global as u32);
+                    self.bodies.push(bodies[global]);
+                }
+                *end = self.local_of[global] as usize;
+            }
+        }
+    }
+
+    /// Writes the solved bodies back in the world's order.
+    pub fn scatter(&self, bodies: &mut [SolverBody]) {
+        for (&global, body) in self.global_of.iter().zip(&self.bodies) {
+            bodies[global as usize] = *body;
+        }
+    }
+}
+
 /// The body velocities as the threads of a coloured sweep see them: shared, each thread writing
 /// only the moving bodies of its own rows (disjoint within a colour), none writing a static
 /// body (which rows of one colour may share).
@@ -385,13 +421,11 @@ pub(super) fn sweep_coloured(
     residuals: &mut Vec<f32>,
 ) -> SolveReport {
     let rows = solve.prepared.len();
-    let residual_chunks: Vec<Range<usize>> = (0..rows).step_by(CHUNK).map(|s| s..(s + CHUNK).min(rows)).collect();
     let mut sweep_partials = vec![SweepChange::default(); solve.colouring.chunks.len()];
-    let mut residual_partials = vec![(0.0f32, 0.0f64); residual_chunks.len()];
+    let mut residual_partials = vec![(0.0f32, 0.0f64); solve.colouring.chunks.len()];
     let mut job = Job {
         prepared: solve.prepared,
         colouring: solve.colouring,
-        residual_chunks: &residual_chunks,
         work: Shared(solve.work.as_mut_ptr()),
         trail: Shared(solve.trail.as_mut_ptr()),
         direction: Shared(solve.direction.as_mut_ptr()),
@@ -427,7 +461,6 @@ pub(super) fn sweep_coloured(
 struct Job<'a> {
     prepared: &'a [Prepared],
     colouring: &'a Colouring,
-    residual_chunks: &'a [Range<usize>],
     work: Shared<Impulse>,
     trail: Shared<[Impulse; TRAIL_SWEEPS]>,
     direction: Shared<Impulse>,
@@ -464,18 +497,9 @@ impl Job<'_> {
         let mut residuals = Vec::new();
         let mut previous_squared = 0.0f64;
         let mut sweeps = 0u32;
-        let mine = |all: &[Range<usize>]| {
-            let m = all.len();
-            m * t / n..m * (t + 1) / n
-        };
-        let my_rows = {
-            let chunks = mine(self.residual_chunks);
-            if chunks.is_empty() {
-                0..0
-            } else {
-                self.residual_chunks[chunks.start].start..self.residual_chunks[chunks.end - 1].end
-            }
-        };
+        // Every phase gives a thread the same rows (its share of each colour: the colours go
+        // top-down, so its part of the pile), so that the bodies it moves stay in its cache.
+        let my_chunks = || (0..colours).flat_map(|k| self.colouring.share(k, t, n));
         if params.max_sweeps == 0 || super::deadline::past(self.deadline) {
             return leader.then_some(Outcome { report, residuals });
         }
@@ -510,9 +534,11 @@ impl Job<'_> {
                 let beta =
                     if sweeps == 0 || previous_squared == 0.0 { f64::INFINITY } else { change.squared / previous_squared };
                 if beta.is_nan() || beta > restart {
-                    for i in my_rows.clone() {
-                        // SAFETY: row i is this thread's in this phase (the residual split).
-                        unsafe { *self.direction.at(i) = Impulse::default() };
+                    for chunk in my_chunks() {
+                        for i in self.colouring.chunks[chunk].clone() {
+                            // SAFETY: row i is this thread's in this phase.
+                            unsafe { *self.direction.at(i) = Impulse::default() };
+                        }
                     }
                 } else {
                     for k in 0..colours {
@@ -538,8 +564,8 @@ impl Job<'_> {
                     change.max
                 }
                 StopRule::Natural | StopRule::Relative => {
-                    for chunk in mine(self.residual_chunks) {
-                        let rows = self.residual_chunks[chunk].clone();
+                    for chunk in my_chunks() {
+                        let rows = self.colouring.chunks[chunk].clone();
                         // SAFETY: the impulses are read, nobody writes them in this phase.
                         let work = unsafe { std::slice::from_raw_parts(self.work.0.add(rows.start), rows.len()) };
                         let partial = natural_residual_rows(&self.prepared[rows], work, &bodies, self.softness);
@@ -574,7 +600,7 @@ impl Job<'_> {
     /// The natural residual from the chunks' partials, in chunk order.
     fn natural_of_partials(&self) -> super::NaturalResidual {
         let (mut max, mut squared) = (0.0f32, 0.0f64);
-        for k in 0..self.residual_chunks.len() {
+        for k in 0..self.colouring.chunks.len() {
             // SAFETY: read after the barrier.
             let (m, s) = unsafe { *self.residual_partials.at(k) };
             max = max.max(m);
@@ -590,11 +616,12 @@ pub(super) fn natural_residual_chunked(
     prepared: &[Prepared],
     impulses: &[Impulse],
     bodies: &[SolverBody],
+    colouring: &Colouring,
     softness: f32,
 ) -> super::NaturalResidual {
     let (mut max, mut squared) = (0.0f32, 0.0f64);
-    for (rows, work) in prepared.chunks(CHUNK).zip(impulses.chunks(CHUNK)) {
-        let (m, s) = natural_residual_rows(rows, work, bodies, softness);
+    for rows in &colouring.chunks {
+        let (m, s) = natural_residual_rows(&prepared[rows.clone()], &impulses[rows.clone()], bodies, softness);
         max = max.max(m);
         squared += s;
     }

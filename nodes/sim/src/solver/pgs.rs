@@ -23,7 +23,7 @@
 //! iteration count comparable across warm-start models and the complementarity check simple.
 //! The solver owns only reusable buffers; bodies and contact rows are passed in.
 
-use super::colour::{self, ColouredSolve, Colouring, SweepThreads};
+use super::colour::{self, ColouredSolve, Colouring, Layout, SweepThreads};
 use super::deadline::{deadline_after, past};
 use super::krylov::KrylovSolver;
 use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder};
@@ -331,8 +331,9 @@ pub struct ContactSolver {
     /// velocities before they are handed to the caller.
     handed: Vec<Impulse>,
     solved: Vec<SolverBody>,
-    /// The colour order's colours ([`colour`]).
+    /// The colour order's colours and its bodies' layout ([`colour`]).
     colouring: Colouring,
+    layout: Layout,
     /// The threads the colour order runs on; none: the process's ([`colour::process_threads`]).
     threads: Option<SweepThreads>,
 }
@@ -441,7 +442,7 @@ impl ContactSolver {
             self.visit.sort_by(|&i, &j| rows[j as usize].height.total_cmp(&rows[i as usize].height));
         }
         if params.order == RowOrder::Colour {
-            self.colouring.colour(rows, bodies, &mut self.visit, colour::bands_for(rows.len()));
+            self.colouring.colour(rows, bodies, &mut self.visit, colour::BANDS);
         }
         self.prepared.clear();
         self.prepared.extend(self.visit.iter().map(|&i| Prepared::of(&rows[i as usize], bodies)));
@@ -483,18 +484,26 @@ impl ContactSolver {
         };
         if params.order == RowOrder::Colour {
             let threads = self.threads.clone().unwrap_or_else(|| colour::process_threads().clone());
+            self.layout.gather(&mut self.prepared, bodies);
             let solve = ColouredSolve {
                 prepared: &self.prepared,
                 colouring: &self.colouring,
                 work: &mut self.work,
                 trail: &mut self.work_trail,
                 direction: &mut self.direction,
-                bodies,
+                bodies: &mut self.layout.bodies,
             };
             let mut report = colour::sweep_coloured(solve, params, softness, deadline, &threads, &mut self.residuals);
             if params.stop == StopRule::Change || report.sweeps == 0 {
-                report.natural = colour::natural_residual_chunked(&self.prepared, &self.work, bodies, softness);
+                report.natural = colour::natural_residual_chunked(
+                    &self.prepared,
+                    &self.work,
+                    &self.layout.bodies,
+                    &self.colouring,
+                    softness,
+                );
             }
+            self.layout.scatter(bodies);
             if report.sweeps == 0 {
                 // Out of time before the first sweep: the start is the answer.
                 report.final_residual = report.natural.max;
