@@ -89,7 +89,7 @@ enum Command {
     Eval(EvalArgs),
     /// The simulator's studies, in one process (runs dc-study): `dc study solvers SETTINGS`
     /// (solvers side by side on the same states), `dc study budget BUDGETS` (the real-time
-    /// regime), `dc study bench` (our world against rapier's pipeline); `--help` lists each one's flags.
+    /// regime), `dc study bench` (our world against rapier's pipeline), `dc study threads SETTINGS` (what the colour order's threads buy); `--help` lists each one's flags.
     #[command(disable_help_flag = true)]
     Study {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]

@@ -144,7 +144,8 @@ impl SceneArgs {
 pub struct SolveArgs {
     /// The velocity solver: pgs (projected Gauss-Seidel, the thesis's), sor:W (projected SOR,
     /// W in (0, 2)), nncg or nncg:R (nonsmooth nonlinear conjugate gradient, restarting when
-    /// beta > R; nncg = nncg:1); `/down` visits the rows top-down (sor:1.4/down). The oracle,
+    /// beta > R; nncg = nncg:1); `/down` visits the rows top-down (sor:1.4/down), `/colour` in
+    /// colours swept on --threads threads (nncg:1.2/colour). The oracle,
     /// labels and shadow solves use the same. The default, NNCG restarting above 1.2 with rows
     /// top-down, needs 0.34x PGS's sweeps and 0.36x its time to the same natural residual on the
     /// evaluation seeds (docs/solvers.md); `--solver pgs --stop change` is the thesis's solver.
@@ -156,8 +157,9 @@ pub struct SolveArgs {
     /// what each costs.
     #[arg(long, default_value_t = FrictionModel::Box, value_parser = |s: &str| s.parse::<FrictionModel>())]
     pub friction: FrictionModel,
-    /// Row order of the solver's sweeps: recorded (contact keys) or down (by contact height, top
-    /// first, every step); overrides the order --solver names.
+    /// Row order of the solver's sweeps: recorded (contact keys), down (by contact height, top
+    /// first, every step) or colour (coloured top-down, each colour on --threads threads);
+    /// overrides the order --solver names.
     #[arg(long, value_parser = |s: &str| s.parse::<RowOrder>())]
     pub order: Option<RowOrder>,
     /// Stopping rule: change (the largest impulse change of a sweep <= --tolerance, the
@@ -285,5 +287,15 @@ mod tests {
         assert!(Both::try_parse_from(["x", "--drum-omega", "nan"]).is_err());
         assert!(Both::try_parse_from(["x", "--slop", "-1"]).is_err());
         assert!(budget("0").is_err() && budget(&(MAX_BUDGET + 1).to_string()).is_err() && budget("8") == Ok(8));
+    }
+
+    #[test]
+    fn threads_outside_the_range_are_refused_naming_the_flag() {
+        for (bad, says) in [("0", "at least 1"), ("1025", "at most 1024"), ("x", "whole number")] {
+            let e = Both::try_parse_from(["x", "--threads", bad]).err().unwrap().to_string();
+            assert!(e.contains("--threads") && e.contains(says), "{bad}: {e}");
+        }
+        assert_eq!(Both::parse_from(["x", "--threads", "3"]).solve.threads, 3);
+        assert_eq!(Both::parse_from(["x"]).solve.threads, crate::solver::machine_cores());
     }
 }

@@ -276,7 +276,8 @@ fn the_colour_order_solves_a_falling_pile_to_the_same_bits_on_any_thread_count()
             let start = builtin_warm_start(&problem.contacts);
             assert!(rows.len() > 500, "{} rows", rows.len());
             for setting in ["pgs/colour", "nncg:1.2/colour"] {
-                let solve = SolveParams { max_sweeps: 3_000, friction, ..params.solve }.with_setting(setting.parse().unwrap());
+                let solve =
+                    SolveParams { max_sweeps: 3_000, friction, ..params.solve }.with_setting(setting.parse().unwrap());
                 let on = |threads: usize| {
                     let mut s = ContactSolver::with_threads(SweepThreads::new(threads).unwrap());
                     let mut bodies = bodies_of(&problem.bodies);

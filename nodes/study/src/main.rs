@@ -222,7 +222,11 @@ fn check(cli: &Cli) -> Result<()> {
         Study::Threads(a) => {
             let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
             if a.sample_from >= a.scene.steps {
-                bail!("--sample-from {}: the runs have {} steps, so no step would be timed", a.sample_from, a.scene.steps);
+                bail!(
+                    "--sample-from {}: the runs have {} steps, so no step would be timed",
+                    a.sample_from,
+                    a.scene.steps
+                );
             }
             sim::Scene::build(&a.scene.scene_config(seeds[0])).context("building the scene")?;
         }
@@ -382,7 +386,11 @@ fn threads_study(args: &ThreadsArgs) -> Result<()> {
     let seeds = args.scene.seeds()?;
     let counts: Vec<usize> = if args.counts.is_empty() {
         let cores = sim::solver::machine_cores();
-        if cores > 1 { vec![1, cores] } else { vec![1] }
+        if cores > 1 {
+            vec![1, cores]
+        } else {
+            vec![1]
+        }
     } else {
         args.counts.iter().map(|&c| c as usize).collect()
     };

@@ -51,12 +51,18 @@ pub struct ThreadsRow {
 type Answer = (SolveReport, Vec<Impulse>, Vec<SolverBody>);
 
 /// Runs the study over `seeds`; `progress` is told after each seed.
-pub fn run(spec: &ThreadsSpec, seeds: &[u64], mut progress: impl FnMut()) -> Result<Vec<ThreadsRow>, ThreadsStudyError> {
+pub fn run(
+    spec: &ThreadsSpec,
+    seeds: &[u64],
+    mut progress: impl FnMut(),
+) -> Result<Vec<ThreadsRow>, ThreadsStudyError> {
     let pools: Vec<SweepThreads> = spec.counts.iter().map(|&c| SweepThreads::new(c)).collect::<Result<_, _>>()?;
     let mut table: Vec<ThreadsRow> = spec
         .settings
         .iter()
-        .flat_map(|s| spec.counts.iter().map(move |&c| ThreadsRow { setting: s.to_string(), threads: c, ..Default::default() }))
+        .flat_map(|s| {
+            spec.counts.iter().map(move |&c| ThreadsRow { setting: s.to_string(), threads: c, ..Default::default() })
+        })
         .collect();
     for &seed in seeds {
         for problem in captured(spec, seed)? {

@@ -87,7 +87,8 @@ impl SweepThreads {
             None
         } else {
             let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
+                // The calling thread is the first of them.
+                .num_threads(threads - 1)
                 .thread_name(|i| format!("dc-sweep-{i}"))
                 .build()
                 .map_err(|e| ThreadsError::Start { threads, why: e.to_string() })?;
@@ -444,10 +445,20 @@ pub(super) fn sweep_coloured(
     };
     let outcome = match pool {
         Some(pool) => {
-            job.barrier = SpinBarrier::new(pool.current_num_threads());
+            // The calling thread leads (its cache holds the rows it just prepared); the pool's
+            // threads, one fewer, take the other parts.
+            let n = pool.current_num_threads() + 1;
+            job.barrier = SpinBarrier::new(n);
             let job = &job;
-            let mut outcomes = pool.broadcast(|ctx| job.work(ctx.index(), ctx.num_threads()));
-            outcomes.swap_remove(0).expect("the leading thread reports")
+            pool.in_place_scope(|scope| {
+                for t in 1..n {
+                    scope.spawn(move |_| {
+                        job.work(t, n);
+                    });
+                }
+                job.work(0, n)
+            })
+            .expect("the leading thread reports")
         }
         None => job.work(0, 1).expect("the leading thread reports"),
     };
@@ -531,8 +542,11 @@ impl Job<'_> {
                 .fold(SweepChange::default(), SweepChange::merge);
             if let Some(restart) = restart {
                 // The first sweep has no earlier change: it starts the direction.
-                let beta =
-                    if sweeps == 0 || previous_squared == 0.0 { f64::INFINITY } else { change.squared / previous_squared };
+                let beta = if sweeps == 0 || previous_squared == 0.0 {
+                    f64::INFINITY
+                } else {
+                    change.squared / previous_squared
+                };
                 if beta.is_nan() || beta > restart {
                     for chunk in my_chunks() {
                         for i in self.colouring.chunks[chunk].clone() {
@@ -545,7 +559,8 @@ impl Job<'_> {
                         for chunk in self.colouring.share(k, t, n) {
                             for i in self.colouring.chunks[chunk].clone() {
                                 // SAFETY: row i is this thread's in this phase.
-                                let (l, p, dx) = unsafe { (self.work.at(i), self.direction.at(i), self.trail.at(i)[slot]) };
+                                let (l, p, dx) =
+                                    unsafe { (self.work.at(i), self.direction.at(i), self.trail.at(i)[slot]) };
                                 momentum_row(&mut bodies, &self.prepared[i], l, p, dx, beta as f32);
                             }
                         }
@@ -810,7 +825,11 @@ mod tests {
         let (more_bodies, more_rows) = lattice(12, 12);
         let offset = bodies.len() as u32;
         bodies.extend_from_slice(&more_bodies);
-        rows.extend(more_rows.iter().map(|r| ContactRow { body_a: r.body_a + offset, body_b: r.body_b + offset, ..*r }));
+        rows.extend(more_rows.iter().map(|r| ContactRow {
+            body_a: r.body_a + offset,
+            body_b: r.body_b + offset,
+            ..*r
+        }));
         let mut visit: Vec<u32> = (0..rows.len() as u32).collect();
         visit.sort_by(|&i, &j| rows[j as usize].height.total_cmp(&rows[i as usize].height));
         let mut colouring = Colouring::default();

@@ -930,15 +930,26 @@ mod tests {
 
     /// Every member of the family the issue names, each under the natural rule.
     fn family() -> Vec<SolveParams> {
-        ["pgs", "sor:1.4", "sor:0.8", "nncg", "pgs/down", "sor:1.4/down", "nncg/down", "mprgp"]
-            .iter()
-            .map(|s| SolveParams {
-                tolerance: 1e-6,
-                max_sweeps: 10_000,
-                stop: StopRule::Natural,
-                ..SolveParams::default().with_setting(s.parse().unwrap())
-            })
-            .collect()
+        [
+            "pgs",
+            "sor:1.4",
+            "sor:0.8",
+            "nncg",
+            "pgs/down",
+            "sor:1.4/down",
+            "nncg/down",
+            "mprgp",
+            "pgs/colour",
+            "nncg:1.2/colour",
+        ]
+        .iter()
+        .map(|s| SolveParams {
+            tolerance: 1e-6,
+            max_sweeps: 10_000,
+            stop: StopRule::Natural,
+            ..SolveParams::default().with_setting(s.parse().unwrap())
+        })
+        .collect()
     }
 
     #[test]

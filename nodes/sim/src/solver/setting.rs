@@ -148,7 +148,8 @@ impl Keyword for StopRule {
 
 impl Keyword for RowOrder {
     const WHAT: &'static str = "row order";
-    const KEYWORDS: &'static [(Self, &'static str)] = &[(RowOrder::Recorded, "recorded"), (RowOrder::Down, "down"), (RowOrder::Colour, "colour")];
+    const KEYWORDS: &'static [(Self, &'static str)] =
+        &[(RowOrder::Recorded, "recorded"), (RowOrder::Down, "down"), (RowOrder::Colour, "colour")];
 }
 
 impl StopRule {
