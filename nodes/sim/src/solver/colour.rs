@@ -160,6 +160,7 @@ impl Colouring {
     /// order is first cut into that many bands of consecutive rows (top to bottom), each band
     /// coloured on its own and swept before the next: the load of a pile then travels down
     /// `bands` stages within one sweep, at the price of more phases.
+    #[allow(clippy::needless_range_loop)]
     pub fn colour(&mut self, rows: &[ContactRow], bodies: &[SolverBody], visit: &mut [u32], bands: usize) {
         self.used.clear();
         self.used.resize(bodies.len(), 0);

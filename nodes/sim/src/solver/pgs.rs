@@ -375,7 +375,7 @@ impl ContactSolver {
 
     /// The threads the colour order runs on.
     pub fn threads(&self) -> &SweepThreads {
-        self.threads.as_ref().unwrap_or_else(|| colour::process_threads())
+        self.threads.as_ref().unwrap_or_else(colour::process_threads)
     }
 
     /// Solves the velocity-level contact problem of `rows` starting from `warm_start` (one impulse
