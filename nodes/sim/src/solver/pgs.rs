@@ -374,8 +374,9 @@ impl ContactSolver {
     }
 
     /// The threads the colour order runs on.
+    #[allow(clippy::redundant_closure)] // the closure shortens the process's 'static to self's
     pub fn threads(&self) -> &SweepThreads {
-        self.threads.as_ref().unwrap_or_else(colour::process_threads)
+        self.threads.as_ref().unwrap_or_else(|| colour::process_threads())
     }
 
     /// Solves the velocity-level contact problem of `rows` starting from `warm_start` (one impulse
