@@ -121,7 +121,7 @@ fn captured(spec: &ThreadsSpec, seed: u64) -> Result<Vec<Problem>, SimError> {
     let mut problems = Vec::new();
     for step in 0..spec.steps {
         world.step(&mut warm);
-        let compared = step >= spec.from && (step - spec.from) % spec.every.max(1) == 0;
+        let compared = step >= spec.from && (step - spec.from).is_multiple_of(spec.every.max(1));
         if let Some(p) = world.problem().filter(|p| compared && !p.contacts.is_empty()) {
             problems.push(p.clone());
         }
