@@ -198,6 +198,15 @@ fn training_seeds(list: &str) -> Result<Vec<u64>> {
     Ok(train)
 }
 
+/// A sampled study's first step lies inside its runs, and its scene builds.
+fn check_sampling(scene: &SceneArgs, sample_from: u32, first_seed: u64, what: &str) -> Result<()> {
+    if sample_from >= scene.steps {
+        bail!("--sample-from {sample_from}: the runs have {} steps, so no step would be {what}", scene.steps);
+    }
+    sim::Scene::build(&scene.scene_config(first_seed)).context("building the scene")?;
+    Ok(())
+}
+
 /// Everything that would fail once the study started, checked before it starts.
 fn check(cli: &Cli) -> Result<()> {
     match &cli.study {
@@ -206,14 +215,7 @@ fn check(cli: &Cli) -> Result<()> {
             if let Some(list) = &a.train_seeds {
                 training_seeds(list)?;
             }
-            if a.sample_from >= a.scene.steps {
-                bail!(
-                    "--sample-from {}: the runs have {} steps, so no step would be compared",
-                    a.sample_from,
-                    a.scene.steps
-                );
-            }
-            sim::Scene::build(&a.scene.scene_config(seeds[0])).context("building the scene")?;
+            check_sampling(&a.scene, a.sample_from, seeds[0], "compared")?;
         }
         Study::Budget(a) => {
             let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
@@ -221,14 +223,7 @@ fn check(cli: &Cli) -> Result<()> {
         }
         Study::Threads(a) => {
             let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
-            if a.sample_from >= a.scene.steps {
-                bail!(
-                    "--sample-from {}: the runs have {} steps, so no step would be timed",
-                    a.sample_from,
-                    a.scene.steps
-                );
-            }
-            sim::Scene::build(&a.scene.scene_config(seeds[0])).context("building the scene")?;
+            check_sampling(&a.scene, a.sample_from, seeds[0], "timed")?;
         }
         Study::Bench(a) => {
             // Each case is a run of its own size: the same bounds (counts, sizes, memory).

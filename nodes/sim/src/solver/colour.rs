@@ -19,7 +19,7 @@
 //! on a 1,000-body pile. Waiting threads spin briefly, then yield, so an oversubscribed machine
 //! still makes progress.
 
-use super::pgs::{momentum_row, natural_residual_rows, update_row, Prepared, SweepChange, Velocities};
+use super::pgs::{momentum_row, natural_residual_rows, relative_of, update_row, Prepared, SweepChange, Velocities};
 use super::rows::{cross, ContactRow, Impulse, SolverBody};
 use super::setting::{Momentum, StopRule};
 use super::{SolveParams, SolveReport, TRAIL_SWEEPS};
@@ -304,7 +304,7 @@ impl Velocities for SharedBodies {
         // SAFETY: the row's bodies exist (checked when the rows were prepared); within a phase
         // no other thread writes them (the colouring), and phases are separated by barriers.
         let (a, b) = unsafe { (&*self.0.add(c.a), &*self.0.add(c.b)) };
-        b.v + super::rows::cross_sv(b.w, c.rb) - a.v - super::rows::cross_sv(a.w, c.ra)
+        relative_of(a, b, c)
     }
 
     #[inline(always)]
@@ -647,7 +647,7 @@ pub(super) fn natural_residual_chunked(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solver::rows::fixtures::ball;
+    use crate::solver::rows::fixtures::{ball, floor_row};
     use crate::solver::{ContactSolver, RowOrder, SolverSetting};
 
     /// A pile of unit balls on a triangular lattice, `wide` x `high`, on a floor (body 0) and
@@ -799,16 +799,7 @@ mod tests {
         // rows need 40 colours; 8 overflow. The plank rests on the floor.
         let mut bodies = vec![SolverBody::default(), SolverBody::default()];
         bodies.push(SolverBody { v: Vec2::new(0.0, -1.0), w: 0.0, inv_mass: 0.01, inv_inertia: 0.0001 });
-        let mut rows = vec![ContactRow {
-            body_a: 0,
-            body_b: 2,
-            ra: Vec2::ZERO,
-            rb: Vec2::new(0.0, -0.5),
-            normal: Vec2::Y,
-            friction: 0.5,
-            height: 0.0,
-            friction_bound: None,
-        }];
+        let mut rows = vec![floor_row(2)];
         for k in 0..40 {
             bodies.push(ball(Vec2::new(0.0, -1.0)));
             rows.push(ContactRow {

@@ -782,8 +782,13 @@ pub fn convergence_rate(residuals: &[f32]) -> f32 {
 /// Relative velocity of b with respect to a at the contact point.
 #[inline(always)]
 fn relative(bodies: &[SolverBody], c: &Prepared) -> Vec2 {
-    let a = &bodies[c.a];
-    let b = &bodies[c.b];
+    relative_of(&bodies[c.a], &bodies[c.b], c)
+}
+
+/// Relative velocity of `b` with respect to `a` at the row's contact point (the bodies however
+/// they are reached: the slice, or the coloured sweeps' shared view).
+#[inline(always)]
+pub(super) fn relative_of(a: &SolverBody, b: &SolverBody, c: &Prepared) -> Vec2 {
     b.v + cross_sv(b.w, c.rb) - a.v - cross_sv(a.w, c.ra)
 }
 
