@@ -194,8 +194,8 @@ struct EvalArgs {
     jobs: usize,
     /// Sweep threads of each simulator (`dc-sim --threads`: the colour order's rows on that many
     /// threads; the answer is the same on any number). Default: the simulator's own, the
-    /// machine's cores.
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=sim_threads_limit()))]
+    /// machine's cores. The simulators' check of the graph refuses what they cannot run.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     threads: Option<u32>,
     /// Report folder (default reports/eval-<unix seconds>).
     #[arg(long)]
@@ -719,11 +719,6 @@ fn external_servers(args: &EvalArgs) -> Result<Vec<NodeSpec>> {
                 .with_env("PYTHONUNBUFFERED", "1"))
         })
         .collect()
-}
-
-/// The most sweep threads a simulator accepts (`dc-sim --threads`).
-const fn sim_threads_limit() -> i64 {
-    1024
 }
 
 /// The arguments of an evaluation's simulator running `models` (with a solver and a budget).

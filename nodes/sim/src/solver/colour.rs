@@ -19,8 +19,10 @@
 //! on a 1,000-body pile. Waiting threads spin briefly, then yield, so an oversubscribed machine
 //! still makes progress.
 
-use super::pgs::{momentum_row, natural_residual_rows, relative_of, update_row, Prepared, SweepChange, Velocities};
-use super::rows::{cross, ContactRow, Impulse, SolverBody};
+use super::pgs::{
+    momentum_row, natural_residual_rows, pull, push, relative_of, update_row, Prepared, SweepChange, Velocities,
+};
+use super::rows::{ContactRow, Impulse, SolverBody};
 use super::setting::{Momentum, StopRule};
 use super::{SolveParams, SolveReport, TRAIL_SWEEPS};
 use rapier2d::math::Vec2;
@@ -132,12 +134,6 @@ pub fn process_threads() -> &'static SweepThreads {
     })
 }
 
-/// Whether a body moves under impulses.
-#[inline(always)]
-pub(super) fn moves(body: &SolverBody) -> bool {
-    body.inv_mass > 0.0 || body.inv_inertia > 0.0
-}
-
 /// The rows in colour order and the colours' bounds, with the buffers that make them.
 #[derive(Debug, Default, Clone)]
 pub(super) struct Colouring {
@@ -176,7 +172,7 @@ impl Colouring {
             let mut counts = [0usize; MAX_COLOURS + 1];
             for &i in members {
                 let r = &rows[i as usize];
-                let ends = [r.body_a as usize, r.body_b as usize].map(|b| moves(&bodies[b]).then_some(b));
+                let ends = [r.body_a as usize, r.body_b as usize].map(|b| bodies[b].moves().then_some(b));
                 let taken = ends.iter().flatten().fold(0u64, |m, &b| m | self.used[b]);
                 let free = (!taken).trailing_zeros() as usize;
                 let colour = if free < MAX_COLOURS {
@@ -313,14 +309,10 @@ impl Velocities for SharedBodies {
         // row, and no row of the same colour moves it.
         unsafe {
             if c.moves[0] {
-                let a = &mut *self.0.add(c.a);
-                a.v -= p * a.inv_mass;
-                a.w -= a.inv_inertia * cross(c.ra, p);
+                pull(&mut *self.0.add(c.a), c.ra, p);
             }
             if c.moves[1] {
-                let b = &mut *self.0.add(c.b);
-                b.v += p * b.inv_mass;
-                b.w += b.inv_inertia * cross(c.rb, p);
+                push(&mut *self.0.add(c.b), c.rb, p);
             }
         }
     }
@@ -626,24 +618,6 @@ impl Job<'_> {
     }
 }
 
-/// The natural residual of prepared rows as the colour order sums it (chunk by chunk), on one
-/// thread: the report's measure after a solve whose rule is not the natural residual.
-pub(super) fn natural_residual_chunked(
-    prepared: &[Prepared],
-    impulses: &[Impulse],
-    bodies: &[SolverBody],
-    colouring: &Colouring,
-    softness: f32,
-) -> super::NaturalResidual {
-    let (mut max, mut squared) = (0.0f32, 0.0f64);
-    for rows in &colouring.chunks {
-        let (m, s) = natural_residual_rows(&prepared[rows.clone()], &impulses[rows.clone()], bodies, softness);
-        max = max.max(m);
-        squared += s;
-    }
-    super::NaturalResidual { max, rms: (squared / (2 * prepared.len().max(1)) as f64).sqrt() as f32 }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -722,7 +696,7 @@ mod tests {
             let colour = &visit[range];
             for (k, &i) in colour.iter().enumerate() {
                 let r = &rows[i as usize];
-                for b in [r.body_a, r.body_b].into_iter().filter(|&b| moves(&bodies[b as usize])) {
+                for b in [r.body_a, r.body_b].into_iter().filter(|&b| bodies[b as usize].moves()) {
                     assert!(owner.insert(b, i).is_none(), "body {b} in two rows of one colour");
                 }
                 if k > 0 {
@@ -755,7 +729,7 @@ mod tests {
             let mut owner = std::collections::HashSet::new();
             for &i in &visit[range] {
                 let r = &rows[i as usize];
-                for b in [r.body_a, r.body_b].into_iter().filter(|&b| moves(&bodies[b as usize])) {
+                for b in [r.body_a, r.body_b].into_iter().filter(|&b| bodies[b as usize].moves()) {
                     assert!(owner.insert(b), "body {b} in two rows of one colour");
                 }
             }

@@ -224,7 +224,7 @@ impl Prepared {
             fixed_bound: r.friction_bound.unwrap_or(0.0),
             normal_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, r.normal),
             tangent_mass: effective_mass(&bodies[a], &bodies[b], r.ra, r.rb, t),
-            moves: [colour::moves(&bodies[a]), colour::moves(&bodies[b])],
+            moves: [bodies[a].moves(), bodies[b].moves()],
         }
     }
 }
@@ -484,7 +484,7 @@ impl ContactSolver {
             }
         };
         if params.order == RowOrder::Colour {
-            let threads = self.threads.clone().unwrap_or_else(|| colour::process_threads().clone());
+            let threads = self.threads().clone();
             self.layout.gather(&mut self.prepared, bodies);
             let solve = ColouredSolve {
                 prepared: &self.prepared,
@@ -494,22 +494,9 @@ impl ContactSolver {
                 direction: &mut self.direction,
                 bodies: &mut self.layout.bodies,
             };
-            let mut report = colour::sweep_coloured(solve, params, softness, deadline, &threads, &mut self.residuals);
-            if params.stop == StopRule::Change || report.sweeps == 0 {
-                report.natural = colour::natural_residual_chunked(
-                    &self.prepared,
-                    &self.work,
-                    &self.layout.bodies,
-                    &self.colouring,
-                    softness,
-                );
-            }
+            let report = colour::sweep_coloured(solve, params, softness, deadline, &threads, &mut self.residuals);
+            let report = closed(report, &self.prepared, &self.work, &self.layout.bodies, params, softness);
             self.layout.scatter(bodies);
-            if report.sweeps == 0 {
-                // Out of time before the first sweep: the start is the answer.
-                report.final_residual = report.natural.max;
-                report.converged = report.natural.max <= params.tolerance;
-            }
             self.finish(&report);
             return report;
         }
@@ -547,14 +534,7 @@ impl ContactSolver {
                 break;
             }
         }
-        if params.stop == StopRule::Change || report.sweeps == 0 {
-            report.natural = self.natural_residual(bodies, softness);
-        }
-        if report.sweeps == 0 {
-            // Out of time before the first sweep: the start is the answer.
-            report.final_residual = report.natural.max;
-            report.converged = report.natural.max <= params.tolerance;
-        }
+        let report = closed(report, &self.prepared, &self.work, bodies, params, softness);
         self.finish(&report);
         report
     }
@@ -712,6 +692,26 @@ impl ContactSolver {
     }
 }
 
+/// A sweeps' report completed: the natural residual of the final state where the stopping rule
+/// did not measure it, and the start as the answer where not one sweep ran (out of time).
+fn closed(
+    mut report: SolveReport,
+    prepared: &[Prepared],
+    work: &[Impulse],
+    bodies: &[SolverBody],
+    params: &SolveParams,
+    softness: f32,
+) -> SolveReport {
+    if params.stop == StopRule::Change || report.sweeps == 0 {
+        report.natural = natural_residual_of(prepared, work, bodies, softness);
+    }
+    if report.sweeps == 0 {
+        report.final_residual = report.natural.max;
+        report.converged = report.natural.max <= params.tolerance;
+    }
+    report
+}
+
 /// The natural residual of `impulses` on `rows` with the velocities `bodies` they led to (the
 /// solver's own measure, for checks from outside: a test, a recorded solution).
 pub fn natural_residual(
@@ -759,7 +759,7 @@ pub(super) fn natural_residual_rows<V: Velocities + ?Sized>(
 
 /// Bodies that move under impulses (a positive inverse mass or inertia).
 fn dynamic_bodies(bodies: &[SolverBody]) -> usize {
-    bodies.iter().filter(|b| b.inv_mass > 0.0 || b.inv_inertia > 0.0).count()
+    bodies.iter().filter(|b| b.moves()).count()
 }
 
 /// How many of the last sweeps [`ContactSolver::convergence_rate`] averages over.
@@ -795,12 +795,22 @@ pub(super) fn relative_of(a: &SolverBody, b: &SolverBody, c: &Prepared) -> Vec2 
 /// Applies impulse `p` (on b; `-p` on a) at the contact point.
 #[inline(always)]
 fn apply(bodies: &mut [SolverBody], c: &Prepared, p: Vec2) {
-    let a = &mut bodies[c.a];
+    pull(&mut bodies[c.a], c.ra, p);
+    push(&mut bodies[c.b], c.rb, p);
+}
+
+/// Body a's part of a row's impulse `p`: `-p` at `ra`.
+#[inline(always)]
+pub(super) fn pull(a: &mut SolverBody, ra: Vec2, p: Vec2) {
     a.v -= p * a.inv_mass;
-    a.w -= a.inv_inertia * cross(c.ra, p);
-    let b = &mut bodies[c.b];
+    a.w -= a.inv_inertia * cross(ra, p);
+}
+
+/// Body b's part of a row's impulse `p`: `p` at `rb`.
+#[inline(always)]
+pub(super) fn push(b: &mut SolverBody, rb: Vec2, p: Vec2) {
     b.v += p * b.inv_mass;
-    b.w += b.inv_inertia * cross(c.rb, p);
+    b.w += b.inv_inertia * cross(rb, p);
 }
 
 #[cfg(test)]

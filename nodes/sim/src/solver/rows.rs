@@ -46,6 +46,15 @@ pub struct SolverBody {
     pub inv_inertia: f32,
 }
 
+impl SolverBody {
+    /// Whether impulses move the body (a positive inverse mass or inertia): not a static or
+    /// kinematic body.
+    #[inline(always)]
+    pub fn moves(&self) -> bool {
+        self.inv_mass > 0.0 || self.inv_inertia > 0.0
+    }
+}
+
 /// One contact point as the velocity solver needs it.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct ContactRow {
