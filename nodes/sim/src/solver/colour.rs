@@ -397,12 +397,6 @@ pub(super) struct ColouredSolve<'a> {
     pub bodies: &'a mut [SolverBody],
 }
 
-/// What the leading thread hands back.
-struct Outcome {
-    report: SolveReport,
-    residuals: Vec<f32>,
-}
-
 /// The sweeps of a solve in the colour order (the warm start already applied), on `threads`
 /// where the pool is free and the rows many, else on this thread: the same bits either way.
 /// The stopping rule's residual after every sweep is appended to `residuals`.
@@ -414,10 +408,17 @@ pub(super) fn sweep_coloured(
     threads: &SweepThreads,
     residuals: &mut Vec<f32>,
 ) -> SolveReport {
-    let rows = solve.prepared.len();
+    let pool = match (&threads.pool, solve.prepared.len() >= PARALLEL_FROM_ROWS) {
+        (Some(pool), true) => pool.try_lock().ok(),
+        _ => None,
+    };
+    // The calling thread leads (its cache holds the rows it just prepared); the pool's threads,
+    // one fewer, take the other parts.
+    let n = pool.as_ref().map_or(1, |pool| pool.current_num_threads() + 1);
+    // Written by the threads through the job's pointers; they outlive it.
     let mut sweep_partials = vec![SweepChange::default(); solve.colouring.chunks.len()];
     let mut residual_partials = vec![(0.0f32, 0.0f64); solve.colouring.chunks.len()];
-    let mut job = Job {
+    let job = Job {
         prepared: solve.prepared,
         colouring: solve.colouring,
         work: Shared(solve.work.as_mut_ptr()),
@@ -430,35 +431,23 @@ pub(super) fn sweep_coloured(
         softness,
         deadline,
         time_up: AtomicBool::new(false),
-        barrier: SpinBarrier::new(1),
+        barrier: SpinBarrier::new(n),
     };
-    let pool = match (&threads.pool, rows >= PARALLEL_FROM_ROWS) {
-        (Some(pool), true) => pool.try_lock().ok(),
-        _ => None,
-    };
-    let outcome = match pool {
+    match pool {
         Some(pool) => {
-            // The calling thread leads (its cache holds the rows it just prepared); the pool's
-            // threads, one fewer, take the other parts.
-            let n = pool.current_num_threads() + 1;
-            job.barrier = SpinBarrier::new(n);
             let job = &job;
             pool.in_place_scope(|scope| {
                 for t in 1..n {
                     scope.spawn(move |_| {
-                        job.work(t, n);
+                        job.work(t, n, None);
                     });
                 }
-                job.work(0, n)
+                job.work(0, n, Some(residuals))
             })
-            .expect("the leading thread reports")
         }
-        None => job.work(0, 1).expect("the leading thread reports"),
-    };
-    // The buffers were written through the job's pointers; keep them alive until here.
-    drop((sweep_partials, residual_partials));
-    residuals.extend_from_slice(&outcome.residuals);
-    outcome.report
+        None => job.work(0, 1, Some(residuals)),
+    }
+    .expect("the leading thread reports")
 }
 
 /// One solve's shared state: what every thread reads, and the pointers it writes through.
@@ -485,8 +474,9 @@ unsafe impl Sync for Job<'_> {}
 impl Job<'_> {
     /// Thread `t` of `n`: every sweep's phases, in step with the others. Each thread takes the
     /// same decisions (all from the same partial sums, in the same order, and the leader's
-    /// clock); the leader (`t == 0`) reports.
-    fn work(&self, t: usize, n: usize) -> Option<Outcome> {
+    /// clock); the leader (`t == 0`, the calling thread) appends each sweep's residual to
+    /// `residuals` and reports.
+    fn work(&self, t: usize, n: usize, mut residuals: Option<&mut Vec<f32>>) -> Option<SolveReport> {
         let _poison = PoisonOnPanic(&self.barrier);
         let leader = t == 0;
         let params = self.params;
@@ -498,14 +488,13 @@ impl Job<'_> {
         let relaxed = params.relaxation != 1.0;
         let mut bodies = SharedBodies(self.bodies.0);
         let mut report = SolveReport::default();
-        let mut residuals = Vec::new();
         let mut previous_squared = 0.0f64;
         let mut sweeps = 0u32;
         // Every phase gives a thread the same rows (its share of each colour: the colours go
         // top-down, so its part of the pile), so that the bodies it moves stay in its cache.
         let my_chunks = || (0..colours).flat_map(|k| self.colouring.share(k, t, n));
         if params.max_sweeps == 0 || super::deadline::past(self.deadline) {
-            return leader.then_some(Outcome { report, residuals });
+            return leader.then_some(report);
         }
         loop {
             let slot = sweeps as usize % TRAIL_SWEEPS;
@@ -589,7 +578,7 @@ impl Job<'_> {
                 }
             };
             let time_up = self.time_up.load(Ordering::Relaxed);
-            if leader {
+            if let Some(residuals) = residuals.as_deref_mut() {
                 residuals.push(residual);
             }
             report.final_residual = residual;
@@ -602,7 +591,7 @@ impl Job<'_> {
                 break;
             }
         }
-        leader.then_some(Outcome { report, residuals })
+        leader.then_some(report)
     }
 
     /// The natural residual from the chunks' partials, in chunk order.
