@@ -9,6 +9,8 @@
 //! - [`newton`]: Newton's method with a sparse Cholesky per iteration (proximal augmented
 //!   Lagrangian in body velocities): iterations that do not grow with the pile's depth;
 //! - [`krylov`]: MPRGP, conjugate gradients on the step's box-constrained QP (no factorisation);
+//! - [`sweep`]: what both sweep paths share: the solve's parameters and report, a prepared row,
+//!   one row's update, the natural residual of some rows;
 //! - [`colour`]: the colour order: rows coloured so that a colour's rows share no moving body,
 //!   each colour swept on all threads (`--threads`), the same bits on any thread count;
 //! - [`setting`]: which member of the family ([`SolverSetting`]) and which stopping rule, spelled
@@ -17,6 +19,8 @@
 //! - [`deadline`]: a solve's wall-time budget, checked by every method.
 
 pub mod colour;
+#[cfg(test)]
+mod colour_tests;
 pub mod deadline;
 pub mod krylov;
 pub mod newton;
@@ -26,16 +30,15 @@ pub mod pgs;
 pub mod position;
 pub mod rows;
 pub mod setting;
+pub mod sweep;
 
 pub use colour::{machine_cores, process_threads, set_process_threads, SweepThreads, ThreadsError, MAX_THREADS};
 pub use krylov::{KrylovSolver, KrylovStats};
 pub use newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, SecondOrder};
-pub use pgs::{
-    convergence_rate, natural_residual, ContactSolver, NaturalResidual, SolveParams, SolveReport, RATE_WINDOW,
-    TRAIL_SWEEPS,
-};
+pub use pgs::{convergence_rate, natural_residual, ContactSolver, RATE_WINDOW};
 pub use position::{correct_positions, measure, PoseBody, PositionGeometry, PositionParams, PositionRow};
 pub use rows::{relative_velocity, row_masses, tangent_of, ContactRow, Impulse, SolverBody};
 pub use setting::{
     parse_settings, FrictionModel, Method, Momentum, RowOrder, SolverSetting, StopRule, AUTO_NEWTON_FROM,
 };
+pub use sweep::{NaturalResidual, SolveParams, SolveReport, TRAIL_SWEEPS};

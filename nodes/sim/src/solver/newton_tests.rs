@@ -3,9 +3,10 @@
 
 use super::newton::*;
 use super::rows::{ContactRow, Impulse, SolverBody};
-use crate::solver::pgs::{natural_residual, ContactSolver, SolveParams};
+use crate::solver::pgs::{natural_residual, ContactSolver};
 use crate::solver::rows::fixtures::{ball, floor_row, stack};
 use crate::solver::rows::relative_velocity;
+use crate::solver::sweep::SolveParams;
 use crate::solver::{SolverSetting, StopRule};
 use rapier2d::math::Vec2;
 
