@@ -156,3 +156,49 @@ pub fn report_steps(dir: &Path) -> std::collections::BTreeMap<(u32, u32), (u32, 
         })
         .collect()
 }
+
+/// A report folder's tables (every `*.csv`, by file name) without what measures wall time (the
+/// `*_us` and `*_ms` columns) or names a process (`run_id`): what two runs of the same seeds and
+/// settings must agree on, cell for cell, wherever and however split they ran.
+pub fn report_figures(dir: &Path) -> std::collections::BTreeMap<String, Vec<Vec<String>>> {
+    let mut tables = std::collections::BTreeMap::new();
+    for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+        let path = entry.expect("read report folder").path();
+        if path.extension().is_none_or(|e| e != "csv") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let mut rows = text.lines().map(csv_cells);
+        let header = rows.next().unwrap_or_default();
+        let kept: Vec<usize> = (0..header.len())
+            .filter(|&i| {
+                let name = header[i].as_str();
+                !(name.ends_with("_us") || name.ends_with("_ms") || name == "run_id")
+            })
+            .collect();
+        let pick = |row: Vec<String>| kept.iter().map(|&i| row.get(i).cloned().unwrap_or_default()).collect();
+        let mut table = vec![pick(header.clone())];
+        table.extend(rows.map(pick));
+        tables.insert(path.file_name().unwrap().to_string_lossy().into_owned(), table);
+    }
+    tables
+}
+
+/// One CSV line's cells (quoted cells may hold commas and doubled quotes).
+fn csv_cells(line: &str) -> Vec<String> {
+    let (mut cells, mut cell, mut quoted) = (Vec::new(), String::new(), false);
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '"' if quoted && chars.peek() == Some(&'"') => {
+                cell.push('"');
+                chars.next();
+            }
+            '"' => quoted = !quoted,
+            ',' if !quoted => cells.push(std::mem::take(&mut cell)),
+            c => cell.push(c),
+        }
+    }
+    cells.push(cell);
+    cells
+}

@@ -11,6 +11,7 @@ macro_rules! tell {
 
 pub mod graph;
 pub mod plan;
+pub mod shard;
 pub mod solver_table;
 pub mod supervisor;
 

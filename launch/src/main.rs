@@ -87,6 +87,12 @@ enum Command {
     },
     /// The thesis protocol: every warm-start model on the same seeds, one report comparing them.
     Eval(EvalArgs),
+    /// Evaluation reports: `dc report merge SHARD_DIR... --out DIR` makes one report from the
+    /// shards of `dc eval --shard I/N` (runs `dc-metrics --merge`).
+    Report {
+        #[command(subcommand)]
+        what: ReportWhat,
+    },
     /// The simulator's studies, in one process (runs dc-study): `dc study solvers SETTINGS`
     /// (solvers side by side on the same states), `dc study budget BUDGETS` (the real-time
     /// regime), `dc study bench` (our world against rapier's pipeline), `dc study threads SETTINGS` (what the colour order's threads buy); `--help` lists each one's flags.
@@ -112,6 +118,24 @@ enum Command {
     Topic {
         #[command(subcommand)]
         what: TopicWhat,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+enum ReportWhat {
+    /// One report from every shard's folder of a run (`dc eval --shard I/N --out DIR`): each
+    /// shard once, finished, of the same settings and build; else refused, naming the shard,
+    /// setting or seeds, and nothing written.
+    Merge {
+        /// The shards' folders, any order (`reports/run/shard-*`).
+        #[arg(required = true, value_name = "SHARD_DIR")]
+        dirs: Vec<PathBuf>,
+        /// Where the merged report goes.
+        #[arg(long)]
+        out: PathBuf,
+        /// dc-metrics's report options (`--phases 100,150`, `--settle-speed 0.1`).
+        #[arg(last = true)]
+        metrics_args: Vec<String>,
     },
 }
 
@@ -200,6 +224,13 @@ struct EvalArgs {
     /// Report folder (default reports/eval-<unix seconds>).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Run only the I-th of N parts of --seeds (I from 0: `$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT`,
+    /// Kubernetes' `$JOB_COMPLETION_INDEX`): contiguous blocks, the same on every host. OUT gets
+    /// this part's report, `shard.json` (the run's settings and build, its seeds, whether it
+    /// finished) and `records.cbor`; `dc report merge` makes the run's one report from all N
+    /// (docs/cluster.md).
+    #[arg(long, value_name = "I/N")]
+    shard: Option<msgs::shard::Shard>,
     /// Seeds reserved for training; evaluating on them is refused unless --force.
     #[arg(long, default_value = "1000..1110")]
     training_seeds: String,
@@ -356,6 +387,13 @@ fn real_main(cli: Cli) -> Result<()> {
             TopicWhat::Bw(args) => topic::rate(&args, topic::Figure::Bw),
         },
         Command::Eval(args) => eval(args),
+        Command::Report { what: ReportWhat::Merge { dirs, out, metrics_args } } => {
+            let mut args = vec!["--merge".to_string()];
+            args.extend(dirs.iter().map(|d| d.display().to_string()));
+            args.push(format!("--out={}", out.display()));
+            args.extend(metrics_args);
+            exec_node("metrics", &args)
+        }
         Command::Bench { what: BenchWhat::Bus(args) } => bench_bus::run(&args, &interrupt_flag()),
         Command::Bench { what: BenchWhat::Observe(args) } => bench_observe::run(&args),
         Command::Bench { what: BenchWhat::Loop { seeds, steps, n, unet_model, repeat } } => {
@@ -634,16 +672,15 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>, budg
         }
     }
     let jobs = args.jobs.clamp(1, args.models.len());
-    let title = format!(
-        "Warm-start evaluation: {} scene, {} bodies, seeds {}, {} steps, tolerance {}",
-        args.scene, args.n, args.seeds, args.steps, args.tolerance
-    );
-    let mut nodes = vec![NodeSpec::new(
-        "metrics",
-        "dc-metrics",
-        false,
-        vec![format!("--runs={}", args.models.len()), format!("--out={}", out.display()), format!("--title={title}")],
-    )];
+    let mut title = eval_title(args);
+    let mut metrics_args = vec![format!("--runs={}", args.models.len()), format!("--out={}", out.display())];
+    if let Some(shard) = args.shard {
+        let part = shard.seeds(&seeds).map_err(|e| anyhow::anyhow!("--shard {e}"))?;
+        title += &format!(" - shard {shard}, seeds {}", msgs::shard::format_seeds(&part));
+        metrics_args.push("--records".into());
+    }
+    metrics_args.push(format!("--title={title}"));
+    let mut nodes = vec![NodeSpec::new("metrics", "dc-metrics", false, metrics_args)];
     // Grid-based models need the SPH node (it turns each step's contacts into the next step's
     // warm-start grid); it serves every simulator of the graph. With `unet` it makes the model's
     // input grids (e.g. temporal, padded to 128); padding leaves the `grid` model's samples
@@ -677,9 +714,10 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>, budg
     }
     let externals = external_servers(args)?;
     nodes.extend(externals.iter().cloned());
+    let run_seeds = run_seeds(args)?;
     for j in 0..jobs {
         let models: Vec<&str> = args.models.iter().skip(j).step_by(jobs).map(String::as_str).collect();
-        let sim_args = simulator_args(args, &models, solver, budget);
+        let sim_args = simulator_args(args, &run_seeds, &models, solver, budget);
         nodes.push(NodeSpec::new(format!("sim-{j}"), "dc-sim", false, sim_args));
     }
     let mut graph = Graph::single_host("eval", &unique_namespace("eval"), nodes)?;
@@ -692,6 +730,48 @@ fn eval_graph(args: &EvalArgs, out: &std::path::Path, solver: Option<&str>, budg
         }
     }
     Ok(graph)
+}
+
+/// The report's title of the whole run (a shard's report adds its part).
+fn eval_title(args: &EvalArgs) -> String {
+    format!(
+        "Warm-start evaluation: {} scene, {} bodies, seeds {}, {} steps, tolerance {}",
+        args.scene, args.n, args.seeds, args.steps, args.tolerance
+    )
+}
+
+/// The seeds the simulators run: --seeds, or the shard's part of them, as `dc-sim --seeds` reads.
+fn run_seeds(args: &EvalArgs) -> Result<String> {
+    let Some(shard) = args.shard else { return Ok(args.seeds.clone()) };
+    let seeds = msgs::parse_seeds(&args.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
+    let part = shard.seeds(&seeds).map_err(|e| anyhow::anyhow!("--shard {e}"))?;
+    Ok(msgs::shard::format_seeds(&part))
+}
+
+/// What a shard's manifest records of the run, by name: every flag that changes its results or
+/// timings (not where it writes or how it prints), and a hash of each model file it reads.
+fn eval_settings(args: &EvalArgs, graph: &Graph) -> Result<std::collections::BTreeMap<String, String>> {
+    let mut settings = std::collections::BTreeMap::new();
+    let mut set = |name: &str, value: String| settings.insert(name.to_string(), value);
+    set("models", args.models.join(","));
+    set("seeds", args.seeds.clone());
+    set("scene", args.scene.clone());
+    set("steps", args.steps.to_string());
+    set("tolerance", args.tolerance.to_string());
+    set("n", args.n.to_string());
+    set("jobs", args.jobs.to_string());
+    set("threads", args.threads.map_or("the machine's cores".into(), |t| t.to_string()));
+    set("same-states", args.same_states.to_string());
+    set("error-split", args.error_split.to_string());
+    set("serve", args.serve.join(" ; "));
+    set("simulator arguments", shlex::try_join(args.sim_args.iter().map(String::as_str)).unwrap_or_default());
+    if graph.nodes.iter().any(|n| n.binary == "dc-unet") {
+        set("unet-model sha256", launch::shard::file_sha256(&args.unet_model).context("--unet-model")?);
+    }
+    if let Some(gnn) = &args.gnn_model {
+        set("gnn-model sha256", launch::shard::file_sha256(gnn).context("--gnn-model")?);
+    }
+    Ok(settings)
 }
 
 /// The server nodes of the `external:NAME` models: the i-th --serve command serves the i-th
@@ -722,10 +802,16 @@ fn external_servers(args: &EvalArgs) -> Result<Vec<NodeSpec>> {
 }
 
 /// The arguments of an evaluation's simulator running `models` (with a solver and a budget).
-fn simulator_args(args: &EvalArgs, models: &[&str], solver: Option<&str>, budget: Option<u32>) -> Vec<String> {
+fn simulator_args(
+    args: &EvalArgs,
+    seeds: &str,
+    models: &[&str],
+    solver: Option<&str>,
+    budget: Option<u32>,
+) -> Vec<String> {
     let mut sim_args = vec![
         format!("--models={}", models.join(",")),
-        format!("--seeds={}", args.seeds),
+        format!("--seeds={seeds}"),
         format!("--scene={}", args.scene),
         format!("--steps={}", args.steps),
         format!("--tolerance={}", args.tolerance),
@@ -760,6 +846,12 @@ fn eval(args: EvalArgs) -> Result<()> {
         PathBuf::from(format!("reports/eval-{secs}"))
     });
     if !args.solvers.is_empty() || !args.budget.is_empty() {
+        if args.shard.is_some() {
+            bail!(
+                "--shard with --solvers or --budget: shard each solver's or budget's evaluation as a run of its own \
+                 (`dc eval --shard I/N ... -- --solver S` or `-- --budget K`), one merge each"
+            );
+        }
         return eval_variants(&args, &out);
     }
     let graph = eval_graph(&args, &out, None, None)?;
@@ -770,9 +862,28 @@ fn eval(args: EvalArgs) -> Result<()> {
     // The report is written after every simulation ran: a folder that cannot take it must
     // stop the evaluation before it starts, not lose it at the end.
     writable_dir(&out).context("--out")?;
+    let shard = match args.shard {
+        Some(shard) => {
+            let seeds = msgs::parse_seeds(&args.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
+            let build = launch::shard::build_of(graph.nodes.iter().filter(|n| n.binary.starts_with("dc-")).map(|n| n.program.as_path()))?;
+            let settings = eval_settings(&args, &graph)?;
+            Some(launch::shard::RunningShard::start(&out, "dc eval", shard, &seeds, settings, build, &eval_title(&args))?)
+        }
+        None => None,
+    };
     let flag = interrupt_flag();
     let progress = EvalProgress::new(&args, 1)?;
-    supervisor::run(&graph, DEFAULT_HOST, progress.output(), &flag)?;
+    let ran = supervisor::run(&graph, DEFAULT_HOST, progress.output(), &flag).map_err(anyhow::Error::from);
+    let ran = match shard {
+        Some(shard) => shard.finish(ran.and_then(|report| {
+            // The steps the merge reads: the metrics node writes them last.
+            let records = out.join("records.cbor");
+            anyhow::ensure!(records.is_file(), "the metrics node wrote no {}", records.display());
+            Ok(report)
+        })),
+        None => ran,
+    };
+    ran?;
     progress.finish();
     runtime::print_line(&format!("evaluation report: {}", out.join("report.html").display()))?;
     Ok(())
@@ -789,7 +900,7 @@ impl EvalProgress {
         if args.verbose || std::env::var_os("RUST_LOG").is_some() {
             return Ok(EvalProgress { bar: None });
         }
-        let seeds = msgs::parse_seeds(&args.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
+        let seeds = msgs::parse_seeds(&run_seeds(args)?).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
         let total = (seeds.len() * args.models.len() * evaluations) as u64;
         let bar = indicatif::ProgressBar::with_draw_target(Some(total), indicatif::ProgressDrawTarget::stderr());
         bar.set_style(

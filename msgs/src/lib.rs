@@ -18,6 +18,7 @@ pub mod flags;
 pub mod models;
 mod names;
 pub mod problem;
+pub mod shard;
 mod stats;
 pub mod topics;
 

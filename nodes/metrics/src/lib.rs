@@ -10,6 +10,7 @@
 
 pub mod aggregate;
 pub mod completeness;
+pub mod merge;
 pub mod phases;
 pub mod report;
 

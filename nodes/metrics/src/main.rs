@@ -2,8 +2,9 @@
 //! live plots, and writes the report folder when the expected runs have ended (or on shutdown, then
 //! saying what is missing).
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Parser;
+use metrics::merge::RecordsFile;
 use metrics::{report, Aggregate, Completeness, StepRecord};
 use msgs::topics;
 use std::collections::BTreeMap;
@@ -36,6 +37,15 @@ struct Args {
     /// residuals, which the file does not keep).
     #[arg(long, value_name = "STEPS_CSV")]
     from_steps: Option<PathBuf>,
+    /// Also keep every step received, with its per-sweep residuals, in OUT/records.cbor: what
+    /// `--merge` needs of a shard (`dc eval --shard` asks for it).
+    #[arg(long)]
+    records: bool,
+    /// Build one report from the folders of a sharded run (`dc eval --shard I/N`; what `dc report
+    /// merge` runs): every shard present once, finished, of one run's settings and build, else
+    /// refused before anything is written. Needs --out.
+    #[arg(long, value_name = "SHARD_DIR", num_args = 1.., conflicts_with_all = ["from_steps", "records"])]
+    merge: Vec<PathBuf>,
 }
 
 #[derive(Debug, Clone)]
@@ -54,6 +64,9 @@ fn try_main() -> Result<()> {
     runtime::init_logging();
     if let Some(steps) = &args.from_steps {
         return report_from_steps(&args, steps);
+    }
+    if !args.merge.is_empty() {
+        return report_from_shards(&args);
     }
     let node = runtime::Node::from_env("dc-metrics")?;
     let mut stats = node.subscriber(topics::SOLVE_STATS)?;
@@ -148,9 +161,11 @@ fn try_main() -> Result<()> {
     // The solver the runs announced belongs in the title: reports under different solvers
     // (`dc-sim --relaxation`, `--compliance`) must not be read as one.
     let solvers = completeness.solvers();
-    let title =
-        if solvers.is_empty() { args.title.clone() } else { format!("{} ({})", args.title, solvers.join("; ")) };
-    write_and_print(&aggregate, &out, &title, &missing)?;
+    write_and_print(&aggregate, &out, &metrics::merge::titled(&args.title, &solvers), &missing)?;
+    if args.records {
+        let path = RecordsFile::of(&aggregate, &args.title, &solvers, &missing).write(&out)?;
+        tracing::info!(file = %path.display(), "kept every step for a merge");
+    }
     if stats.decode_errors() > 0 {
         tracing::warn!(errors = stats.decode_errors(), "undecodable statistics payloads were skipped");
     }
@@ -183,4 +198,23 @@ fn report_from_steps(args: &Args, steps: &std::path::Path) -> Result<()> {
         "the solver settings the runs announced are not kept in steps.csv either: the title is --title's".to_string(),
     ];
     write_and_print(&aggregate, &out, &args.title, &missing)
+}
+
+/// `--merge`: the report of a sharded run, from its shards' folders.
+fn report_from_shards(args: &Args) -> Result<()> {
+    let out = args.out.clone().context("--merge needs --out DIR (where the merged report goes)")?;
+    let merged = metrics::merge::merge(&args.merge)?;
+    let canonical = |p: &std::path::Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
+    if let Some(dir) = args.merge.iter().find(|d| canonical(d) == canonical(&out)) {
+        anyhow::bail!("--out {} is one of the shard folders ({}): the merge would overwrite a shard's report", out.display(), dir.display());
+    }
+    let text = serde_json::to_string_pretty(&merged.summary())?;
+    let mut aggregate = merged.aggregate;
+    aggregate.settle_speed = args.settle_speed;
+    aggregate.phase_boundaries = args.phases.as_ref().map(|p| p.0.clone());
+    write_and_print(&aggregate, &out, &merged.title, &[])?;
+    let path = out.join("merged.json");
+    std::fs::write(&path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+    println!("merged {} shards: {}", merged.shards.len(), path.display());
+    Ok(())
 }

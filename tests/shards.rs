@@ -1,0 +1,175 @@
+//! A run split into shards (`dc eval --shard I/N`) and merged (`dc report merge`) gives the report
+//! of the same run on one host, figure for figure; every way a set of shards cannot make that
+//! report is refused, naming the shard, the setting or the seeds, with nothing written.
+
+use deep_contact::{bin, report_figures, scratch_dir, text};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The run every shard test splits: two models, four seeds, short and small.
+const RUN: &[&str] = &["--models", "builtin,copy", "--seeds", "0..4", "--steps", "24", "--n", "30", "--threads", "1"];
+
+fn dc(args: &[&str]) -> Output {
+    Command::new(bin("dc")).args(args).output().expect("run dc")
+}
+
+fn eval_into(out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["eval"];
+    args.extend_from_slice(RUN);
+    args.extend_from_slice(extra);
+    args.extend(["--out", out.to_str().unwrap()]);
+    dc(&args)
+}
+
+fn merge(dirs: &[&Path], out: &Path) -> Output {
+    let mut args = vec!["report".to_string(), "merge".to_string()];
+    args.extend(dirs.iter().map(|d| d.display().to_string()));
+    args.extend(["--out".to_string(), out.display().to_string()]);
+    Command::new(bin("dc")).args(&args).output().expect("run dc report merge")
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        if entry.file_type().unwrap().is_file() {
+            std::fs::copy(entry.path(), to.join(entry.file_name())).unwrap();
+        }
+    }
+}
+
+/// Rewrites one shard.json with `edit` applied to its JSON.
+fn edit_manifest(dir: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
+    let path = dir.join("shard.json");
+    let mut value: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    edit(&mut value);
+    std::fs::write(&path, serde_json::to_string_pretty(&value).unwrap()).unwrap();
+}
+
+/// Asserts the merge of `dirs` fails saying every one of `says`, and writes nothing.
+fn refused(dirs: &[&Path], scratch: &Path, case: &str, says: &[&str]) {
+    let out = scratch.join(format!("refused-{case}"));
+    let o = merge(dirs, &out);
+    let t = text(&o);
+    assert!(!o.status.success(), "{case}: the merge should be refused:\n{t}");
+    for s in says {
+        assert!(t.contains(s), "{case}: the refusal should say `{s}`:\n{t}");
+    }
+    assert!(!out.exists(), "{case}: a refused merge wrote {}", out.display());
+}
+
+#[test]
+fn two_shards_merge_into_the_report_of_the_run_on_one_host() {
+    let scratch = scratch_dir("shards");
+    let one = scratch.join("one");
+    let o = eval_into(&one, &[]);
+    assert!(o.status.success(), "one-host run:\n{}", text(&o));
+    let shards: Vec<PathBuf> = (0..2).map(|i| scratch.join(format!("shard-{i}"))).collect();
+    // Shard 1 first: the merge orders shards by index, not by when or in which order they ran.
+    for i in [1, 0] {
+        let o = eval_into(&shards[i], &["--shard", &format!("{i}/2")]);
+        assert!(o.status.success(), "shard {i}/2:\n{}", text(&o));
+        let manifest = std::fs::read_to_string(shards[i].join("shard.json")).unwrap();
+        assert!(manifest.contains("\"state\": \"complete\""), "shard {i} finished:\n{manifest}");
+    }
+    // Each shard's own report holds only its own seeds.
+    let shard0 = std::fs::read_to_string(shards[0].join("steps.csv")).unwrap();
+    let sims: std::collections::BTreeSet<&str> = shard0.lines().skip(1).filter_map(|l| l.split(',').nth(1)).collect();
+    assert_eq!(sims.into_iter().collect::<Vec<_>>(), ["0", "1"], "shard 0 of 2 of seeds 0..4 ran seeds 0 and 1");
+
+    let merged = scratch.join("merged");
+    let o = merge(&[&shards[1], &shards[0]], &merged);
+    assert!(o.status.success(), "merge:\n{}", text(&o));
+    let figures = report_figures(&one);
+    assert!(figures.len() >= 4, "the one-host report's tables: {:?}", figures.keys().collect::<Vec<_>>());
+    let merged_figures = report_figures(&merged);
+    assert_eq!(merged_figures.keys().collect::<Vec<_>>(), figures.keys().collect::<Vec<_>>(), "the same tables");
+    for (file, rows) in &figures {
+        assert_eq!(&merged_figures[file], rows, "{file}: the merged report differs from the one-host run's");
+    }
+    let title = |dir: &Path| {
+        let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+        html.split("<title>").nth(1).and_then(|t| t.split("</title>").next()).map(str::to_string)
+    };
+    assert_eq!(title(&merged), title(&one), "the merged report is titled as the whole run");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(merged.join("merged.json")).unwrap()).unwrap();
+    let merged_shards = summary["shards"].as_array().unwrap();
+    assert_eq!(merged_shards.len(), 2);
+    assert_eq!(merged_shards[0]["seeds"], "0..2");
+    assert_eq!(merged_shards[1]["seeds"], "2..4");
+
+    // What cannot be merged, each refused with nothing written.
+    refused(&[&shards[0]], &scratch, "missing", &["missing shard 1/2", "seeds 2..4"]);
+    let copy = scratch.join("copy-of-0");
+    copy_dir(&shards[0], &copy);
+    refused(&[&shards[0], &copy, &shards[1]], &scratch, "overlap", &["overlap", "shard 0/2"]);
+
+    let other_steps = scratch.join("other-steps");
+    copy_dir(&shards[1], &other_steps);
+    edit_manifest(&other_steps, |m| m["settings"]["steps"] = "25".into());
+    refused(&[&shards[0], &other_steps], &scratch, "setting", &["setting `steps`", "`24`", "`25`"]);
+
+    let other_build = scratch.join("other-build");
+    copy_dir(&shards[1], &other_build);
+    edit_manifest(&other_build, |m| m["build"]["dc-sim sha256"] = "0".repeat(64).into());
+    refused(&[&shards[0], &other_build], &scratch, "build", &["build `dc-sim sha256`"]);
+
+    // A shard killed half way keeps the manifest it wrote before its work: running.
+    let died = scratch.join("died");
+    copy_dir(&shards[1], &died);
+    edit_manifest(&died, |m| {
+        m["state"] = "running".into();
+        m.as_object_mut().unwrap().remove("finished_unix");
+    });
+    refused(&[&shards[0], &died], &scratch, "running", &["never finished", "seeds 2..4"]);
+
+    let failed = scratch.join("failed");
+    copy_dir(&shards[1], &failed);
+    edit_manifest(&failed, |m| {
+        m["state"] = "failed".into();
+        m["why"] = "node sim-0 exited with status 1".into();
+    });
+    refused(&[&shards[0], &failed], &scratch, "failed", &["failed", "node sim-0 exited"]);
+
+    let cut = scratch.join("cut");
+    copy_dir(&shards[1], &cut);
+    let records = std::fs::read(cut.join("records.cbor")).unwrap();
+    std::fs::write(cut.join("records.cbor"), &records[..records.len() / 2]).unwrap();
+    refused(&[&shards[0], &cut], &scratch, "cut-records", &["records.cbor", "corrupt or cut short"]);
+
+    let no_records = scratch.join("no-records");
+    copy_dir(&shards[1], &no_records);
+    std::fs::remove_file(no_records.join("records.cbor")).unwrap();
+    refused(&[&shards[0], &no_records], &scratch, "no-records", &["records.cbor"]);
+
+    let garbled = scratch.join("garbled");
+    copy_dir(&shards[1], &garbled);
+    std::fs::write(garbled.join("shard.json"), "{\"format\": 1, \"shard\": ").unwrap();
+    refused(&[&shards[0], &garbled], &scratch, "garbled-manifest", &["shard.json"]);
+
+    refused(&[&shards[0], &one], &scratch, "not-a-shard", &["no shard.json", "one"]);
+
+    let o = merge(&[&shards[0], &shards[1]], &shards[0]);
+    assert!(!o.status.success() && text(&o).contains("one of the shard folders"), "{}", text(&o));
+}
+
+#[test]
+fn impossible_shards_are_refused_naming_the_flag() {
+    let scratch = scratch_dir("bad-shards");
+    for (shard, says) in [
+        ("3/2", "index 3"),
+        ("0/0", "at least 1"),
+        ("a/2", "I/N"),
+        ("2", "I/N"),
+        // More shards than seeds: a shard with nothing to run is refused, not an empty report.
+        ("0/6", "no seeds"),
+    ] {
+        let out = scratch.join(shard.replace('/', "-"));
+        let o = eval_into(&out, &["--shard", shard]);
+        let t = text(&o);
+        assert!(!o.status.success(), "--shard {shard} should be refused:\n{t}");
+        assert!(t.contains("--shard") && t.contains(says), "--shard {shard}: the error should name the flag and say `{says}`:\n{t}");
+        assert!(!out.join("shard.json").exists(), "--shard {shard}: refused, yet a manifest was written");
+    }
+}
