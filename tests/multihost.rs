@@ -176,6 +176,17 @@ impl Watched {
 /// Starts `dc launch FILE --host HOST --namespace NAMESPACE` (inside network namespace `netns`
 /// when given), its output piped.
 fn start_host(file: &std::path::Path, host: &str, namespace: &str, netns: Option<&str>) -> std::process::Child {
+    start_host_with(file, host, namespace, netns, &[])
+}
+
+/// [`start_host`] with more `dc launch` arguments (`--shard 1/2`).
+fn start_host_with(
+    file: &std::path::Path,
+    host: &str,
+    namespace: &str,
+    netns: Option<&str>,
+    extra: &[&str],
+) -> std::process::Child {
     let mut cmd = match netns {
         Some(netns) => {
             let mut c = Command::new("ip");
@@ -187,6 +198,7 @@ fn start_host(file: &std::path::Path, host: &str, namespace: &str, netns: Option
     cmd.arg("launch")
         .arg(file)
         .args(["--host", host, "--namespace", namespace])
+        .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -196,8 +208,13 @@ fn start_host(file: &std::path::Path, host: &str, namespace: &str, netns: Option
 /// `dc launch FILE --host a` and `--host b`, each in its network namespace (b first), and both
 /// must succeed.
 fn run_on_two_hosts(hosts: &TwoHosts, file: &std::path::Path, namespace: &str, label: &str) {
-    let b = start_host(file, "b", namespace, Some(&hosts.b));
-    let a = start_host(file, "a", namespace, Some(&hosts.a));
+    run_on_two_hosts_with(hosts, file, namespace, label, &[])
+}
+
+/// [`run_on_two_hosts`] with more `dc launch` arguments on both hosts.
+fn run_on_two_hosts_with(hosts: &TwoHosts, file: &std::path::Path, namespace: &str, label: &str, extra: &[&str]) {
+    let b = start_host_with(file, "b", namespace, Some(&hosts.b), extra);
+    let a = start_host_with(file, "a", namespace, Some(&hosts.a), extra);
     let out_a = wait(a, &format!("host a{label}"), Duration::from_secs(300));
     let out_b = wait(b, &format!("host b{label}"), Duration::from_secs(60));
     assert!(out_a.status.success(), "host a{label}: {}", text(&out_a));
@@ -264,6 +281,20 @@ fn a_two_host_graph_over_zenoh_matches_the_one_host_run_step_for_step() {
     assert!(two_steps.values().all(|(_, fallback, used)| !fallback && used == "unet"), "lockstep: no fallback");
     for (key, one) in &one_steps {
         assert_eq!(Some(one), two_steps.get(key), "simulation {} step {}: sweeps differ", key.0, key.1);
+    }
+
+    // A shard may itself be a two-host graph: both hosts run the file with `--shard 1/2` and
+    // compute the same graph (seed 1 of 0..2, namespace `...-shard-1`); its report is the
+    // one-host run's seed 1, step for step.
+    let shard = dir.join("two-hosts-shard");
+    let file = dir.join("two-hosts-shard.toml");
+    std::fs::write(&file, graph(&host_table, "host = \"a\"", "host = \"b\"", &shard)).unwrap();
+    run_on_two_hosts_with(&hosts, &file, &unique_namespace("two-hosts-shard"), " (shard 1/2)", &["--shard", "1/2"]);
+    let shard_steps = report_steps(&shard);
+    assert_eq!(shard_steps.len(), 60, "shard 1/2 of seeds 0..2 ran seed 1's 60 steps");
+    for (key, steps) in &shard_steps {
+        assert_eq!(key.0, 1, "shard 1/2 ran only seed 1");
+        assert_eq!(Some(steps), one_steps.get(key), "shard: simulation {} step {}: sweeps differ", key.0, key.1);
     }
 
     // The same two hosts over mutual TLS (`[security]`, certificates from scripts/make-certs.sh

@@ -6,8 +6,9 @@ use deep_contact::{bin, report_figures, scratch_dir, text};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// The run every shard test splits: two models, four seeds, short and small.
-const RUN: &[&str] = &["--models", "builtin,copy", "--seeds", "0..4", "--steps", "24", "--n", "30", "--threads", "1"];
+/// The run every shard test splits: two models, four seeds, small but long enough for the balls to
+/// land and pile (thousands of sweeps: the tables compare something).
+const RUN: &[&str] = &["--models", "builtin,copy", "--seeds", "0..4", "--steps", "150", "--n", "30", "--threads", "1"];
 
 fn dc(args: &[&str]) -> Output {
     Command::new(bin("dc")).args(args).output().expect("run dc")
@@ -77,6 +78,8 @@ fn two_shards_merge_into_the_report_of_the_run_on_one_host() {
     let sims: std::collections::BTreeSet<&str> = shard0.lines().skip(1).filter_map(|l| l.split(',').nth(1)).collect();
     assert_eq!(sims.into_iter().collect::<Vec<_>>(), ["0", "1"], "shard 0 of 2 of seeds 0..4 ran seeds 0 and 1");
 
+    let sweeps: u64 = std::fs::read_to_string(one.join("steps.csv")).unwrap().lines().skip(1).map(|l| l.split(',').nth(7).unwrap().parse::<u64>().unwrap()).sum();
+    assert!(sweeps > 1000, "the run piles balls up ({sweeps} sweeps): the comparison below is not of empty tables");
     let merged = scratch.join("merged");
     let o = merge(&[&shards[1], &shards[0]], &merged);
     assert!(o.status.success(), "merge:\n{}", text(&o));
@@ -107,8 +110,8 @@ fn two_shards_merge_into_the_report_of_the_run_on_one_host() {
 
     let other_steps = scratch.join("other-steps");
     copy_dir(&shards[1], &other_steps);
-    edit_manifest(&other_steps, |m| m["settings"]["steps"] = "25".into());
-    refused(&[&shards[0], &other_steps], &scratch, "setting", &["setting `steps`", "`24`", "`25`"]);
+    edit_manifest(&other_steps, |m| m["settings"]["steps"] = "151".into());
+    refused(&[&shards[0], &other_steps], &scratch, "setting", &["setting `steps`", "`150`", "`151`"]);
 
     let other_build = scratch.join("other-build");
     copy_dir(&shards[1], &other_build);
@@ -172,4 +175,42 @@ fn impossible_shards_are_refused_naming_the_flag() {
         assert!(t.contains("--shard") && t.contains(says), "--shard {shard}: the error should name the flag and say `{says}`:\n{t}");
         assert!(!out.join("shard.json").exists(), "--shard {shard}: refused, yet a manifest was written");
     }
+}
+
+/// A recording graph split by `dc launch --shard`: each shard records its part of the seeds into
+/// a file of its own, and a graph without seeds is refused naming the flag.
+#[test]
+fn a_launch_file_runs_its_part_of_the_seeds_with_its_own_recording() {
+    let graph = r#"
+[[nodes]]
+name = "recorder"
+binary = "dc-record"
+daemon = true
+params = { out = "run.mcap", topics = "bodies,contacts,stats/solve,control" }
+
+[[nodes]]
+name = "sim"
+binary = "dc-sim"
+params = { model = "builtin", seeds = "0..5", steps = 6, n = 20 }
+"#;
+    let mut simulations = Vec::new();
+    for i in 0..2 {
+        let (file, o) = deep_contact::launch("launch-shard", graph, &["--shard", &format!("{i}/2")]);
+        assert!(o.status.success(), "shard {i}/2:\n{}", text(&o));
+        let said = String::from_utf8_lossy(&o.stdout).to_string();
+        assert!(said.contains(&format!("shard {i}/2: sim: seeds 0..5 -> ")), "{said}");
+        let dir = file.parent().unwrap();
+        assert!(!dir.join("run.mcap").exists(), "shard {i} wrote the unsharded file");
+        let recording = dir.join(format!("run.shard-{i}-of-2.mcap"));
+        let info = recorder::Info::read(&recording).unwrap_or_else(|e| panic!("{}: {e}", recording.display()));
+        let seeds: Vec<u32> = info.simulations.keys().map(|(_, sim)| *sim).collect();
+        simulations.push(seeds);
+    }
+    assert_eq!(simulations, [vec![0, 1], vec![2, 3, 4]], "contiguous blocks, every seed once");
+
+    let unseeded = graph.replace("seeds = \"0..5\", ", "");
+    let (_, o) = deep_contact::launch("launch-shard-none", &unseeded, &["--shard", "0/2"]);
+    assert!(!o.status.success() && text(&o).contains("--shard 0/2: no node") && text(&o).contains("seeds"), "{}", text(&o));
+    let (_, o) = deep_contact::launch("launch-shard-many", graph, &["--shard", "0/6"]);
+    assert!(!o.status.success() && text(&o).contains("has no seeds"), "{}", text(&o));
 }

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 const TEST: &str = "slurm_array_of_shards";
 /// The run: three seeds a shard on three shards, so one array task waits for a free core.
-const RUN: &[&str] = &["--models", "builtin,copy", "--seeds", "0..6", "--steps", "20", "--n", "30", "--threads", "1"];
+const RUN: &[&str] = &["--models", "builtin,copy", "--seeds", "0..6", "--steps", "150", "--n", "30", "--threads", "1"];
 /// slurmctld's and slurmd's ports: fixed (a probed free port can be taken before they bind it),
 /// and away from a system SLURM's 6817/6818.
 const PORTS: &str = "16817 16818";

@@ -48,6 +48,12 @@ enum Command {
         /// server's packages imported); meanwhile dc says whom it waits for.
         #[arg(long, default_value = "120s", value_parser = duration_with_unit)]
         ready_timeout: std::time::Duration,
+        /// Run the I-th of N parts of the graph's seeds (an array job's task: docs/cluster.md):
+        /// every node's `seeds` becomes its part, each recorder writes `NAME.shard-I-of-N.mcap`
+        /// (or under `DIR/shard-I-of-N/`), the namespace gains `-shard-I`. Every host of a
+        /// several-host graph runs the file with the same --shard.
+        #[arg(long, value_name = "I/N")]
+        shard: Option<msgs::shard::Shard>,
     },
     /// Start one node by hand: `dc run sim --steps 10` runs `dc-sim --steps 10`.
     Run {
@@ -338,12 +344,17 @@ fn duration_with_unit(s: &str) -> Result<std::time::Duration, String> {
 
 fn real_main(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Launch { file, host, namespace, dry_run, trust, wait_hosts, ready_timeout } => {
+        Command::Launch { file, host, namespace, dry_run, trust, wait_hosts, ready_timeout, shard } => {
             let mut graph = Graph::load(&file)?;
             graph.trust = trust;
             if let Some(ns) = namespace {
                 runtime::check_namespace(&ns).map_err(|why| anyhow::anyhow!("--namespace `{ns}`: {why}"))?;
                 graph.namespace = ns;
+            }
+            if let Some(shard) = shard {
+                for change in launch::shard::shard_graph(&mut graph, shard)? {
+                    runtime::print_line(&format!("shard {shard}: {change}"))?;
+                }
             }
             let host = pick_host(&graph, host)?;
             graph.check_params_on(Some(&host))?;

@@ -41,8 +41,9 @@ use std::path::{Path, PathBuf};
         methods (no shipped model uses them; kept to reproduce the README's findings)."
 )]
 struct Args {
-    /// Training recordings (file or folder) with labelled problems; repeat for several.
-    #[arg(long, required = true)]
+    /// Training recordings (files or folders) with labelled problems: several (`--data a b`, or the
+    /// flag repeated) are one data set, as the recordings of several hosts or shards.
+    #[arg(long, required = true, num_args = 1..)]
     data: Vec<PathBuf>,
     /// Validation recordings: the ridge strength is chosen by their re-solved sweeps.
     #[arg(long)]

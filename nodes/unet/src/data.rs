@@ -149,14 +149,14 @@ impl Split {
 
 /// The simulations in a recording (file or folder), read from its steps.
 pub fn list_simulations(path: &Path) -> Result<BTreeSet<SimKey>> {
-    Ok(Recordings::survey(path, false)?.simulations)
+    Ok(Recordings::survey(&[path.to_path_buf()], false)?.simulations)
 }
 
 /// The recordings of a training set that read intact, with their simulations, and those left out.
 #[derive(Debug, Clone)]
 pub struct Recordings {
-    /// What the user named (a file or a folder).
-    pub path: PathBuf,
+    /// What the user named (files or folders: several make one data set).
+    pub paths: Vec<PathBuf>,
     pub files: Vec<PathBuf>,
     pub simulations: BTreeSet<SimKey>,
     /// Files left out, with why (`skip_bad`).
@@ -164,17 +164,30 @@ pub struct Recordings {
 }
 
 impl Recordings {
-    /// Reads every recording of `path` through. A damaged or unreadable one is an error, or with
+    /// Reads every recording of `paths` through (each a file or a folder of them: the
+    /// recordings of several hosts or shards are one data set; a file named twice, or inside a
+    /// folder also named, is read once). A damaged or unreadable one is an error, or with
     /// `skip_bad` is left out and listed (a folder of overnight recordings with one cut short
-    /// still trains); no usable simulation at all is an error either way.
-    pub fn survey(path: &Path, skip_bad: bool) -> Result<Recordings> {
-        let mut out = Recordings {
-            path: path.to_path_buf(),
-            files: Vec::new(),
-            simulations: BTreeSet::new(),
-            skipped: Vec::new(),
-        };
-        for file in recorder::recording_files(path)? {
+    /// still trains); no usable simulation at all is an error either way. Simulations are told
+    /// apart by their run (`SimKey`), so two hosts' seed 3 are two simulations.
+    pub fn survey(paths: &[PathBuf], skip_bad: bool) -> Result<Recordings> {
+        if paths.is_empty() {
+            return Err(UnetError::Data("no recordings named".into()));
+        }
+        let mut out =
+            Recordings { paths: paths.to_vec(), files: Vec::new(), simulations: BTreeSet::new(), skipped: Vec::new() };
+        let mut seen = BTreeSet::new();
+        let mut files = Vec::new();
+        for path in paths {
+            for file in recorder::recording_files(path)? {
+                if seen.insert(std::fs::canonicalize(&file).unwrap_or_else(|_| file.clone())) {
+                    files.push(file);
+                } else {
+                    tracing::warn!(file = %file.display(), "named twice: read once");
+                }
+            }
+        }
+        for file in files {
             match recorder::Info::read(&file) {
                 Ok(info) if info.simulations.is_empty() => out.skipped.push((file, "no simulation steps".into())),
                 Ok(info) => {
@@ -191,10 +204,20 @@ impl Recordings {
         if out.simulations.is_empty() {
             let skipped =
                 if out.skipped.is_empty() { String::new() } else { format!(" ({} files left out)", out.skipped.len()) };
-            return Err(UnetError::Data(format!("{}: no simulation steps recorded{skipped}", path.display())));
+            return Err(UnetError::Data(format!("{}: no simulation steps recorded{skipped}", out.named())));
         }
         Ok(out)
     }
+
+    /// What the user named, as messages and the model file say it.
+    pub fn named(&self) -> String {
+        named(&self.paths)
+    }
+}
+
+/// Paths as one list for messages (`a.mcap, shards/1`).
+pub fn named(paths: &[PathBuf]) -> String {
+    paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
 }
 
 /// One training example, channel-major (`[channels][height][width]`).
@@ -337,7 +360,8 @@ pub struct SampleStream {
     transfers: Vec<(SimKey, Transfer)>,
     /// Per simulation, its last step: what its next step pairs with.
     previous: HashMap<SimKey, (StepHeader, Vec<Body>, Vec<Contact>)>,
-    path: PathBuf,
+    /// The recordings read, as errors name them.
+    source: String,
 }
 
 /// Simulations whose transfers are kept (more interleave only when more simulators ran at once).
@@ -351,15 +375,15 @@ fn sweeps_of(stats: Option<&msgs::SolveStats>) -> f32 {
 impl SampleStream {
     /// Samples of `part` from the recording(s) at `path`.
     pub fn open(path: &Path, spec: &GridSpec, split: &Split, part: Part) -> Result<SampleStream> {
-        SampleStream::of(Steps::open(path)?, path, spec, split, part)
+        SampleStream::of(Steps::open(path)?, path.display().to_string(), spec, split, part)
     }
 
     /// Samples of `part` from the intact recordings of a survey.
     pub fn open_recordings(data: &Recordings, spec: &GridSpec, split: &Split, part: Part) -> Result<SampleStream> {
-        SampleStream::of(Steps::of_files(data.files.clone()), &data.path, spec, split, part)
+        SampleStream::of(Steps::of_files(data.files.clone()), data.named(), spec, split, part)
     }
 
-    fn of(steps: Steps, path: &Path, spec: &GridSpec, split: &Split, part: Part) -> Result<SampleStream> {
+    fn of(steps: Steps, source: String, spec: &GridSpec, split: &Split, part: Part) -> Result<SampleStream> {
         Ok(SampleStream {
             steps,
             config: spec.transfer_config()?,
@@ -368,7 +392,7 @@ impl SampleStream {
             part,
             transfers: Vec::new(),
             previous: HashMap::new(),
-            path: path.to_path_buf(),
+            source,
         })
     }
 
@@ -397,7 +421,7 @@ impl SampleStream {
         }
         let (_, transfer) = self.transfers.last_mut().expect("pushed above");
         let context = |e: sph::SphError| {
-            UnetError::Data(format!("{}: simulation {} step {}: {e}", self.path.display(), key.simulation, key.step))
+            UnetError::Data(format!("{}: simulation {} step {}: {e}", self.source, key.simulation, key.step))
         };
         let temporal = self.spec.temporal.then_some(contacts.as_slice());
         let (input, _) = transfer.bodies_grid(*key, bodies, temporal).map_err(context)?;

@@ -120,9 +120,10 @@ impl NetArgs {
 
 #[derive(Args, Debug)]
 struct TrainArgs {
-    /// A recording (.mcap) or a folder of recordings.
-    #[arg(long)]
-    data: PathBuf,
+    /// Recordings (.mcap) or folders of them; several are one data set (`--data a.mcap shards/*/`:
+    /// the recordings of several hosts or shards).
+    #[arg(long, required = true, num_args = 1..)]
+    data: Vec<PathBuf>,
     /// The model file to write.
     #[arg(long, default_value = "models/unet.dcu")]
     out: PathBuf,

@@ -83,8 +83,8 @@ impl std::str::FromStr for LossKind {
 /// Everything a training run is given.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TrainOptions {
-    /// A recording or a folder of recordings.
-    pub data: PathBuf,
+    /// Recordings or folders of them: one data set.
+    pub data: Vec<PathBuf>,
     /// The model file to write; checkpoints go to `<out>.checkpoints/`.
     pub out: PathBuf,
     pub net: UNetConfig,
@@ -540,7 +540,7 @@ fn evaluate(
         let sims: Vec<String> = simulations.iter().map(|(run, sim)| format!("run {run} simulation {sim}")).collect();
         return Err(UnetError::Data(format!(
             "{}: the {what} simulations ({}) yielded no sample (their frames did not decode or pair; see the warnings above): no usable {what} data",
-            data.path.display(),
+            data.named(),
             sims.join(", "),
             what = format!("{part:?}").to_lowercase()
         )));
@@ -572,7 +572,7 @@ fn check_shapes(samples: &[Sample], meta: &ModelMeta) -> Result<()> {
 fn prepare(opts: &TrainOptions, data: &Recordings) -> Result<(ModelMeta, usize)> {
     let split = Split::by_simulation(&data.simulations, opts.validation_fraction, opts.test_fraction, opts.seed);
     if split.train.is_empty() {
-        return Err(UnetError::Data(format!("{}: no simulation left for training", opts.data.display())));
+        return Err(UnetError::Data(format!("{}: no simulation left for training", crate::data::named(&opts.data))));
     }
     tracing::info!(
         train = split.train.len(),
@@ -606,7 +606,7 @@ fn prepare(opts: &TrainOptions, data: &Recordings) -> Result<(ModelMeta, usize)>
         output_channels: sph::CONTACT_CHANNELS.iter().map(|s| s.to_string()).collect(),
         grid_shape,
         training: TrainingSummary {
-            data: opts.data.display().to_string(),
+            data: crate::data::named(&opts.data),
             skipped_files: data.skipped.iter().map(|(f, why)| format!("{}: {why}", f.display())).collect(),
             train_samples,
             split,

@@ -654,7 +654,7 @@ fn interleaved_simulations_pair_every_step_with_its_own_predecessor() {
 
 fn train_options(data: &Path, out: &Path) -> TrainOptions {
     TrainOptions {
-        data: data.to_path_buf(),
+        data: vec![data.to_path_buf()],
         out: out.to_path_buf(),
         net: small_net(),
         grid: small_spec(),
@@ -940,6 +940,35 @@ fn a_damaged_recording_in_the_training_folder_is_left_out_and_listed() {
     opts.out = dir.join("m2.dcu");
     let e = unet::train::train(&opts, &device()).unwrap_err().to_string();
     assert!(e.contains("b.mcap"), "{e}");
+}
+
+#[test]
+fn recordings_of_several_hosts_train_as_one_data_set() {
+    // Two shards' recordings (runs 11 and 12, the same seed 1000 on both: two simulations), named
+    // as a list with one of them twice (inside its folder, and as a file): read once each.
+    let dir = scratch("several");
+    let (host_a, host_b) = (dir.join("shard-0"), dir.join("shard-1"));
+    std::fs::create_dir_all(&host_a).unwrap();
+    std::fs::create_dir_all(&host_b).unwrap();
+    record_simulations(&host_a.join("a.mcap"), 11, &[1000, 1001], 8);
+    record_simulations(&host_b.join("b.mcap"), 12, &[1000, 1002], 8);
+    let survey =
+        unet::data::Recordings::survey(&[host_a.clone(), host_b.clone(), host_b.join("b.mcap")], false).unwrap();
+    assert_eq!(survey.files.len(), 2, "{:?}", survey.files);
+    let keys: Vec<(u64, u32)> = survey.simulations.iter().copied().collect();
+    assert_eq!(keys, [(11, 1000), (11, 1001), (12, 1000), (12, 1002)]);
+
+    let mut opts = train_options(&host_a, &dir.join("m.dcu"));
+    opts.data = vec![host_a.clone(), host_b.clone()];
+    opts.epochs = 1;
+    let meta = unet::train::train(&opts, &device()).unwrap();
+    let split = &meta.training.split;
+    assert_eq!(split.train.len() + split.validation.len() + split.test.len(), 4, "{split:?}");
+    assert!(meta.training.data.contains("shard-0") && meta.training.data.contains("shard-1"), "{}", meta.training.data);
+
+    // A name that is not there stops the survey, named.
+    let e = unet::data::Recordings::survey(&[host_a, dir.join("shard-9")], false).unwrap_err().to_string();
+    assert!(e.contains("shard-9"), "{e}");
 }
 
 #[test]
