@@ -158,7 +158,7 @@ pub fn report_steps(dir: &Path) -> std::collections::BTreeMap<(u32, u32), (u32, 
 }
 
 /// A report folder's tables (every `*.csv`, by file name) without what measures wall time (the
-/// `*_us` and `*_ms` columns) or names a process (`run_id`): what two runs of the same seeds and
+/// `*_us`, `*_ms`, `* us` and `* ms` columns) or names a process (`run_id`): what two runs of the same seeds and
 /// settings must agree on, cell for cell, wherever and however split they ran.
 pub fn report_figures(dir: &Path) -> std::collections::BTreeMap<String, Vec<Vec<String>>> {
     let mut tables = std::collections::BTreeMap::new();
@@ -173,7 +173,8 @@ pub fn report_figures(dir: &Path) -> std::collections::BTreeMap<String, Vec<Vec<
         let kept: Vec<usize> = (0..header.len())
             .filter(|&i| {
                 let name = header[i].as_str();
-                !(name.ends_with("_us") || name.ends_with("_ms") || name == "run_id")
+                let timed = ["_us", "_ms", " us", " ms"].iter().any(|unit| name.ends_with(unit));
+                !(timed || name == "run_id")
             })
             .collect();
         let pick = |row: Vec<String>| kept.iter().map(|&i| row.get(i).cloned().unwrap_or_default()).collect();

@@ -214,3 +214,105 @@ params = { model = "builtin", seeds = "0..5", steps = 6, n = 20 }
     let (_, o) = deep_contact::launch("launch-shard-many", graph, &["--shard", "0/6"]);
     assert!(!o.status.success() && text(&o).contains("has no seeds"), "{}", text(&o));
 }
+
+/// `dc study ARGS [--shard I/N] --out OUT`.
+fn study_into(args: &[&str], out: &Path, shard: Option<&str>) -> Output {
+    let mut all = vec!["study"];
+    all.extend_from_slice(args);
+    if let Some(shard) = shard {
+        all.extend(["--shard", shard]);
+    }
+    all.extend(["--out", out.to_str().unwrap()]);
+    dc(&all)
+}
+
+/// A study run on one host and in two shards, merged: returns (one-host folder, merged folder).
+fn study_both_ways(test: &str, args: &[&str]) -> (PathBuf, PathBuf, PathBuf) {
+    let scratch = scratch_dir(test);
+    let one = scratch.join("one");
+    let o = study_into(args, &one, None);
+    assert!(o.status.success(), "one-host study:\n{}", text(&o));
+    let shards: Vec<PathBuf> = (0..2).map(|i| scratch.join(format!("shard-{i}"))).collect();
+    for (i, dir) in shards.iter().enumerate() {
+        let o = study_into(args, dir, Some(&format!("{i}/2")));
+        assert!(o.status.success(), "shard {i}/2:\n{}", text(&o));
+    }
+    let merged = scratch.join("merged");
+    let o = merge(&[&shards[1], &shards[0]], &merged);
+    assert!(o.status.success(), "merge:\n{}", text(&o));
+    (one, merged, scratch)
+}
+
+/// The sections of a study's markdown report whose heading contains one of `headings`.
+fn sections(dir: &Path, file: &str, headings: &[&str]) -> Vec<String> {
+    let md = std::fs::read_to_string(dir.join(file)).unwrap();
+    let found: Vec<String> =
+        md.split("\n## ").filter(|s| headings.iter().any(|h| s.lines().next().unwrap_or("").contains(h))).map(str::to_string).collect();
+    assert!(!found.is_empty(), "{file} has no section {headings:?}:\n{md}");
+    found
+}
+
+#[test]
+fn a_solvers_study_in_shards_merges_into_the_one_host_study() {
+    let args = ["solvers", "pgs,nncg:1.2/down", "--seeds", "0..4", "--steps", "120", "--n", "30", "--threads", "1", "--whole-runs"];
+    let (one, merged, scratch) = study_both_ways("study-solvers-shards", &args);
+    let (a, b) = (report_figures(&one), report_figures(&merged));
+    assert_eq!(a.keys().collect::<Vec<_>>(), ["solver-steps.csv"]);
+    assert!(a["solver-steps.csv"].len() == 481, "4 seeds x 120 steps and a header: {}", a["solver-steps.csv"].len());
+    assert_eq!(a, b, "every step's figures, but the timings");
+    // The whole runs' sweeps, the ratios of sweeps, the capped steps and the worst seed (the
+    // columns not measured in seconds).
+    let whole = |dir: &Path| -> Vec<Vec<String>> {
+        let section = sections(dir, "solvers.md", &["Whole runs"]).remove(0);
+        section
+            .lines()
+            .filter(|l| l.starts_with("| ") && !l.starts_with("| solver"))
+            .map(|l| {
+                let cells: Vec<&str> = l.split('|').map(str::trim).collect();
+                [1, 2, 3, 6, 7].iter().map(|&i| cells[i].to_string()).collect()
+            })
+            .collect()
+    };
+    assert_eq!(whole(&one).len(), 2, "a row per solver");
+    assert_eq!(whole(&merged), whole(&one), "the whole runs' sweeps");
+    let summary = std::fs::read_to_string(merged.join("merged.json")).unwrap();
+    assert!(summary.contains("\"command\": \"dc study solvers\""), "{summary}");
+
+    // The chooser is trained once, on one host: not with --shard.
+    let o = study_into(&[&args[..], &["--train-seeds", "1000..1002"]].concat(), &scratch.join("chooser"), Some("0/2"));
+    assert!(!o.status.success() && text(&o).contains("--shard with --train-seeds"), "{}", text(&o));
+    // A study's shard and an evaluation's shard are not one run.
+    let eval_shard = scratch.join("eval-shard");
+    let o = eval_into(&eval_shard, &["--shard", "1/2"]);
+    assert!(o.status.success(), "{}", text(&o));
+    refused(&[&scratch.join("shard-0"), &eval_shard], &scratch, "study-and-eval", &["the command", "dc study solvers", "dc eval"]);
+    // A shard of another setting, named.
+    let other = scratch.join("other");
+    let mut changed = args.to_vec();
+    changed[5] = "121";
+    let o = study_into(&changed, &other, Some("1/2"));
+    assert!(o.status.success(), "{}", text(&o));
+    refused(&[&scratch.join("shard-0"), &other], &scratch, "study-setting", &["setting `steps`", "`120`", "`121`"]);
+}
+
+#[test]
+fn a_budget_study_in_shards_merges_into_the_one_host_study() {
+    let args = [
+        "budget", "4,8", "--models", "none,builtin,blend:0.5", "--error-split", "--seeds", "0..4", "--steps", "100", "--n", "30",
+        "--threads", "1",
+    ];
+    let (one, merged, scratch) = study_both_ways("study-budget-shards", &args);
+    let (a, b) = (report_figures(&one), report_figures(&merged));
+    assert_eq!(a.keys().collect::<Vec<_>>(), ["budget-steps.csv"]);
+    assert_eq!(a, b, "every run's steps, but the timings");
+    // The error split (summed over seeds) and the pile against the reference: no timings there.
+    let headings = ["which part of builtin's error", "The pile against the reference"];
+    assert_eq!(sections(&merged, "budget.md", &headings), sections(&one, "budget.md", &headings));
+
+    // A shard whose results were cut short is refused, naming the file.
+    let cut = scratch.join("cut");
+    copy_dir(&scratch.join("shard-1"), &cut);
+    let data = std::fs::read(cut.join("study.cbor")).unwrap();
+    std::fs::write(cut.join("study.cbor"), &data[..data.len() / 3]).unwrap();
+    refused(&[&scratch.join("shard-0"), &cut], &scratch, "study-cut", &["study.cbor", "corrupt or cut short"]);
+}

@@ -93,8 +93,9 @@ enum Command {
     },
     /// The thesis protocol: every warm-start model on the same seeds, one report comparing them.
     Eval(EvalArgs),
-    /// Evaluation reports: `dc report merge SHARD_DIR... --out DIR` makes one report from the
-    /// shards of `dc eval --shard I/N` (runs `dc-metrics --merge`).
+    /// Reports: `dc report merge SHARD_DIR... --out DIR` makes one report from the shards of
+    /// `dc eval --shard I/N` (runs `dc-metrics --merge`) or `dc study solvers|budget --shard I/N`
+    /// (runs `dc-study merge`).
     Report {
         #[command(subcommand)]
         what: ReportWhat,
@@ -129,8 +130,8 @@ enum Command {
 
 #[derive(Subcommand, Debug)]
 enum ReportWhat {
-    /// One report from every shard's folder of a run (`dc eval --shard I/N --out DIR`): each
-    /// shard once, finished, of the same settings and build; else refused, naming the shard,
+    /// One report from every shard's folder of a run (`dc eval|study ... --shard I/N --out DIR`):
+    /// each shard once, finished, of the same settings and build; else refused, naming the shard,
     /// setting or seeds, and nothing written.
     Merge {
         /// The shards' folders, any order (`reports/run/shard-*`).
@@ -399,6 +400,18 @@ fn real_main(cli: Cli) -> Result<()> {
         },
         Command::Eval(args) => eval(args),
         Command::Report { what: ReportWhat::Merge { dirs, out, metrics_args } } => {
+            // A study's shards are merged by dc-study, an evaluation's by dc-metrics (which also
+            // names what is wrong with a folder that has no readable manifest).
+            let study = msgs::shard::Manifest::read(&dirs[0]).is_ok_and(|m| m.command.starts_with("dc study"));
+            if study {
+                if !metrics_args.is_empty() {
+                    bail!("options after `--` are an evaluation report's (dc-metrics); a study's merge takes none");
+                }
+                let mut args = vec!["merge".to_string()];
+                args.extend(dirs.iter().map(|d| d.display().to_string()));
+                args.push(format!("--out={}", out.display()));
+                return exec_node("study", &args);
+            }
             let mut args = vec!["--merge".to_string()];
             args.extend(dirs.iter().map(|d| d.display().to_string()));
             args.push(format!("--out={}", out.display()));
@@ -777,10 +790,10 @@ fn eval_settings(args: &EvalArgs, graph: &Graph) -> Result<std::collections::BTr
     set("serve", args.serve.join(" ; "));
     set("simulator arguments", shlex::try_join(args.sim_args.iter().map(String::as_str)).unwrap_or_default());
     if graph.nodes.iter().any(|n| n.binary == "dc-unet") {
-        set("unet-model sha256", launch::shard::file_sha256(&args.unet_model).context("--unet-model")?);
+        set("unet-model sha256", runtime::shard::file_sha256(&args.unet_model).context("--unet-model")?);
     }
     if let Some(gnn) = &args.gnn_model {
-        set("gnn-model sha256", launch::shard::file_sha256(gnn).context("--gnn-model")?);
+        set("gnn-model sha256", runtime::shard::file_sha256(gnn).context("--gnn-model")?);
     }
     Ok(settings)
 }
@@ -876,9 +889,16 @@ fn eval(args: EvalArgs) -> Result<()> {
     let shard = match args.shard {
         Some(shard) => {
             let seeds = msgs::parse_seeds(&args.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
-            let build = launch::shard::build_of(graph.nodes.iter().filter(|n| n.binary.starts_with("dc-")).map(|n| n.program.as_path()))?;
+            let build = runtime::shard::build_of(graph.nodes.iter().filter(|n| n.binary.starts_with("dc-")).map(|n| n.program.as_path()))?;
             let settings = eval_settings(&args, &graph)?;
-            Some(launch::shard::RunningShard::start(&out, "dc eval", shard, &seeds, settings, build, &eval_title(&args))?)
+            // An earlier run's records in the folder must not pass for this run's.
+            match std::fs::remove_file(out.join("records.cbor")) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(e).with_context(|| format!("removing the earlier {}", out.join("records.cbor").display()))
+                }
+                _ => {}
+            }
+            Some(runtime::shard::RunningShard::start(&out, "dc eval", shard, &seeds, settings, build, &eval_title(&args), Vec::new())?)
         }
         None => None,
     };

@@ -7,9 +7,9 @@
 //! all a task needs), and a part is written back as short ranges (`0..8,12`).
 
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 /// Most shards of one run: far more than any array job of seeds needs, few enough that a
@@ -123,6 +123,10 @@ pub struct Manifest {
     pub title: String,
     pub host: String,
     pub started_unix: u64,
+    /// The command's own arguments (without `--shard` and `--out`), for a merge that computes
+    /// its report as the command does (a study's); empty where the records say all.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub arguments: Vec<String>,
     #[serde(flatten)]
     pub state: ShardState,
 }
@@ -187,6 +191,175 @@ impl Manifest {
         std::fs::rename(&partial, &path).map_err(io)
     }
 }
+
+
+/// One finished shard of a run, as [`gather`] read it.
+#[derive(Debug, Clone)]
+pub struct FinishedShard {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+    pub finished_unix: u64,
+}
+
+/// Why shards' folders do not make one run.
+#[derive(Debug, thiserror::Error)]
+pub enum GatherError {
+    #[error(transparent)]
+    Manifest(#[from] ManifestError),
+    #[error("{0}")]
+    Refused(String),
+}
+
+/// The shards of one run from their folders (any order), in index order, once each was checked:
+/// every folder a shard's, each finished, all of one command, count, seed list, settings and
+/// build, no shard twice and none missing. What the shards' own results hold is the merge's to
+/// check. Any failure names the folder, the setting (both values) or the missing seeds.
+pub fn gather(dirs: &[PathBuf]) -> Result<Vec<FinishedShard>, GatherError> {
+    if dirs.is_empty() {
+        return Err(GatherError::Refused("no shard folders given".into()));
+    }
+    let refused = |why: String| Err(GatherError::Refused(why));
+    let mut shards = Vec::new();
+    for dir in dirs {
+        if !dir.join(Manifest::FILE).exists() {
+            return refused(format!(
+                "{}: no {} here: not the folder of a shard (`--shard I/N`), or it never started",
+                dir.display(),
+                Manifest::FILE
+            ));
+        }
+        let manifest = Manifest::read(dir)?;
+        let finished_unix = match &manifest.state {
+            ShardState::Complete { finished_unix } => *finished_unix,
+            ShardState::Running => {
+                return refused(format!(
+                    "{}: shard {} (seeds {}) started on {} and never finished (killed, or still running): run it again",
+                    dir.display(),
+                    manifest.shard,
+                    format_seeds(&manifest.seeds),
+                    manifest.host
+                ))
+            }
+            ShardState::Failed { why, .. } => {
+                return refused(format!(
+                    "{}: shard {} (seeds {}) failed on {}: {why}",
+                    dir.display(),
+                    manifest.shard,
+                    format_seeds(&manifest.seeds),
+                    manifest.host
+                ))
+            }
+        };
+        shards.push(FinishedShard { dir: dir.clone(), manifest, finished_unix });
+    }
+    for s in &shards[1..] {
+        let first = &shards[0];
+        let (a, b) = (&first.manifest, &s.manifest);
+        let differ = |what: &str, x: &dyn std::fmt::Display, y: &dyn std::fmt::Display| {
+            Err(GatherError::Refused(format!(
+                "shards of different runs: {what} is {x} in {} but {y} in {}",
+                first.dir.display(),
+                s.dir.display()
+            )))
+        };
+        if a.command != b.command {
+            return differ("the command", &a.command, &b.command);
+        }
+        if a.shard.count != b.shard.count {
+            return differ("the shard count", &a.shard.count, &b.shard.count);
+        }
+        for (kind, x, y) in [("setting", &a.settings, &b.settings), ("build", &a.build, &b.build)] {
+            let names: BTreeSet<&String> = x.keys().chain(y.keys()).collect();
+            let none = String::from("(not set)");
+            if let Some(name) = names.into_iter().find(|n| x.get(*n) != y.get(*n)) {
+                let (vx, vy) = (x.get(name).unwrap_or(&none), y.get(name).unwrap_or(&none));
+                return differ(&format!("{kind} `{name}`"), &format!("`{vx}`"), &format!("`{vy}`"));
+            }
+        }
+        if a.all_seeds != b.all_seeds {
+            return differ("the seed list", &format_seeds(&a.all_seeds), &format_seeds(&b.all_seeds));
+        }
+    }
+    // Every shard once: a repeat overlaps, a gap is missing seeds.
+    shards.sort_by_key(|s| s.manifest.shard.index);
+    for w in shards.windows(2) {
+        if w[0].manifest.shard == w[1].manifest.shard {
+            return refused(format!(
+                "shards overlap: {} and {} are both shard {} (seeds {}): give each shard once",
+                w[0].dir.display(),
+                w[1].dir.display(),
+                w[0].manifest.shard,
+                format_seeds(&w[0].manifest.seeds)
+            ));
+        }
+    }
+    let count = shards[0].manifest.shard.count;
+    let present: BTreeSet<u32> = shards.iter().map(|s| s.manifest.shard.index).collect();
+    let absent: Vec<u32> = (0..count).filter(|i| !present.contains(i)).collect();
+    if !absent.is_empty() {
+        let all = &shards[0].manifest.all_seeds;
+        let seeds: Vec<u64> =
+            absent.iter().flat_map(|&index| Shard { index, count }.part(all).to_vec()).collect();
+        let named: Vec<String> = absent.iter().map(|i| format!("{i}/{count}")).collect();
+        return refused(format!(
+            "missing shard{} {} of {count}: seeds {} have no results; nothing written",
+            if absent.len() == 1 { "" } else { "s" },
+            named.join(", "),
+            format_seeds(&seeds)
+        ));
+    }
+
+    Ok(shards)
+}
+
+/// `merged.json`: which shards made the report, where and how long each took.
+#[derive(Debug, Serialize)]
+pub struct MergedSummary<'a> {
+    pub command: &'a str,
+    pub seeds: String,
+    pub settings: &'a BTreeMap<String, String>,
+    pub build: &'a BTreeMap<String, String>,
+    pub shards: Vec<MergedShard>,
+    /// From the first shard's start to the last one's end (what the user waited).
+    pub wall_seconds: u64,
+    /// The sum of the shards' own times (what one host would have taken, about).
+    pub shard_seconds: u64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct MergedShard {
+    pub dir: String,
+    pub shard: String,
+    pub seeds: String,
+    pub host: String,
+    pub seconds: u64,
+}
+
+/// `merged.json` of `shards` (as [`gather`] returns them: at least one).
+pub fn summary(shards: &[FinishedShard]) -> MergedSummary<'_> {
+        let m = &shards[0].manifest;
+        let list: Vec<MergedShard> = shards
+            .iter()
+            .map(|s| MergedShard {
+                dir: s.dir.display().to_string(),
+                shard: s.manifest.shard.to_string(),
+                seeds: format_seeds(&s.manifest.seeds),
+                host: s.manifest.host.clone(),
+                seconds: s.finished_unix.saturating_sub(s.manifest.started_unix),
+            })
+            .collect();
+        let start = shards.iter().map(|s| s.manifest.started_unix).min().unwrap_or(0);
+        let end = shards.iter().map(|s| s.finished_unix).max().unwrap_or(0);
+        MergedSummary {
+            command: &m.command,
+            seeds: format_seeds(&m.all_seeds),
+            settings: &m.settings,
+            build: &m.build,
+            shard_seconds: list.iter().map(|s| s.seconds).sum(),
+            shards: list,
+            wall_seconds: end.saturating_sub(start),
+        }
+    }
 
 #[cfg(test)]
 mod tests {

@@ -237,7 +237,7 @@ impl StepStats {
 /// the contact graph keeps — pile-wide — and the rest — local), and what the budget's sweeps leave
 /// of each (the part slow for the solver), as sums of squares over the contacts (impulse units,
 /// normal and tangent together). Sums add over steps and seeds.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct ErrorSplit {
     pub model_smooth: f64,
     pub model_rough: f64,

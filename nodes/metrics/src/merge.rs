@@ -10,7 +10,7 @@
 
 use crate::aggregate::{Aggregate, StepRecord};
 use crate::completeness::Completeness;
-use msgs::shard::{format_seeds, Manifest, ManifestError, ShardState};
+use msgs::shard::{format_seeds, gather, FinishedShard, GatherError, MergedSummary};
 use msgs::StepStats;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
@@ -43,7 +43,7 @@ pub struct Record {
 #[derive(Debug, thiserror::Error)]
 pub enum MergeError {
     #[error(transparent)]
-    Manifest(#[from] ManifestError),
+    Gather(#[from] GatherError),
     #[error("{path}: {why}")]
     Records { path: String, why: String },
     #[error("{0}")]
@@ -106,14 +106,6 @@ impl RecordsFile {
     }
 }
 
-/// One shard as the merge read it.
-#[derive(Debug, Clone)]
-pub struct ShardInput {
-    pub dir: PathBuf,
-    pub manifest: Manifest,
-    pub finished_unix: u64,
-}
-
 /// The run the shards make up.
 #[derive(Debug)]
 pub struct Merged {
@@ -121,7 +113,7 @@ pub struct Merged {
     /// The report's title: the run's, with the solvers its runs announced.
     pub title: String,
     /// The shards in index order.
-    pub shards: Vec<ShardInput>,
+    pub shards: Vec<FinishedShard>,
 }
 
 /// A report title with the solvers its runs announced (reports under different solvers must not
@@ -136,100 +128,8 @@ pub fn titled(title: &str, solvers: &[String]) -> String {
 
 /// Merges the shard folders `dirs` (any order) into one run; see the module's checks.
 pub fn merge(dirs: &[PathBuf]) -> Result<Merged, MergeError> {
-    if dirs.is_empty() {
-        return Err(MergeError::Refused("no shard folders given".into()));
-    }
+    let shards = gather(dirs)?;
     let refused = |why: String| Err(MergeError::Refused(why));
-    let mut shards = Vec::new();
-    for dir in dirs {
-        if !dir.join(Manifest::FILE).exists() {
-            return refused(format!(
-                "{}: no {} here: not the folder of a `dc eval --shard` run (or it never started)",
-                dir.display(),
-                Manifest::FILE
-            ));
-        }
-        let manifest = Manifest::read(dir)?;
-        let finished_unix = match &manifest.state {
-            ShardState::Complete { finished_unix } => *finished_unix,
-            ShardState::Running => {
-                return refused(format!(
-                    "{}: shard {} (seeds {}) started on {} and never finished (killed, or still running): run it again",
-                    dir.display(),
-                    manifest.shard,
-                    format_seeds(&manifest.seeds),
-                    manifest.host
-                ))
-            }
-            ShardState::Failed { why, .. } => {
-                return refused(format!(
-                    "{}: shard {} (seeds {}) failed on {}: {why}",
-                    dir.display(),
-                    manifest.shard,
-                    format_seeds(&manifest.seeds),
-                    manifest.host
-                ))
-            }
-        };
-        shards.push(ShardInput { dir: dir.clone(), manifest, finished_unix });
-    }
-    for s in &shards[1..] {
-        let first = &shards[0];
-        let (a, b) = (&first.manifest, &s.manifest);
-        let differ = |what: &str, x: &dyn std::fmt::Display, y: &dyn std::fmt::Display| {
-            Err(MergeError::Refused(format!(
-                "shards of different runs: {what} is {x} in {} but {y} in {}",
-                first.dir.display(),
-                s.dir.display()
-            )))
-        };
-        if a.command != b.command {
-            return differ("the command", &a.command, &b.command);
-        }
-        if a.shard.count != b.shard.count {
-            return differ("the shard count", &a.shard.count, &b.shard.count);
-        }
-        for (kind, x, y) in [("setting", &a.settings, &b.settings), ("build", &a.build, &b.build)] {
-            let names: BTreeSet<&String> = x.keys().chain(y.keys()).collect();
-            let none = String::from("(not set)");
-            if let Some(name) = names.into_iter().find(|n| x.get(*n) != y.get(*n)) {
-                let (vx, vy) = (x.get(name).unwrap_or(&none), y.get(name).unwrap_or(&none));
-                return differ(&format!("{kind} `{name}`"), &format!("`{vx}`"), &format!("`{vy}`"));
-            }
-        }
-        if a.all_seeds != b.all_seeds {
-            return differ("the seed list", &format_seeds(&a.all_seeds), &format_seeds(&b.all_seeds));
-        }
-    }
-    // Every shard once: a repeat overlaps, a gap is missing seeds.
-    shards.sort_by_key(|s| s.manifest.shard.index);
-    for w in shards.windows(2) {
-        if w[0].manifest.shard == w[1].manifest.shard {
-            return refused(format!(
-                "shards overlap: {} and {} are both shard {} (seeds {}): give each shard once",
-                w[0].dir.display(),
-                w[1].dir.display(),
-                w[0].manifest.shard,
-                format_seeds(&w[0].manifest.seeds)
-            ));
-        }
-    }
-    let count = shards[0].manifest.shard.count;
-    let present: BTreeSet<u32> = shards.iter().map(|s| s.manifest.shard.index).collect();
-    let absent: Vec<u32> = (0..count).filter(|i| !present.contains(i)).collect();
-    if !absent.is_empty() {
-        let all = &shards[0].manifest.all_seeds;
-        let seeds: Vec<u64> =
-            absent.iter().flat_map(|&index| msgs::shard::Shard { index, count }.part(all).to_vec()).collect();
-        let named: Vec<String> = absent.iter().map(|i| format!("{i}/{count}")).collect();
-        return refused(format!(
-            "missing shard{} {} of {count}: seeds {} have no results; nothing written",
-            if absent.len() == 1 { "" } else { "s" },
-            named.join(", "),
-            format_seeds(&seeds)
-        ));
-    }
-
     let mut aggregate = Aggregate::new();
     let mut solvers: Option<(PathBuf, Vec<String>)> = None;
     let mut models: Option<(PathBuf, BTreeSet<String>)> = None;
@@ -294,53 +194,9 @@ pub fn merge(dirs: &[PathBuf]) -> Result<Merged, MergeError> {
     Ok(Merged { aggregate, title, shards })
 }
 
-/// `merged.json`: which shards made the report, where and how long each took.
-#[derive(Debug, Serialize)]
-pub struct MergedSummary<'a> {
-    pub command: &'a str,
-    pub seeds: String,
-    pub settings: &'a BTreeMap<String, String>,
-    pub build: &'a BTreeMap<String, String>,
-    pub shards: Vec<MergedShard>,
-    /// From the first shard's start to the last one's end (what the user waited).
-    pub wall_seconds: u64,
-    /// The sum of the shards' own times (what one host would have taken, about).
-    pub shard_seconds: u64,
-}
-
-#[derive(Debug, Serialize)]
-pub struct MergedShard {
-    pub dir: String,
-    pub shard: String,
-    pub seeds: String,
-    pub host: String,
-    pub seconds: u64,
-}
-
 impl Merged {
+    /// `merged.json`'s content.
     pub fn summary(&self) -> MergedSummary<'_> {
-        let m = &self.shards[0].manifest;
-        let shards: Vec<MergedShard> = self
-            .shards
-            .iter()
-            .map(|s| MergedShard {
-                dir: s.dir.display().to_string(),
-                shard: s.manifest.shard.to_string(),
-                seeds: format_seeds(&s.manifest.seeds),
-                host: s.manifest.host.clone(),
-                seconds: s.finished_unix.saturating_sub(s.manifest.started_unix),
-            })
-            .collect();
-        let start = self.shards.iter().map(|s| s.manifest.started_unix).min().unwrap_or(0);
-        let end = self.shards.iter().map(|s| s.finished_unix).max().unwrap_or(0);
-        MergedSummary {
-            command: &m.command,
-            seeds: format_seeds(&m.all_seeds),
-            settings: &m.settings,
-            build: &m.build,
-            shard_seconds: shards.iter().map(|s| s.seconds).sum(),
-            shards,
-            wall_seconds: end.saturating_sub(start),
-        }
+        msgs::shard::summary(&self.shards)
     }
 }

@@ -29,6 +29,7 @@ pub mod files;
 mod iox;
 pub mod lock;
 pub mod observe;
+pub mod shard;
 mod pubsub;
 mod zen;
 

@@ -149,6 +149,9 @@ pub struct BudgetRun {
     pub steps: Vec<StepStats>,
     /// The warm-start error split into smooth and rough parts (`n == 0`: not measured).
     pub split: ErrorSplit,
+    /// `split`'s terms, seed by seed (empty: not measured): what a merge of shards sums in the
+    /// same order.
+    pub seed_splits: Vec<ErrorSplit>,
 }
 
 /// [`run_seed`] again with every warm start split by the world's instrument
@@ -208,6 +211,7 @@ pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) ->
         budget: 0,
         steps: Vec::new(),
         split: ErrorSplit::default(),
+        seed_splits: Vec::new(),
     }];
     // (model, budget, the solver when not the study's)
     let mut plan: Vec<(ModelSpec, u32, Option<SolverSetting>)> =
@@ -229,6 +233,7 @@ pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) ->
             budget: *k,
             steps: Vec::new(),
             split: ErrorSplit::default(),
+            seed_splits: Vec::new(),
         });
     }
     let solve_at = |k: u32, other: Option<SolverSetting>| match other {
@@ -249,6 +254,7 @@ pub fn study(spec: &BudgetSpec, seeds: &[u64], mut progress: impl FnMut(u64)) ->
             if spec.error_split && spec.budgets.contains(k) && other.is_none() {
                 let s = split_seed(spec, seed, m, spec.at_budget(*k))?;
                 run.split.add(&s);
+                run.seed_splits.push(s);
             }
         }
         progress(seed);

@@ -6,9 +6,11 @@
 //! - [`budget`]: the real-time regime, a fixed sweep budget per step, each model's accuracy
 //!   after it placed on builtin's curve of accuracy against budget (`dc study budget`);
 //! - [`bench`]: ms/step of our world against rapier's full pipeline (`dc study bench`);
-//! - [`threads`]: what the colour order's threads buy, on the same states (`dc study threads`).
+//! - [`threads`]: what the colour order's threads buy, on the same states (`dc study threads`);
+//! - [`shards`]: a study's results kept per shard (`--shard I/N`) and joined by the merge.
 
 pub mod bench;
 pub mod budget;
 pub mod compare;
+pub mod shards;
 pub mod threads;

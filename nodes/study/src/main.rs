@@ -7,6 +7,10 @@ use clap::{Parser, Subcommand};
 use sim::cli::{SceneArgs, SolveArgs, EVALUATION_SEEDS};
 use sim::{ModelKind, ModelSpec, SolverSetting};
 use std::path::{Path, PathBuf};
+use msgs::shard::format_seeds;
+use runtime::shard::RunningShard;
+use std::collections::BTreeMap;
+use study::shards::{self, BudgetRunData, ShardData, SolverStep, StudyData, WholeTotals};
 use study::{bench, budget, compare, threads};
 
 #[derive(Parser, Debug)]
@@ -34,6 +38,19 @@ enum Study {
     /// (the trajectory --solver's) on every thread count of --counts, the median of --repeats
     /// timings kept; the answers compared across counts bit for bit (docs/solvers.md).
     Threads(ThreadsArgs),
+    /// The report of a study run in shards (`--shard I/N`), from the shards' folders in any order
+    /// (what `dc report merge` runs for a study): the tables the study makes on one host, or
+    /// refused, naming the shard, setting or seeds, with nothing written.
+    Merge(MergeArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct MergeArgs {
+    #[arg(required = true, value_name = "SHARD_DIR")]
+    dirs: Vec<PathBuf>,
+    /// Where the merged report goes.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(clap::Args, Debug)]
@@ -93,6 +110,11 @@ struct SolversArgs {
     /// step by solver).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Run only the I-th of N parts of the seeds (I from 0; an array job's task, docs/cluster.md):
+    /// --out gets this part's report, `shard.json` and `study.cbor`; `dc report merge` makes the
+    /// study's one report from all N.
+    #[arg(long, value_name = "I/N", requires = "out")]
+    shard: Option<msgs::shard::Shard>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -135,6 +157,11 @@ struct BudgetArgs {
     /// The folder for `budget.md`, `budget-steps.csv` and `budget-accuracy.png`.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Run only the I-th of N parts of the seeds (I from 0; an array job's task, docs/cluster.md):
+    /// --out gets this part's report, `shard.json` and `study.cbor`; `dc report merge` makes the
+    /// study's one report from all N.
+    #[arg(long, value_name = "I/N", requires = "out")]
+    shard: Option<msgs::shard::Shard>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -214,13 +241,21 @@ fn check(cli: &Cli) -> Result<()> {
             let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
             if let Some(list) = &a.train_seeds {
                 training_seeds(list)?;
+                if a.shard.is_some() {
+                    bail!(
+                        "--shard with --train-seeds: the learned choice is trained on every shard's behalf and the merge would train it again; run the study with --train-seeds on one host"
+                    );
+                }
             }
+            shard_part(a.shard, &seeds)?;
             check_sampling(&a.scene, a.sample_from, seeds[0], "compared")?;
         }
         Study::Budget(a) => {
             let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
+            shard_part(a.shard, &seeds)?;
             a.spec(seeds[0])?.validate()?;
         }
+        Study::Merge(_) => {}
         Study::Threads(a) => {
             let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
             check_sampling(&a.scene, a.sample_from, seeds[0], "timed")?;
@@ -258,17 +293,88 @@ fn command_line() -> String {
     std::env::args().skip(1).collect::<Vec<_>>().join(" ")
 }
 
-/// `dc study solvers`: the same-states table, the chooser, whole runs.
+/// `dc study solvers`: the same-states table, the chooser, whole runs (of a shard's seeds with
+/// --shard, kept for the merge).
 fn solvers(args: &SolversArgs) -> Result<()> {
-    let menu = &args.menu.0;
     let seeds = args.scene.seeds()?;
-    let spec = compare::CompareSpec {
-        scene: args.scene.scene_config(seeds[0]),
+    let Some(shard) = args.shard else {
+        let (steps, chooser, whole) = solvers_compute(args, &seeds)?;
+        let label = args.scene.seeds_label();
+        return solvers_report(args, &command_line(), &label, &steps, chooser.as_ref(), &whole, args.out.as_deref());
+    };
+    let out = args.out.as_deref().context("--shard needs --out")?;
+    let (running, part) = start_shard("dc study solvers", shard, &seeds, out, "Solvers on the same states", None)?;
+    let result = (|| {
+        let (steps, _, whole) = solvers_compute(args, &part)?;
+        solvers_report(args, &command_line(), &format_seeds(&part), &steps, None, &whole, Some(out))?;
+        let data = StudyData::Solvers {
+            format: shards::FORMAT,
+            steps: steps.iter().map(SolverStep::of).collect(),
+            whole: whole.iter().map(|(name, t)| (name.clone(), WholeTotals::of(t))).collect(),
+        };
+        data.write(out)?;
+        Ok(())
+    })();
+    running.finish(result)
+}
+
+/// The same-states spec of `dc study solvers` on `seeds`.
+fn solvers_spec(args: &SolversArgs, first_seed: u64) -> compare::CompareSpec {
+    compare::CompareSpec {
+        scene: args.scene.scene_config(first_seed),
         params: args.solve.world_params(None),
         steps: args.scene.steps,
-        menu: menu.clone(),
+        menu: args.menu.0.clone(),
         sampling: compare::Sampling { from: args.sample_from, every: args.sample_every },
+    }
+}
+
+type SolversResults = (Vec<compare::ComparedStep>, Option<compare::SolverChooser>, Vec<(String, compare::RunTotals)>);
+
+/// What `dc study solvers` computes on `seeds`: the same states, the chooser (--train-seeds),
+/// the whole runs (--whole-runs).
+fn solvers_compute(args: &SolversArgs, seeds: &[u64]) -> Result<SolversResults> {
+    let menu = &args.menu.0;
+    let spec = solvers_spec(args, seeds[0]);
+    let chooser = match &args.train_seeds {
+        Some(list) => {
+            let train = training_seeds(list)?;
+            let p = seed_bar(train.len(), "same states, training seeds");
+            let steps = compare::same_states(&spec, &train, |_| p.inc(1))?;
+            p.finish_and_clear();
+            Some(compare::SolverChooser::fit(menu, &steps)?)
+        }
+        None => None,
     };
+    let p = seed_bar(seeds.len(), "same states");
+    let steps = compare::same_states(&spec, seeds, |_| p.inc(1))?;
+    p.finish_and_clear();
+    let mut whole = Vec::new();
+    if args.whole_runs {
+        let choices = menu.iter().map(|&s| (s.to_string(), compare::Choice::Fixed(s)));
+        for (name, choice) in
+            choices.chain(chooser.as_ref().map(|c| ("learned choice".to_string(), compare::Choice::Learned(c))))
+        {
+            let p = seed_bar(seeds.len(), &format!("whole runs, {name}"));
+            whole.push((name, compare::whole_run(&spec, seeds, choice, |_| p.inc(1))?));
+            p.finish_and_clear();
+        }
+    }
+    Ok((steps, chooser, whole))
+}
+
+/// `dc study solvers`' report of `steps` (seeds `seeds_label`), printed and written to `out`.
+fn solvers_report(
+    args: &SolversArgs,
+    command: &str,
+    seeds_label: &str,
+    steps: &[compare::ComparedStep],
+    chooser: Option<&compare::SolverChooser>,
+    whole: &[(String, compare::RunTotals)],
+    out: Option<&Path>,
+) -> Result<()> {
+    let menu = &args.menu.0;
+    let spec = solvers_spec(args, steps.first().map_or(0, |s| s.seed));
     let mut describe = format!(
         "{} steps, stop {} <= {}, cap {}, friction {}, {} bodies",
         args.scene.steps,
@@ -284,79 +390,84 @@ fn solvers(args: &SolversArgs) -> Result<()> {
     if !spec.sampling.is_every_step() {
         describe += &format!(", compared on every {}th step from step {}", args.sample_every, args.sample_from);
     }
-    let chooser = match &args.train_seeds {
-        Some(list) => {
-            let train = training_seeds(list)?;
-            let p = seed_bar(train.len(), "same states, training seeds");
-            let steps = compare::same_states(&spec, &train, |_| p.inc(1))?;
-            p.finish_and_clear();
-            Some(compare::SolverChooser::fit(menu, &steps)?)
-        }
-        None => None,
-    };
-    let p = seed_bar(seeds.len(), "same states");
-    let steps = compare::same_states(&spec, &seeds, |_| p.inc(1))?;
-    p.finish_and_clear();
     // The chooser pays, every step, its features' extraction and its pick (the median pick).
-    let pick_us = chooser.as_ref().map(|c| c.median_pick_us(&steps));
-    let rows = compare::same_states_table(menu, &steps, chooser.as_ref().zip(pick_us));
+    let pick_us = chooser.map(|c| c.median_pick_us(steps));
+    let rows = compare::same_states_table(menu, steps, chooser.zip(pick_us));
     let mut report = format!(
-        "# Solvers on the same states\n\n`dc study {}`\n\nSeeds {}, {describe}; builtin's warm start; the trajectory is {}'s.\n\n{}",
-        command_line(),
-        args.scene.seeds_label(),
+        "# Solvers on the same states\n\n`dc study {command}`\n\nSeeds {seeds_label}, {describe}; builtin's warm start; the trajectory is {}'s.\n\n{}",
         menu[0],
         compare::markdown(&rows)
     );
-    if let (Some(c), Some(us)) = (&chooser, pick_us) {
-        let shares: Vec<String> = menu.iter().zip(c.picks(&steps)).map(|(m, k)| format!("{m} {k}")).collect();
+    if let (Some(c), Some(us)) = (chooser, pick_us) {
+        let shares: Vec<String> = menu.iter().zip(c.picks(steps)).map(|(m, k)| format!("{m} {k}")).collect();
         let features_us = charts::median(&steps.iter().map(|s| s.features_us as f64).collect::<Vec<_>>());
         report += &format!(
             "\nThe learned choice's picks (steps): {}; per step {features_us:.2} us for the features and {us:.2} us for the pick (medians).\n",
             shares.join(", ")
         );
     }
-    report += &format!("\nSettling: {}.\n", compare::settling(&steps, args.scene.steps));
+    report += &format!("\nSettling: {}.\n", compare::settling(steps, args.scene.steps));
     if args.whole_runs {
-        let mut whole = Vec::new();
-        let choices = menu.iter().map(|&s| (s.to_string(), compare::Choice::Fixed(s)));
-        for (name, choice) in
-            choices.chain(chooser.as_ref().map(|c| ("learned choice".to_string(), compare::Choice::Learned(c))))
-        {
-            let p = seed_bar(seeds.len(), &format!("whole runs, {name}"));
-            whole.push((name, compare::whole_run(&spec, &seeds, choice, |_| p.inc(1))?));
-            p.finish_and_clear();
-        }
         report += &format!(
             "\n## Whole runs (each solver drives its own trajectory)\n\n{}",
-            compare::whole_runs_markdown(&whole)
+            compare::whole_runs_markdown(whole)
         );
     }
     runtime::print_out(&format!("{report}\n"))?;
-    if let Some(dir) = &args.out {
+    if let Some(dir) = out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         write_in(dir, "solvers.md", &report)?;
-        write_in(dir, "solver-steps.csv", &compare::csv(menu, &steps))?;
-        compare::plot(&dir.join("solver-sweeps.png"), menu, &steps)?;
+        write_in(dir, "solver-steps.csv", &compare::csv(menu, steps))?;
+        compare::plot(&dir.join("solver-sweeps.png"), menu, steps)?;
         eprintln!("wrote {}/solvers.md, solver-steps.csv and solver-sweeps.png", dir.display());
     }
     Ok(())
 }
 
-/// `dc study budget`: the real-time regime's tables.
+/// `dc study budget`: the real-time regime's tables (of a shard's seeds with --shard, kept for
+/// the merge).
 fn budget_study(args: &BudgetArgs) -> Result<()> {
     let seeds = args.scene.seeds()?;
+    let Some(shard) = args.shard else {
+        let runs = budget_compute(args, &seeds)?;
+        return budget_report(args, &command_line(), &args.scene.seeds_label(), &runs, args.out.as_deref());
+    };
+    let out = args.out.as_deref().context("--shard needs --out")?;
+    let title = "The real-time regime: accuracy after a fixed sweep budget";
+    let (running, part) = start_shard("dc study budget", shard, &seeds, out, title, args.gnn_model.as_deref())?;
+    let result = (|| {
+        let runs = budget_compute(args, &part)?;
+        budget_report(args, &command_line(), &format_seeds(&part), &runs, Some(out))?;
+        StudyData::Budget { format: shards::FORMAT, runs: runs.iter().map(BudgetRunData::of).collect() }.write(out)?;
+        Ok(())
+    })();
+    running.finish(result)
+}
+
+/// Every run of `dc study budget` on `seeds`.
+fn budget_compute(args: &BudgetArgs, seeds: &[u64]) -> Result<Vec<budget::BudgetRun>> {
     let spec = args.spec(seeds[0])?;
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     let bar = seed_bar(seeds.len(), "budget study");
-    let runs = budget::study(&spec, &seeds, |_| bar.inc(1))?;
+    let runs = budget::study(&spec, seeds, |_| bar.inc(1))?;
     bar.finish_and_clear();
-    let summaries = budget::summaries(&runs);
+    Ok(runs)
+}
+
+/// `dc study budget`'s report of `runs` (seeds `seeds_label`), printed and written to `out`.
+fn budget_report(
+    args: &BudgetArgs,
+    command: &str,
+    seeds_label: &str,
+    runs: &[budget::BudgetRun],
+    out: Option<&Path>,
+) -> Result<()> {
+    let spec = args.spec(args.scene.seed)?;
+    let summaries = budget::summaries(runs);
     let report = format!(
-        "# The real-time regime: accuracy after a fixed sweep budget\n\n`dc study {}`\n\nSeeds {}, {} steps, {} bodies, solver {}, early stop when the natural residual <= {}; reference: {} to the natural residual <= {} (cap {}). Every run drives its own trajectory. Accuracy figures are means over the steps with contacts.\n\n{}",
-        command_line(),
-        args.scene.seeds_label(),
+        "# The real-time regime: accuracy after a fixed sweep budget\n\n`dc study {command}`\n\nSeeds {seeds_label}, {} steps, {} bodies, solver {}, early stop when the natural residual <= {}; reference: {} to the natural residual <= {} (cap {}). Every run drives its own trajectory. Accuracy figures are means over the steps with contacts.\n\n{}",
         args.scene.steps,
         args.scene.n,
         spec.params.solve.setting(),
@@ -367,12 +478,121 @@ fn budget_study(args: &BudgetArgs) -> Result<()> {
         budget::markdown(&summaries, &spec.budgets)
     );
     runtime::print_out(&format!("{report}\n"))?;
-    if let Some(dir) = &args.out {
+    if let Some(dir) = out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         write_in(dir, "budget.md", &report)?;
-        write_in(dir, "budget-steps.csv", &budget::csv(&runs))?;
+        write_in(dir, "budget-steps.csv", &budget::csv(runs))?;
         budget::plot(&dir.join("budget-accuracy.png"), &summaries)?;
         eprintln!("wrote {}/budget.md, budget-steps.csv and budget-accuracy.png", dir.display());
     }
+    Ok(())
+}
+
+/// `--shard`'s part of `seeds` (all of them without it); an empty part is refused.
+fn shard_part(shard: Option<msgs::shard::Shard>, seeds: &[u64]) -> Result<Vec<u64>> {
+    match shard {
+        None => Ok(seeds.to_vec()),
+        Some(shard) => shard.seeds(seeds).map_err(|e| anyhow::anyhow!("--shard {e}")),
+    }
+}
+
+/// This process's arguments without `--shard` and `--out` (and their values): the study as one
+/// host would run it, what the merge parses again.
+fn own_arguments() -> Vec<String> {
+    let mut own = Vec::new();
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        if a == "--shard" || a == "--out" {
+            args.next();
+        } else if !(a.starts_with("--shard=") || a.starts_with("--out=")) {
+            own.push(a);
+        }
+    }
+    own
+}
+
+/// A study's settings by name, as its arguments give them (defaults included), but where it
+/// writes: what two shards of one run must agree on.
+fn settings_of(arguments: &[String]) -> Result<BTreeMap<String, String>> {
+    let argv = std::iter::once("dc-study".to_string()).chain(arguments.iter().cloned());
+    let matches = <Cli as clap::CommandFactory>::command().try_get_matches_from(argv)?;
+    let Some((name, sub)) = matches.subcommand() else { bail!("no study in the arguments") };
+    let command = <Cli as clap::CommandFactory>::command();
+    // The study's own arguments (its flattened groups' names are not settings).
+    let own: std::collections::BTreeSet<String> = command
+        .find_subcommand(name)
+        .map(|c| c.get_arguments().map(|a| a.get_id().to_string()).collect())
+        .unwrap_or_default();
+    let mut settings = BTreeMap::new();
+    for id in sub.ids().filter(|id| own.contains(id.as_str())) {
+        if let Ok(Some(values)) = sub.try_get_raw(id.as_str()) {
+            let joined: Vec<String> = values.map(|v| v.to_string_lossy().into_owned()).collect();
+            settings.insert(id.to_string(), joined.join(","));
+        }
+    }
+    Ok(settings)
+}
+
+/// A shard of `command` started: its manifest written `running` into `out`; its seeds.
+fn start_shard<'a>(
+    command: &str,
+    shard: msgs::shard::Shard,
+    seeds: &[u64],
+    out: &'a Path,
+    title: &str,
+    model: Option<&Path>,
+) -> Result<(RunningShard<'a>, Vec<u64>)> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    // An earlier run's results in the folder must not pass for this run's.
+    match std::fs::remove_file(out.join(shards::FILE)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).with_context(|| format!("removing the earlier {}", out.join(shards::FILE).display()))
+        }
+        _ => {}
+    }
+    let arguments = own_arguments();
+    let mut settings = settings_of(&arguments)?;
+    if let Some(model) = model {
+        settings.insert("gnn-model sha256".into(), runtime::shard::file_sha256(model).context("--gnn-model")?);
+    }
+    let exe = std::env::current_exe().context("finding dc-study itself to hash it")?;
+    let build = runtime::shard::build_of([exe.as_path()])?;
+    let running = RunningShard::start(out, command, shard, seeds, settings, build, title, arguments)?;
+    Ok((running, shard_part(Some(shard), seeds)?))
+}
+
+/// `dc study merge`: a sharded study's report from its shards' folders.
+fn merge(args: &MergeArgs) -> Result<()> {
+    let shards = msgs::shard::gather(&args.dirs)?;
+    let canonical = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
+    if let Some(dir) = args.dirs.iter().find(|d| canonical(d) == canonical(&args.out)) {
+        bail!("--out {} is one of the shard folders ({}): the merge would overwrite a shard's report", args.out.display(), dir.display());
+    }
+    let first = &shards[0];
+    let argv = std::iter::once("dc-study".to_string()).chain(first.manifest.arguments.iter().cloned());
+    let cli = Cli::try_parse_from(argv).map_err(|e| {
+        anyhow::anyhow!("{}: the study's arguments do not parse: {e}", first.dir.join(msgs::shard::Manifest::FILE).display())
+    })?;
+    let mut data = Vec::new();
+    for s in &shards {
+        data.push(ShardData { dir: s.dir.clone(), seeds: s.manifest.seeds.clone(), data: StudyData::read(&s.dir)? });
+    }
+    let command = format!("{} (merged from {} shards)", first.manifest.arguments.join(" "), shards.len());
+    match &cli.study {
+        Study::Solvers(a) => {
+            let (steps, whole) = shards::join_solvers(&data)?;
+            solvers_report(a, &command, &a.scene.seeds_label(), &steps, None, &whole, Some(&args.out))?;
+        }
+        Study::Budget(a) => {
+            let runs = shards::join_budget(&data)?;
+            budget_report(a, &command, &a.scene.seeds_label(), &runs, Some(&args.out))?;
+        }
+        _ => bail!("{}: `{}` is not a study that runs in shards", first.dir.display(), first.manifest.command),
+    }
+    let path = args.out.join("merged.json");
+    let text = serde_json::to_string_pretty(&msgs::shard::summary(&shards))?;
+    std::fs::write(&path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+    eprintln!("merged {} shards: {}", shards.len(), path.display());
     Ok(())
 }
 
@@ -461,9 +681,11 @@ fn try_main() -> Result<()> {
         Study::Budget(a) => &a.solve,
         Study::Bench(a) => &a.solve,
         Study::Threads(a) => &a.solve,
+        Study::Merge(a) => return merge(a),
     };
     solve.start_threads().with_context(|| format!("--threads {}", solve.threads))?;
     match &cli.study {
+        Study::Merge(a) => merge(a),
         Study::Solvers(a) => solvers(a),
         Study::Budget(a) => budget_study(a),
         Study::Bench(a) => run_bench(a),

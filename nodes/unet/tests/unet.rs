@@ -866,7 +866,7 @@ fn the_reference_loss_fits_the_reference_solution_and_needs_labelled_problems() 
     let losses = unet::train::train(&opts, &d).unwrap().training.train_loss;
     assert!(losses.iter().all(|l| l.is_finite()) && losses[11] < 0.7 * losses[0], "{losses:?}");
     // A recording without labels cannot give the reference: a clear error naming the step.
-    opts.data = plain;
+    opts.data = vec![plain];
     let e = unet::train::train(&opts, &d).unwrap_err();
     assert!(matches!(e, UnetError::Data(_)) && e.to_string().contains("no labelled problem"), "{e}");
 }
