@@ -78,7 +78,12 @@ fn two_shards_merge_into_the_report_of_the_run_on_one_host() {
     let sims: std::collections::BTreeSet<&str> = shard0.lines().skip(1).filter_map(|l| l.split(',').nth(1)).collect();
     assert_eq!(sims.into_iter().collect::<Vec<_>>(), ["0", "1"], "shard 0 of 2 of seeds 0..4 ran seeds 0 and 1");
 
-    let sweeps: u64 = std::fs::read_to_string(one.join("steps.csv")).unwrap().lines().skip(1).map(|l| l.split(',').nth(7).unwrap().parse::<u64>().unwrap()).sum();
+    let sweeps: u64 = std::fs::read_to_string(one.join("steps.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(7).unwrap().parse::<u64>().unwrap())
+        .sum();
     assert!(sweeps > 1000, "the run piles balls up ({sweeps} sweeps): the comparison below is not of empty tables");
     let merged = scratch.join("merged");
     let o = merge(&[&shards[1], &shards[0]], &merged);
@@ -172,7 +177,10 @@ fn impossible_shards_are_refused_naming_the_flag() {
         let o = eval_into(&out, &["--shard", shard]);
         let t = text(&o);
         assert!(!o.status.success(), "--shard {shard} should be refused:\n{t}");
-        assert!(t.contains("--shard") && t.contains(says), "--shard {shard}: the error should name the flag and say `{says}`:\n{t}");
+        assert!(
+            t.contains("--shard") && t.contains(says),
+            "--shard {shard}: the error should name the flag and say `{says}`:\n{t}"
+        );
         assert!(!out.join("shard.json").exists(), "--shard {shard}: refused, yet a manifest was written");
     }
 }
@@ -210,7 +218,11 @@ params = { model = "builtin", seeds = "0..5", steps = 6, n = 20 }
 
     let unseeded = graph.replace("seeds = \"0..5\", ", "");
     let (_, o) = deep_contact::launch("launch-shard-none", &unseeded, &["--shard", "0/2"]);
-    assert!(!o.status.success() && text(&o).contains("--shard 0/2: no node") && text(&o).contains("seeds"), "{}", text(&o));
+    assert!(
+        !o.status.success() && text(&o).contains("--shard 0/2: no node") && text(&o).contains("seeds"),
+        "{}",
+        text(&o)
+    );
     let (_, o) = deep_contact::launch("launch-shard-many", graph, &["--shard", "0/6"]);
     assert!(!o.status.success() && text(&o).contains("has no seeds"), "{}", text(&o));
 }
@@ -246,15 +258,30 @@ fn study_both_ways(test: &str, args: &[&str]) -> (PathBuf, PathBuf, PathBuf) {
 /// The sections of a study's markdown report whose heading contains one of `headings`.
 fn sections(dir: &Path, file: &str, headings: &[&str]) -> Vec<String> {
     let md = std::fs::read_to_string(dir.join(file)).unwrap();
-    let found: Vec<String> =
-        md.split("\n## ").filter(|s| headings.iter().any(|h| s.lines().next().unwrap_or("").contains(h))).map(str::to_string).collect();
+    let found: Vec<String> = md
+        .split("\n## ")
+        .filter(|s| headings.iter().any(|h| s.lines().next().unwrap_or("").contains(h)))
+        .map(str::to_string)
+        .collect();
     assert!(!found.is_empty(), "{file} has no section {headings:?}:\n{md}");
     found
 }
 
 #[test]
 fn a_solvers_study_in_shards_merges_into_the_one_host_study() {
-    let args = ["solvers", "pgs,nncg:1.2/down", "--seeds", "0..4", "--steps", "120", "--n", "30", "--threads", "1", "--whole-runs"];
+    let args = [
+        "solvers",
+        "pgs,nncg:1.2/down",
+        "--seeds",
+        "0..4",
+        "--steps",
+        "120",
+        "--n",
+        "30",
+        "--threads",
+        "1",
+        "--whole-runs",
+    ];
     let (one, merged, scratch) = study_both_ways("study-solvers-shards", &args);
     let (a, b) = (report_figures(&one), report_figures(&merged));
     assert_eq!(a.keys().collect::<Vec<_>>(), ["solver-steps.csv"]);
@@ -285,7 +312,12 @@ fn a_solvers_study_in_shards_merges_into_the_one_host_study() {
     let eval_shard = scratch.join("eval-shard");
     let o = eval_into(&eval_shard, &["--shard", "1/2"]);
     assert!(o.status.success(), "{}", text(&o));
-    refused(&[&scratch.join("shard-0"), &eval_shard], &scratch, "study-and-eval", &["the command", "dc study solvers", "dc eval"]);
+    refused(
+        &[&scratch.join("shard-0"), &eval_shard],
+        &scratch,
+        "study-and-eval",
+        &["the command", "dc study solvers", "dc eval"],
+    );
     // A shard of another setting, named.
     let other = scratch.join("other");
     let mut changed = args.to_vec();
@@ -298,8 +330,19 @@ fn a_solvers_study_in_shards_merges_into_the_one_host_study() {
 #[test]
 fn a_budget_study_in_shards_merges_into_the_one_host_study() {
     let args = [
-        "budget", "4,8", "--models", "none,builtin,blend:0.5", "--error-split", "--seeds", "0..4", "--steps", "100", "--n", "30",
-        "--threads", "1",
+        "budget",
+        "4,8",
+        "--models",
+        "none,builtin,blend:0.5",
+        "--error-split",
+        "--seeds",
+        "0..4",
+        "--steps",
+        "100",
+        "--n",
+        "30",
+        "--threads",
+        "1",
     ];
     let (one, merged, scratch) = study_both_ways("study-budget-shards", &args);
     let (a, b) = (report_figures(&one), report_figures(&merged));

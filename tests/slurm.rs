@@ -1,6 +1,6 @@
 //! docs/cluster.md's SLURM path against a real SLURM: a single-node cluster (munged, slurmctld and
 //! slurmd, started here as root by scripts/slurm/local-cluster.sh), a `dc eval` run submitted as an
-//! array of shards with its merge as a dependent job (scripts/slurm/submit-eval.sh), waited for, and
+//! array of shards with its merge as a dependent job (scripts/slurm/submit.sh), waited for, and
 //! its report compared, table for table, with the same run on one host.
 //! Skipped with a message where SLURM is not installed or this is not root; failing under
 //! DC_REQUIRE_ALL=1 (.ci/run installs slurm-wlm and munge).
@@ -55,7 +55,11 @@ impl Cluster {
 
 impl Drop for Cluster {
     fn drop(&mut self) {
-        let _ = Command::new("bash").arg(repo_root().join("scripts/slurm/local-cluster.sh")).arg("stop").arg(&self.dir).output();
+        let _ = Command::new("bash")
+            .arg(repo_root().join("scripts/slurm/local-cluster.sh"))
+            .arg("stop")
+            .arg(&self.dir)
+            .output();
     }
 }
 
@@ -93,20 +97,24 @@ fn slurm_array_of_shards_and_its_dependent_merge_make_the_one_host_report() {
     let run = scratch.join("run");
     let o = cluster
         .command("bash")
-        .arg(repo_root().join("scripts/slurm/submit-eval.sh"))
+        .arg(repo_root().join("scripts/slurm/submit.sh"))
         .arg("3")
         .arg(&run)
+        .arg("eval")
         .args(RUN)
         .env("DC", bin("dc"))
         .output()
-        .expect("run submit-eval.sh");
+        .expect("run submit.sh");
     assert!(o.status.success(), "submission:\n{}", text(&o));
     let said = String::from_utf8_lossy(&o.stdout).to_string();
     let job_after = |label: &str| {
-        said.split(label).nth(1).and_then(|t| t.split_whitespace().nth(1)).map(|j| j.trim_end_matches(|c: char| !c.is_ascii_digit()).to_string())
+        said.split(label)
+            .nth(1)
+            .and_then(|t| t.split_whitespace().nth(1))
+            .map(|j| j.trim_end_matches(|c: char| !c.is_ascii_digit()).to_string())
     };
     let (array, merge) = (job_after("shards:"), job_after("merge:"));
-    let (Some(array), Some(merge)) = (array, merge) else { panic!("submit-eval.sh did not name its jobs:\n{said}") };
+    let (Some(array), Some(merge)) = (array, merge) else { panic!("submit.sh did not name its jobs:\n{said}") };
 
     // The one-host run, while the cluster works (it shares the cores; timings are not compared).
     let one = scratch.join("one");
@@ -136,7 +144,11 @@ fn slurm_array_of_shards_and_its_dependent_merge_make_the_one_host_report() {
             }
             _ => {}
         }
-        assert!(Instant::now() < deadline, "array {array} and merge {merge} not done in 600 s (merge {state} {reason}):\n{}", outputs());
+        assert!(
+            Instant::now() < deadline,
+            "array {array} and merge {merge} not done in 600 s (merge {state} {reason}):\n{}",
+            outputs()
+        );
         std::thread::sleep(Duration::from_millis(500));
     }
 

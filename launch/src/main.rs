@@ -92,7 +92,7 @@ enum Command {
         args: Vec<String>,
     },
     /// The thesis protocol: every warm-start model on the same seeds, one report comparing them.
-    Eval(EvalArgs),
+    Eval(Box<EvalArgs>),
     /// Reports: `dc report merge SHARD_DIR... --out DIR` makes one report from the shards of
     /// `dc eval --shard I/N` (runs `dc-metrics --merge`) or `dc study solvers|budget --shard I/N`
     /// (runs `dc-study merge`).
@@ -398,7 +398,7 @@ fn real_main(cli: Cli) -> Result<()> {
             TopicWhat::Hz(args) => topic::rate(&args, topic::Figure::Hz),
             TopicWhat::Bw(args) => topic::rate(&args, topic::Figure::Bw),
         },
-        Command::Eval(args) => eval(args),
+        Command::Eval(args) => eval(*args),
         Command::Report { what: ReportWhat::Merge { dirs, out, metrics_args } } => {
             // A study's shards are merged by dc-study, an evaluation's by dc-metrics (which also
             // names what is wrong with a folder that has no readable manifest).
@@ -889,16 +889,28 @@ fn eval(args: EvalArgs) -> Result<()> {
     let shard = match args.shard {
         Some(shard) => {
             let seeds = msgs::parse_seeds(&args.seeds).map_err(|e| anyhow::anyhow!("--seeds {e}"))?;
-            let build = runtime::shard::build_of(graph.nodes.iter().filter(|n| n.binary.starts_with("dc-")).map(|n| n.program.as_path()))?;
+            let build = runtime::shard::build_of(
+                graph.nodes.iter().filter(|n| n.binary.starts_with("dc-")).map(|n| n.program.as_path()),
+            )?;
             let settings = eval_settings(&args, &graph)?;
             // An earlier run's records in the folder must not pass for this run's.
             match std::fs::remove_file(out.join("records.cbor")) {
                 Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                    return Err(e).with_context(|| format!("removing the earlier {}", out.join("records.cbor").display()))
+                    return Err(e)
+                        .with_context(|| format!("removing the earlier {}", out.join("records.cbor").display()))
                 }
                 _ => {}
             }
-            Some(runtime::shard::RunningShard::start(&out, "dc eval", shard, &seeds, settings, build, &eval_title(&args), Vec::new())?)
+            Some(runtime::shard::RunningShard::start(
+                &out,
+                "dc eval",
+                shard,
+                &seeds,
+                settings,
+                build,
+                &eval_title(&args),
+                Vec::new(),
+            )?)
         }
         None => None,
     };
@@ -1152,7 +1164,7 @@ mod tests {
     fn eval_at_a_budget_passes_it_to_every_simulator_without_the_shadow_solve() {
         let cli = Cli::try_parse_from(["dc", "eval", "--seeds", "0..2", "--budget", "4,8"]).unwrap();
         let Command::Eval(eval) = cli.command else { unreachable!("an eval command") };
-        let sims = |budget| vec![simulator_args(&eval, &["builtin", "none"], Some("pgs"), budget)];
+        let sims = |budget| vec![simulator_args(&eval, "0..2", &["builtin", "none"], Some("pgs"), budget)];
         let at8 = sims(Some(8));
         for args in &at8 {
             assert!(args.contains(&"--budget=8".to_string()) && args.contains(&"--solver=pgs".to_string()), "{args:?}");
@@ -1165,7 +1177,7 @@ mod tests {
         assert!(Cli::try_parse_from(["dc", "eval", "--budget", "0"]).is_err());
         let cli = Cli::try_parse_from(["dc", "eval", "--budget", "8", "--error-split"]).unwrap();
         let Command::Eval(eval) = cli.command else { panic!("not eval") };
-        assert!(simulator_args(&eval, &["unet-delta"], None, Some(8)).contains(&"--error-split".to_string()));
+        assert!(simulator_args(&eval, "0..2", &["unet-delta"], None, Some(8)).contains(&"--error-split".to_string()));
     }
 
     #[test]

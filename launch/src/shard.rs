@@ -60,7 +60,8 @@ pub fn shard_graph(graph: &mut crate::graph::Graph, shard: Shard) -> Result<Vec<
         );
     }
     let namespace = format!("{}-shard-{}", graph.namespace, shard.index);
-    runtime::check_namespace(&namespace).map_err(|why| anyhow::anyhow!("--shard {shard}: namespace `{namespace}`: {why}"))?;
+    runtime::check_namespace(&namespace)
+        .map_err(|why| anyhow::anyhow!("--shard {shard}: namespace `{namespace}`: {why}"))?;
     changes.push(format!("namespace {} -> {namespace}", graph.namespace));
     graph.namespace = namespace;
     Ok(changes)

@@ -192,7 +192,6 @@ impl Manifest {
     }
 }
 
-
 /// One finished shard of a run, as [`gather`] read it.
 #[derive(Debug, Clone)]
 pub struct FinishedShard {
@@ -298,8 +297,7 @@ pub fn gather(dirs: &[PathBuf]) -> Result<Vec<FinishedShard>, GatherError> {
     let absent: Vec<u32> = (0..count).filter(|i| !present.contains(i)).collect();
     if !absent.is_empty() {
         let all = &shards[0].manifest.all_seeds;
-        let seeds: Vec<u64> =
-            absent.iter().flat_map(|&index| Shard { index, count }.part(all).to_vec()).collect();
+        let seeds: Vec<u64> = absent.iter().flat_map(|&index| Shard { index, count }.part(all).to_vec()).collect();
         let named: Vec<String> = absent.iter().map(|i| format!("{i}/{count}")).collect();
         return refused(format!(
             "missing shard{} {} of {count}: seeds {} have no results; nothing written",
@@ -337,29 +335,29 @@ pub struct MergedShard {
 
 /// `merged.json` of `shards` (as [`gather`] returns them: at least one).
 pub fn summary(shards: &[FinishedShard]) -> MergedSummary<'_> {
-        let m = &shards[0].manifest;
-        let list: Vec<MergedShard> = shards
-            .iter()
-            .map(|s| MergedShard {
-                dir: s.dir.display().to_string(),
-                shard: s.manifest.shard.to_string(),
-                seeds: format_seeds(&s.manifest.seeds),
-                host: s.manifest.host.clone(),
-                seconds: s.finished_unix.saturating_sub(s.manifest.started_unix),
-            })
-            .collect();
-        let start = shards.iter().map(|s| s.manifest.started_unix).min().unwrap_or(0);
-        let end = shards.iter().map(|s| s.finished_unix).max().unwrap_or(0);
-        MergedSummary {
-            command: &m.command,
-            seeds: format_seeds(&m.all_seeds),
-            settings: &m.settings,
-            build: &m.build,
-            shard_seconds: list.iter().map(|s| s.seconds).sum(),
-            shards: list,
-            wall_seconds: end.saturating_sub(start),
-        }
+    let m = &shards[0].manifest;
+    let list: Vec<MergedShard> = shards
+        .iter()
+        .map(|s| MergedShard {
+            dir: s.dir.display().to_string(),
+            shard: s.manifest.shard.to_string(),
+            seeds: format_seeds(&s.manifest.seeds),
+            host: s.manifest.host.clone(),
+            seconds: s.finished_unix.saturating_sub(s.manifest.started_unix),
+        })
+        .collect();
+    let start = shards.iter().map(|s| s.manifest.started_unix).min().unwrap_or(0);
+    let end = shards.iter().map(|s| s.finished_unix).max().unwrap_or(0);
+    MergedSummary {
+        command: &m.command,
+        seeds: format_seeds(&m.all_seeds),
+        settings: &m.settings,
+        build: &m.build,
+        shard_seconds: list.iter().map(|s| s.seconds).sum(),
+        shards: list,
+        wall_seconds: end.saturating_sub(start),
     }
+}
 
 #[cfg(test)]
 mod tests {
@@ -422,6 +420,7 @@ mod tests {
             title: "t".into(),
             host: "h".into(),
             started_unix: 1,
+            arguments: vec!["solvers".into(), "--n".into(), "100".into()],
             state: ShardState::Complete { finished_unix: 2 },
         };
         m.write(&dir).unwrap();

@@ -206,7 +206,11 @@ fn report_from_shards(args: &Args) -> Result<()> {
     let merged = metrics::merge::merge(&args.merge)?;
     let canonical = |p: &std::path::Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
     if let Some(dir) = args.merge.iter().find(|d| canonical(d) == canonical(&out)) {
-        anyhow::bail!("--out {} is one of the shard folders ({}): the merge would overwrite a shard's report", out.display(), dir.display());
+        anyhow::bail!(
+            "--out {} is one of the shard folders ({}): the merge would overwrite a shard's report",
+            out.display(),
+            dir.display()
+        );
     }
     let text = serde_json::to_string_pretty(&merged.summary())?;
     let mut aggregate = merged.aggregate;

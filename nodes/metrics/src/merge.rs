@@ -138,7 +138,10 @@ pub fn merge(dirs: &[PathBuf]) -> Result<Merged, MergeError> {
         let path = s.dir.join(RecordsFile::FILE).display().to_string();
         let failed = |why: String| Err(MergeError::Records { path: path.clone(), why });
         if let Some(m) = data.missing.first() {
-            return failed(format!("shard {}'s report lists missing data ({m}): run the shard again", s.manifest.shard));
+            return failed(format!(
+                "shard {}'s report lists missing data ({m}): run the shard again",
+                s.manifest.shard
+            ));
         }
         match &solvers {
             Some((dir, earlier)) if *earlier != data.solvers => {

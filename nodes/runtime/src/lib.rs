@@ -29,8 +29,8 @@ pub mod files;
 mod iox;
 pub mod lock;
 pub mod observe;
-pub mod shard;
 mod pubsub;
+pub mod shard;
 mod zen;
 
 pub use config::{

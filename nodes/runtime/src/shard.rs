@@ -105,4 +105,3 @@ impl<'a> RunningShard<'a> {
         Ok(value)
     }
 }
-

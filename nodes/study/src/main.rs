@@ -4,12 +4,12 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use sim::cli::{SceneArgs, SolveArgs, EVALUATION_SEEDS};
-use sim::{ModelKind, ModelSpec, SolverSetting};
-use std::path::{Path, PathBuf};
 use msgs::shard::format_seeds;
 use runtime::shard::RunningShard;
+use sim::cli::{SceneArgs, SolveArgs, EVALUATION_SEEDS};
+use sim::{ModelKind, ModelSpec, SolverSetting};
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 use study::shards::{self, BudgetRunData, ShardData, SolverStep, StudyData, WholeTotals};
 use study::{bench, budget, compare, threads};
 
@@ -566,12 +566,19 @@ fn merge(args: &MergeArgs) -> Result<()> {
     let shards = msgs::shard::gather(&args.dirs)?;
     let canonical = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
     if let Some(dir) = args.dirs.iter().find(|d| canonical(d) == canonical(&args.out)) {
-        bail!("--out {} is one of the shard folders ({}): the merge would overwrite a shard's report", args.out.display(), dir.display());
+        bail!(
+            "--out {} is one of the shard folders ({}): the merge would overwrite a shard's report",
+            args.out.display(),
+            dir.display()
+        );
     }
     let first = &shards[0];
     let argv = std::iter::once("dc-study".to_string()).chain(first.manifest.arguments.iter().cloned());
     let cli = Cli::try_parse_from(argv).map_err(|e| {
-        anyhow::anyhow!("{}: the study's arguments do not parse: {e}", first.dir.join(msgs::shard::Manifest::FILE).display())
+        anyhow::anyhow!(
+            "{}: the study's arguments do not parse: {e}",
+            first.dir.join(msgs::shard::Manifest::FILE).display()
+        )
     })?;
     let mut data = Vec::new();
     for s in &shards {

@@ -187,9 +187,12 @@ fn own_seeds(shard: &ShardData, named: impl IntoIterator<Item = u64>) -> Result<
     Ok(())
 }
 
+/// A solvers study's compared steps and whole runs' totals, by name.
+pub type JoinedSolvers = (Vec<ComparedStep>, Vec<(String, RunTotals)>);
+
 /// The solvers study of the shards (in index order, so seed order): every step, and each whole
 /// run's totals joined.
-pub fn join_solvers(shards: &[ShardData]) -> Result<(Vec<ComparedStep>, Vec<(String, RunTotals)>), ShardDataError> {
+pub fn join_solvers(shards: &[ShardData]) -> Result<JoinedSolvers, ShardDataError> {
     let mut steps = Vec::new();
     let mut whole: Option<Vec<(String, RunTotals)>> = None;
     for shard in shards {
@@ -199,7 +202,16 @@ pub fn join_solvers(shards: &[ShardData]) -> Result<(Vec<ComparedStep>, Vec<(Str
         own_seeds(shard, own.iter().map(|s| s.seed))?;
         for s in own {
             let step = s.compared().ok_or_else(|| {
-                refused(&shard.dir, format!("seed {} step {}: {} features, not {}", s.seed, s.step, s.features.len(), crate::compare::FEATURES))
+                refused(
+                    &shard.dir,
+                    format!(
+                        "seed {} step {}: {} features, not {}",
+                        s.seed,
+                        s.step,
+                        s.features.len(),
+                        crate::compare::FEATURES
+                    ),
+                )
             })?;
             steps.push(step);
         }
@@ -209,7 +221,12 @@ pub fn join_solvers(shards: &[ShardData]) -> Result<(Vec<ComparedStep>, Vec<(Str
                     own_whole
                         .iter()
                         .map(|(name, t)| {
-                            let totals = RunTotals { sweeps: t.sweeps, solve_us: t.solve_us, capped: t.capped, per_seed: t.per_seed.clone() };
+                            let totals = RunTotals {
+                                sweeps: t.sweeps,
+                                solve_us: t.solve_us,
+                                capped: t.capped,
+                                per_seed: t.per_seed.clone(),
+                            };
                             (name.clone(), totals)
                         })
                         .collect(),
@@ -221,7 +238,11 @@ pub fn join_solvers(shards: &[ShardData]) -> Result<(Vec<ComparedStep>, Vec<(Str
                 if names(joined) != theirs {
                     return Err(refused(
                         &shard.dir,
-                        format!("whole runs of {} where the first shard has {}", theirs.join(", "), names(joined).join(", ")),
+                        format!(
+                            "whole runs of {} where the first shard has {}",
+                            theirs.join(", "),
+                            names(joined).join(", ")
+                        ),
                     ));
                 }
                 for ((_, total), (_, t)) in joined.iter_mut().zip(own_whole) {
