@@ -403,20 +403,15 @@ fn real_main(cli: Cli) -> Result<()> {
             // A study's shards are merged by dc-study, an evaluation's by dc-metrics (which also
             // names what is wrong with a folder that has no readable manifest).
             let study = msgs::shard::Manifest::read(&dirs[0]).is_ok_and(|m| m.command.starts_with("dc study"));
-            if study {
-                if !metrics_args.is_empty() {
-                    bail!("options after `--` are an evaluation report's (dc-metrics); a study's merge takes none");
-                }
-                let mut args = vec!["merge".to_string()];
-                args.extend(dirs.iter().map(|d| d.display().to_string()));
-                args.push(format!("--out={}", out.display()));
-                return exec_node("study", &args);
+            if study && !metrics_args.is_empty() {
+                bail!("options after `--` are an evaluation report's (dc-metrics); a study's merge takes none");
             }
-            let mut args = vec!["--merge".to_string()];
+            let (node, first) = if study { ("study", "merge") } else { ("metrics", "--merge") };
+            let mut args = vec![first.to_string()];
             args.extend(dirs.iter().map(|d| d.display().to_string()));
             args.push(format!("--out={}", out.display()));
             args.extend(metrics_args);
-            exec_node("metrics", &args)
+            exec_node(node, &args)
         }
         Command::Bench { what: BenchWhat::Bus(args) } => bench_bus::run(&args, &interrupt_flag()),
         Command::Bench { what: BenchWhat::Observe(args) } => bench_observe::run(&args),
@@ -893,14 +888,6 @@ fn eval(args: EvalArgs) -> Result<()> {
                 graph.nodes.iter().filter(|n| n.binary.starts_with("dc-")).map(|n| n.program.as_path()),
             )?;
             let settings = eval_settings(&args, &graph)?;
-            // An earlier run's records in the folder must not pass for this run's.
-            match std::fs::remove_file(out.join("records.cbor")) {
-                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                    return Err(e)
-                        .with_context(|| format!("removing the earlier {}", out.join("records.cbor").display()))
-                }
-                _ => {}
-            }
             Some(runtime::shard::RunningShard::start(
                 &out,
                 "dc eval",
@@ -910,6 +897,8 @@ fn eval(args: EvalArgs) -> Result<()> {
                 build,
                 &eval_title(&args),
                 Vec::new(),
+                // What the metrics node writes last (`--records`), and the merge reads.
+                "records.cbor",
             )?)
         }
         None => None,
@@ -918,12 +907,7 @@ fn eval(args: EvalArgs) -> Result<()> {
     let progress = EvalProgress::new(&args, 1)?;
     let ran = supervisor::run(&graph, DEFAULT_HOST, progress.output(), &flag).map_err(anyhow::Error::from);
     let ran = match shard {
-        Some(shard) => shard.finish(ran.and_then(|report| {
-            // The steps the merge reads: the metrics node writes them last.
-            let records = out.join("records.cbor");
-            anyhow::ensure!(records.is_file(), "the metrics node wrote no {}", records.display());
-            Ok(report)
-        })),
+        Some(shard) => shard.finish(ran),
         None => ran,
     };
     ran?;

@@ -14,7 +14,7 @@ use msgs::shard::{format_seeds, gather, FinishedShard, GatherError, MergedSummar
 use msgs::StepStats;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
-use std::io::{BufReader, BufWriter};
+use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
 /// Every step a metrics node received, with what its report said around them: the file a merge
@@ -72,17 +72,11 @@ impl RecordsFile {
         }
     }
 
-    /// Writes `dir/records.cbor` (through a temporary file and a rename: never half a file under
-    /// the name).
+    /// Writes `dir/records.cbor` (never half a file under the name).
     pub fn write(&self, dir: &Path) -> Result<PathBuf, MergeError> {
         let path = dir.join(Self::FILE);
-        let failed = |why: String| MergeError::Records { path: path.display().to_string(), why };
-        let partial = dir.join(format!(".{}.partial", Self::FILE));
-        let file = std::fs::File::create(&partial).map_err(|e| failed(e.to_string()))?;
-        let mut w = BufWriter::new(file);
-        ciborium::into_writer(self, &mut w).map_err(|e| failed(e.to_string()))?;
-        w.into_inner().map_err(|e| failed(e.to_string()))?.sync_all().map_err(|e| failed(e.to_string()))?;
-        std::fs::rename(&partial, &path).map_err(|e| failed(e.to_string()))?;
+        runtime::files::replace_cbor(&path, self)
+            .map_err(|e| MergeError::Records { path: path.display().to_string(), why: e.to_string() })?;
         Ok(path)
     }
 

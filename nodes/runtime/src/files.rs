@@ -71,6 +71,16 @@ pub fn replace_file(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     replacement.commit()
 }
 
+/// Writes `value` as CBOR as the new content of `path` through a [`Replacement`], streamed (a
+/// shard's records, a study's results).
+pub fn replace_cbor<T: serde::Serialize>(path: &Path, value: &T) -> std::io::Result<()> {
+    let (replacement, file) = Replacement::create(path)?;
+    let mut w = std::io::BufWriter::new(file);
+    ciborium::into_writer(value, &mut w).map_err(|e| std::io::Error::other(e.to_string()))?;
+    w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+    replacement.commit()
+}
+
 /// The most bytes a model file (`.dcg`, `.dcu`) may hold: 256 MiB, 64 million f32 weights. The
 /// shipped models hold 10 KB (`.dcg`) and 0.7 MB (`.dcu`), a U-Net the size of the thesis's (2.7
 /// million weights) 11 MB. Readers refuse a larger file before reading any of it, and trainers a

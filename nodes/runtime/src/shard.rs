@@ -54,11 +54,14 @@ pub fn now_unix() -> u64 {
 }
 
 /// A shard's run: its manifest written `running` into `dir` now, and rewritten when [`finish`]
-/// says how the work ended.
+/// says how the work ended. `results` names the file the merge reads (`records.cbor`,
+/// `study.cbor`): an earlier run's is removed at the start, and a run that ends without writing
+/// it has failed.
 ///
 /// [`finish`]: RunningShard::finish
 pub struct RunningShard<'a> {
     dir: &'a Path,
+    results: &'a str,
     manifest: Manifest,
 }
 
@@ -73,7 +76,16 @@ impl<'a> RunningShard<'a> {
         build: BTreeMap<String, String>,
         title: &str,
         arguments: Vec<String>,
+        results: &'a str,
     ) -> Result<RunningShard<'a>> {
+        // An earlier run's results in the folder must not pass for this run's.
+        let earlier = dir.join(results);
+        match std::fs::remove_file(&earlier) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("removing the earlier {}", earlier.display()))
+            }
+            _ => {}
+        }
         let manifest = Manifest {
             format: Manifest::FORMAT,
             command: command.to_string(),
@@ -89,11 +101,16 @@ impl<'a> RunningShard<'a> {
             state: ShardState::Running,
         };
         manifest.write(dir)?;
-        Ok(RunningShard { dir, manifest })
+        Ok(RunningShard { dir, results, manifest })
     }
 
     /// Records how the shard's work ended and passes its result on.
     pub fn finish<T>(mut self, result: Result<T>) -> Result<T> {
+        let path = self.dir.join(self.results);
+        let result = result.and_then(|value| {
+            anyhow::ensure!(path.is_file(), "{} wrote no {}", self.manifest.command, path.display());
+            Ok(value)
+        });
         let finished_unix = now_unix();
         self.manifest.state = match &result {
             Ok(_) => ShardState::Complete { finished_unix },

@@ -543,13 +543,6 @@ fn start_shard<'a>(
     model: Option<&Path>,
 ) -> Result<(RunningShard<'a>, Vec<u64>)> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    // An earlier run's results in the folder must not pass for this run's.
-    match std::fs::remove_file(out.join(shards::FILE)) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            return Err(e).with_context(|| format!("removing the earlier {}", out.join(shards::FILE).display()))
-        }
-        _ => {}
-    }
     let arguments = own_arguments();
     let mut settings = settings_of(&arguments)?;
     if let Some(model) = model {
@@ -557,7 +550,7 @@ fn start_shard<'a>(
     }
     let exe = std::env::current_exe().context("finding dc-study itself to hash it")?;
     let build = runtime::shard::build_of([exe.as_path()])?;
-    let running = RunningShard::start(out, command, shard, seeds, settings, build, title, arguments)?;
+    let running = RunningShard::start(out, command, shard, seeds, settings, build, title, arguments, shards::FILE)?;
     Ok((running, shard_part(Some(shard), seeds)?))
 }
 

@@ -13,7 +13,7 @@ use msgs::ErrorSplit;
 use serde::{Deserialize, Serialize};
 use sim::world::MenuSolve;
 use std::collections::BTreeSet;
-use std::io::{BufReader, BufWriter};
+use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
 /// Its name in a shard's folder.
@@ -132,17 +132,11 @@ impl BudgetRunData {
 }
 
 impl StudyData {
-    /// Writes `dir/study.cbor` (through a temporary file and a rename: never half a file under
-    /// the name).
+    /// Writes `dir/study.cbor` (never half a file under the name).
     pub fn write(&self, dir: &Path) -> Result<PathBuf, ShardDataError> {
         let path = dir.join(FILE);
-        let failed = |why: String| ShardDataError { path: path.display().to_string(), why };
-        let partial = dir.join(format!(".{FILE}.partial"));
-        let file = std::fs::File::create(&partial).map_err(|e| failed(e.to_string()))?;
-        let mut w = BufWriter::new(file);
-        ciborium::into_writer(self, &mut w).map_err(|e| failed(e.to_string()))?;
-        w.into_inner().map_err(|e| failed(e.to_string()))?.sync_all().map_err(|e| failed(e.to_string()))?;
-        std::fs::rename(&partial, &path).map_err(|e| failed(e.to_string()))?;
+        runtime::files::replace_cbor(&path, self)
+            .map_err(|e| ShardDataError { path: path.display().to_string(), why: e.to_string() })?;
         Ok(path)
     }
 
