@@ -69,6 +69,7 @@ fn probe(args: Args) -> Result<()> {
                 rho_start: p.get(3).copied().unwrap_or(p[0]),
                 rho_growth: p.get(4).copied().unwrap_or(1.0),
                 max_iterations: args.max_iterations,
+                ..NewtonParams::default()
             }
         })
         .collect();

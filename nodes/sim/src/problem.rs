@@ -4,8 +4,8 @@
 //! start trains on, and the solver it can be judged by in the loop.
 
 use crate::solver::{
-    ContactRow, ContactSolver, FrictionModel, Impulse, Method, Momentum, RowOrder, SolveParams, SolveReport,
-    SolverBody, StopRule,
+    ContactRow, ContactSolver, FrictionModel, Impulse, InteriorVariant, Method, Momentum, RowOrder, SolveParams,
+    SolveReport, SolverBody, StopRule,
 };
 use msgs::{ProblemBody, ProblemContact, ProblemHeader, StepHeader};
 use rapier2d::math::Vec2;
@@ -96,7 +96,7 @@ pub fn header_of(step: StepHeader, bodies: u32, solve: &SolveParams) -> ProblemH
             Method::Sweeps => 0,
             Method::Newton => 1,
             Method::Auto => 2,
-            Method::InteriorPoint => 3,
+            Method::InteriorPoint(variant) => variant.code(),
             Method::Mprgp => 4,
         },
         friction: (solve.friction == FrictionModel::PerStep) as u32,
@@ -127,9 +127,11 @@ impl Problem {
             method: match h.method {
                 1 => Method::Newton,
                 2 => Method::Auto,
-                3 => Method::InteriorPoint,
                 4 => Method::Mprgp,
-                _ => Method::Sweeps,
+                code => match InteriorVariant::of_code(code) {
+                    Some(variant) => Method::InteriorPoint(variant),
+                    None => Method::Sweeps,
+                },
             },
             friction: if h.friction == 1 { FrictionModel::PerStep } else { FrictionModel::Box },
             // A recorded problem is re-solved to its tolerance, never against a clock.

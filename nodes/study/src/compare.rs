@@ -454,6 +454,41 @@ pub fn markdown(rows: &[SameStatesRow]) -> String {
     out
 }
 
+/// For the settings that factorise (the interior point, Newton): per step, iterations
+/// (factorisations) and the symbolic analyses made (against the kept one reused), and where
+/// the time goes: the analysis, the numeric factorisations with their solves (also per
+/// factorisation: the cost of one iteration), and the rest (assembly, residuals, any finishing
+/// sweeps). None when no setting factorised.
+pub fn factorisation_markdown(menu: &[SolverSetting], steps: &[ComparedStep]) -> Option<String> {
+    let mut out = String::from(
+        "| solver | steps | factorisations / step | new analyses | analysis ms / step | ms / factorisation | rest ms / step | solve ms / step |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    let mut any = false;
+    for (k, setting) in menu.iter().enumerate() {
+        let solves: Vec<&MenuSolve> = steps.iter().filter(|s| s.contacts > 0).map(|s| &s.solves[k]).collect();
+        let factorisations: u64 = solves.iter().map(|m| m.factorisations as u64).sum();
+        if factorisations == 0 {
+            continue;
+        }
+        any = true;
+        let n = solves.len().max(1) as f64;
+        let analyses = solves.iter().filter(|m| m.symbolic_us > 0.0).count();
+        let symbolic: f64 = solves.iter().map(|m| m.symbolic_us as f64).sum();
+        let numeric: f64 = solves.iter().map(|m| m.numeric_us as f64).sum();
+        let total: f64 = solves.iter().map(|m| m.us as f64).sum();
+        out += &format!(
+            "| {setting} | {} | {:.1} | {analyses} | {:.3} | {:.3} | {:.3} | {:.3} |\n",
+            solves.len(),
+            factorisations as f64 / n,
+            symbolic / n / 1e3,
+            numeric / factorisations as f64 / 1e3,
+            (total - symbolic - numeric) / n / 1e3,
+            total / n / 1e3,
+        );
+    }
+    any.then_some(out)
+}
+
 /// Whether the pile has settled by the end: the trajectory's mean and largest kinetic energy
 /// (J) over the compared steps among each seed's last 100, in words.
 pub fn settling(steps: &[ComparedStep], total_steps: u32) -> String {

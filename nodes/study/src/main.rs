@@ -11,7 +11,7 @@ use sim::{ModelKind, ModelSpec, SolverSetting};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use study::shards::{self, BudgetRunData, ShardData, SolverStep, StudyData, WholeTotals};
-use study::{bench, budget, compare, threads};
+use study::{bench, budget, compare, friction, threads};
 
 #[derive(Parser, Debug)]
 #[command(name = "dc-study", about = "Deep Contact studies of the simulator (no bus): solvers, budget, bench")]
@@ -38,6 +38,11 @@ enum Study {
     /// (the trajectory --solver's) on every thread count of --counts, the median of --repeats
     /// timings kept; the answers compared across counts bit for bit (docs/solvers.md).
     Threads(ThreadsArgs),
+    /// What the per-step friction law costs in physics: every seed of --seeds runs under both
+    /// laws (--friction is ignored) with the same solver; the pile's height and spread, the
+    /// penetrations, the late kinetic energy and body speed of each law compared with the Box2D
+    /// law's own variation between seeds (docs/solvers.md).
+    Friction(FrictionArgs),
     /// The report of a study run in shards (`--shard I/N`), from the shards' folders in any order
     /// (what `dc report merge` runs for a study): the tables the study makes on one host, or
     /// refused, naming the shard, setting or seeds, with nothing written.
@@ -75,6 +80,21 @@ struct ThreadsArgs {
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=15))]
     repeats: u32,
     /// The folder for `threads.md`.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+struct FrictionArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    #[command(flatten)]
+    solve: SolveArgs,
+    /// The late window: the last this many steps of each run, over which the late costs (and
+    /// the pile's height and spread) are averaged.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u32).range(1..))]
+    late: u32,
+    /// The folder for `friction.md` and `friction-runs.csv`.
     #[arg(long)]
     out: Option<PathBuf>,
 }
@@ -260,6 +280,16 @@ fn check(cli: &Cli) -> Result<()> {
             let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
             check_sampling(&a.scene, a.sample_from, seeds[0], "timed")?;
         }
+        Study::Friction(a) => {
+            let seeds = a.scene.checked_seeds(a.solve.world_params(None))?;
+            if seeds.len() < 2 {
+                bail!("--seeds: the friction study needs at least 2 seeds (it judges the laws against the Box2D law's variation between seeds)");
+            }
+            if a.late > a.scene.steps {
+                bail!("--late {}: the runs have {} steps", a.late, a.scene.steps);
+            }
+            sim::Scene::build(&a.scene.scene_config(seeds[0])).context("building the scene")?;
+        }
         Study::Bench(a) => {
             // Each case is a run of its own size: the same bounds (counts, sizes, memory).
             for (n, steps) in a.cases()? {
@@ -405,6 +435,9 @@ fn solvers_report(
             "\nThe learned choice's picks (steps): {}; per step {features_us:.2} us for the features and {us:.2} us for the pick (medians).\n",
             shares.join(", ")
         );
+    }
+    if let Some(factor) = compare::factorisation_markdown(menu, steps) {
+        report += &format!("\n## Where a factorising solver's time goes\n\n{factor}");
     }
     report += &format!("\nSettling: {}.\n", compare::settling(steps, args.scene.steps));
     if args.whole_runs {
@@ -681,6 +714,7 @@ fn try_main() -> Result<()> {
         Study::Budget(a) => &a.solve,
         Study::Bench(a) => &a.solve,
         Study::Threads(a) => &a.solve,
+        Study::Friction(a) => &a.solve,
         Study::Merge(a) => return merge(a),
     };
     solve.start_threads().with_context(|| format!("--threads {}", solve.threads))?;
@@ -690,5 +724,61 @@ fn try_main() -> Result<()> {
         Study::Budget(a) => budget_study(a),
         Study::Bench(a) => run_bench(a),
         Study::Threads(a) => threads_study(a),
+        Study::Friction(a) => friction_study(a),
     }
+}
+
+/// `dc study friction`: both laws on every seed, the costs judged against the Box2D law's own
+/// variation between seeds.
+fn friction_study(args: &FrictionArgs) -> Result<()> {
+    let seeds = args.scene.seeds()?;
+    let spec = friction::FrictionSpec {
+        scene: args.scene.scene_config(seeds[0]),
+        params: args.solve.world_params(None),
+        steps: args.scene.steps,
+        late: args.late,
+    };
+    let bar = indicatif::ProgressBar::new(2 * seeds.len() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} runs, {elapsed}, ~{eta} left")
+            .expect("a valid template"),
+    );
+    bar.set_message("friction study");
+    let mut runs = Vec::with_capacity(2 * seeds.len());
+    for &seed in &seeds {
+        for law in [sim::solver::FrictionModel::Box, sim::solver::FrictionModel::PerStep] {
+            runs.push(friction::run(&spec, seed, law).with_context(|| format!("seed {seed}, friction {law}"))?);
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+    let verdicts = friction::verdicts(&runs);
+    let outside: Vec<&str> = verdicts.iter().filter(|v| !v.within).map(|v| v.cost).collect();
+    let verdict = if outside.is_empty() {
+        "every cost of the per-step law is within the Box2D law's own variation between seeds".to_string()
+    } else {
+        format!("outside the Box2D law's own variation between seeds: {}", outside.join(", "))
+    };
+    let report = format!(
+        "# The per-step friction law against the Box2D law\n\n`dc study {}`\n\nScene {}, {} bodies, seeds {}, {} steps, solver {} ({} <= {}, cap {}); late costs over the last {} steps. A cost is within when the laws' means differ by no more than the Box2D law's largest deviation of one seed from its own mean.\n\n{}\nVerdict: {verdict}.\n",
+        command_line(),
+        args.scene.scene.name(),
+        args.scene.n,
+        args.scene.seeds_label(),
+        args.scene.steps,
+        spec.params.solve.setting(),
+        spec.params.solve.stop.name(),
+        spec.params.solve.tolerance,
+        spec.params.solve.max_sweeps,
+        args.late,
+        friction::markdown(&runs),
+    );
+    runtime::print_out(&format!("{report}\n"))?;
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        write_in(dir, "friction.md", &report)?;
+        write_in(dir, "friction-runs.csv", &friction::csv(&runs))?;
+        eprintln!("wrote {}/friction.md and friction-runs.csv", dir.display());
+    }
+    Ok(())
 }

@@ -48,6 +48,10 @@ pub struct SolverStep {
     pub kinetic_energy: f32,
     /// Per setting: sweeps, converged, us, natural max, natural RMS.
     pub solves: Vec<(u32, bool, f32, f32, f32)>,
+    /// Per setting: factorisations, symbolic and numeric microseconds (empty in a study kept
+    /// before they were).
+    #[serde(default)]
+    pub factor: Vec<(u32, f32, f32)>,
 }
 
 /// [`RunTotals`] as kept.
@@ -87,6 +91,7 @@ impl SolverStep {
             contacts: s.contacts,
             kinetic_energy: s.kinetic_energy,
             solves: s.solves.iter().map(|m| (m.sweeps, m.converged, m.us, m.natural_max, m.natural_rms)).collect(),
+            factor: s.solves.iter().map(|m| (m.factorisations, m.symbolic_us, m.numeric_us)).collect(),
         }
     }
 
@@ -101,12 +106,19 @@ impl SolverStep {
             solves: self
                 .solves
                 .iter()
-                .map(|&(sweeps, converged, us, natural_max, natural_rms)| MenuSolve {
-                    sweeps,
-                    converged,
-                    us,
-                    natural_max,
-                    natural_rms,
+                .enumerate()
+                .map(|(k, &(sweeps, converged, us, natural_max, natural_rms))| {
+                    let (factorisations, symbolic_us, numeric_us) = self.factor.get(k).copied().unwrap_or_default();
+                    MenuSolve {
+                        sweeps,
+                        converged,
+                        us,
+                        natural_max,
+                        natural_rms,
+                        factorisations,
+                        symbolic_us,
+                        numeric_us,
+                    }
                 })
                 .collect(),
         })

@@ -47,6 +47,7 @@ fn the_chooser_learns_which_setting_a_feature_favours() {
         us: sweeps as f32,
         natural_max: 0.0,
         natural_rms: 0.0,
+        ..Default::default()
     };
     let steps: Vec<compare::ComparedStep> = (0..200)
         .map(|i| {

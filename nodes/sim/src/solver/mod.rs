@@ -8,6 +8,8 @@
 //!   ([`ContactSolver::solve`]);
 //! - [`newton`]: Newton's method with a sparse Cholesky per iteration (proximal augmented
 //!   Lagrangian in body velocities): iterations that do not grow with the pile's depth;
+//! - `dissection`: nested dissection of the contact graph from the bodies' positions, the
+//!   interior point's elimination order under `ipm:nd`;
 //! - [`krylov`]: MPRGP, conjugate gradients on the step's box-constrained QP (no factorisation);
 //! - [`sweep`]: what both sweep paths share: the solve's parameters and report, a prepared row,
 //!   one row's update, the natural residual of some rows;
@@ -22,6 +24,7 @@ pub mod colour;
 #[cfg(test)]
 mod colour_tests;
 pub mod deadline;
+mod dissection;
 pub mod krylov;
 pub mod newton;
 #[cfg(test)]
@@ -34,11 +37,12 @@ pub mod sweep;
 
 pub use colour::{machine_cores, process_threads, set_process_threads, SweepThreads, ThreadsError, MAX_THREADS};
 pub use krylov::{KrylovSolver, KrylovStats};
-pub use newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, SecondOrder};
-pub use pgs::{convergence_rate, natural_residual, ContactSolver, RATE_WINDOW};
+pub use newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, Ordering, SecondOrder};
+pub use pgs::{convergence_rate, natural_residual, ContactSolver, CENTRED_START, RATE_WINDOW};
 pub use position::{correct_positions, measure, PoseBody, PositionGeometry, PositionParams, PositionRow};
 pub use rows::{relative_velocity, row_masses, tangent_of, ContactRow, Impulse, SolverBody};
 pub use setting::{
-    parse_settings, FrictionModel, Method, Momentum, RowOrder, SolverSetting, StopRule, AUTO_NEWTON_FROM,
+    parse_settings, FrictionModel, InteriorVariant, Method, Momentum, RowOrder, SolverSetting, StopRule,
+    AUTO_NEWTON_FROM,
 };
 pub use sweep::{NaturalResidual, SolveParams, SolveReport, TRAIL_SWEEPS};

@@ -35,9 +35,11 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::deadline::past;
+use super::dissection::Dissection;
 use super::rows::{cross, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky};
+use faer::perm::PermRef;
+use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky, SymmetricOrdering};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{ColMut, Conj, Par, Side};
 use rapier2d::math::Vec2;
@@ -67,10 +69,37 @@ pub enum SecondOrder {
     InteriorPoint,
 }
 
+/// How the sparse Cholesky orders the body-velocity system and keeps its symbolic analysis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Ordering {
+    /// faer's approximate minimum degree on the scalar pattern, the symbolic analysis kept while
+    /// the step's body pairs are exactly the previous one's (`ipm`).
+    #[default]
+    MinimumDegree,
+    /// Nested dissection of the contact graph from the bodies' positions
+    /// ([`super::dissection`]), computed on bodies; the symbolic analysis kept while the step's
+    /// body pairs are among the kept pattern's, which is rebuilt as the union of the new pairs
+    /// and the kept ones (at most [`KEPT_PATTERN_SLACK`] more), so that a contact that comes
+    /// and goes does not force a new analysis (`ipm:nd`).
+    Dissection,
+}
+
+/// `Ordering::Dissection` keeps a pattern at most this factor larger (in body pairs) than the
+/// step's own: the zeros of pairs not in contact cost fill, a new analysis costs an ordering.
+pub const KEPT_PATTERN_SLACK: f64 = 1.1;
+
 /// The Newton solver's tuning.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewtonParams {
     pub method: SecondOrder,
+    pub ordering: Ordering,
+    /// The interior point's start: `None`, the warm start pushed a fixed way inside its bounds
+    /// (`1e-2` of the largest impulse; slacks `1e-3` above the relative speeds); `Some(k)`, the
+    /// warm start **centred**: each bound's gap and slack set so that their product is at least
+    /// `k * tolerance * V` (V = 0.1 m/s, a falling body's speed gained in a few steps), the part
+    /// moved inside only as far as that product needs. A good warm start then lies near the
+    /// central path at a small duality measure, and the iterations it needs are few.
+    pub centred_start: Option<f64>,
     /// The proximal weight `rho` per unit of a row's effective mass (a dimensionless stiffness:
     /// the outer iteration contracts a mode of relative stiffness `a` by `1 / (1 + rho a)`).
     pub rho: f64,
@@ -91,6 +120,8 @@ impl Default for NewtonParams {
     fn default() -> Self {
         NewtonParams {
             method: SecondOrder::InteriorPoint,
+            ordering: Ordering::MinimumDegree,
+            centred_start: None,
             rho: 1e4,
             max_iterations: 100,
             max_inner: 8,
@@ -110,6 +141,12 @@ pub struct NewtonStats {
     pub outer: u32,
     /// Whether the step's symbolic factorisation was the previous step's.
     pub symbolic_reused: bool,
+    /// The factor's stored entries (its fill).
+    pub factor_entries: usize,
+    /// Seconds spent on the symbolic analysis (ordering included; 0 when reused) and on the
+    /// numeric factorisations and their solves.
+    pub symbolic_seconds: f64,
+    pub numeric_seconds: f64,
     /// Whether the natural residual reached the tolerance.
     pub converged: bool,
     /// The natural residual's max over rows at the end (f64 arithmetic).
@@ -152,7 +189,15 @@ pub struct NewtonSolver {
     /// The previous step's pattern, to reuse its symbolic factorisation.
     symbolic_pairs: Vec<(u32, u32)>,
     symbolic_blocks: usize,
+    symbolic_ordering: Ordering,
     symbolic: Option<SymbolicCholesky<usize>>,
+    /// Nested dissection's buffers, its elimination order of blocks and the dofs' permutation.
+    dissection: Dissection,
+    elimination: Vec<u32>,
+    perm_fwd: Vec<usize>,
+    perm_inv: Vec<usize>,
+    /// Time in numeric factorisations and solves during the current solve.
+    numeric_seconds: f64,
     col_ptr: Vec<usize>,
     row_idx: Vec<usize>,
     /// Per stored entry: its block pair and the element `p * 3 + q` in it.
@@ -226,11 +271,31 @@ impl NewtonSolver {
         check(problem.rows, problem.bodies)?;
         let mut stats = NewtonStats::default();
         self.setup(problem);
-        stats.symbolic_reused = self.prepare_pattern()?;
+        let analysis = Instant::now();
+        stats.symbolic_reused = self.prepare_pattern(problem.rows, params.ordering)?;
+        if !stats.symbolic_reused {
+            stats.symbolic_seconds = analysis.elapsed().as_secs_f64();
+        }
+        stats.factor_entries = self.l_values.len();
+        self.numeric_seconds = 0.0;
+        self.solve_method(problem, params, &mut stats, impulses, bodies)?;
+        stats.numeric_seconds = self.numeric_seconds;
+        Ok(stats)
+    }
+
+    /// The solve proper, by `params.method`, on the prepared pattern.
+    fn solve_method(
+        &mut self,
+        problem: &NewtonProblem<'_>,
+        params: &NewtonParams,
+        stats: &mut NewtonStats,
+        impulses: &mut Vec<Impulse>,
+        bodies: &mut [SolverBody],
+    ) -> Result<(), NewtonError> {
         if params.method == SecondOrder::InteriorPoint {
-            self.interior_point(problem, params, &mut stats)?;
+            self.interior_point(problem, params, stats)?;
             self.finish(impulses, bodies);
-            return Ok(stats);
+            return Ok(());
         }
         let softness = 1.0 / (1.0 + problem.compliance as f64);
         let compliance = problem.compliance as f64;
@@ -284,7 +349,7 @@ impl NewtonSolver {
         stats.converged = residual <= tolerance;
         stats.natural_max = residual;
         self.finish(impulses, bodies);
-        Ok(stats)
+        Ok(())
     }
 
     /// Hands the impulses (f32) and the velocities they give to the caller.
@@ -350,9 +415,10 @@ impl NewtonSolver {
         }
     }
 
-    /// The Hessian's block pattern; builds the CSC structure and, unless the pattern is the
-    /// previous one, a new symbolic factorisation. Returns whether the symbolic one was reused.
-    fn prepare_pattern(&mut self) -> Result<bool, NewtonError> {
+    /// The Hessian's block pattern; builds the CSC structure and, unless the kept symbolic
+    /// factorisation covers the pattern (`ordering`: the same pattern, or one among the kept
+    /// pairs), a new one. Returns whether the symbolic one was reused.
+    fn prepare_pattern(&mut self, contacts: &[ContactRow], ordering: Ordering) -> Result<bool, NewtonError> {
         let blocks = self.mass.iter().zip(&self.block_of).filter(|(_, &b)| b != NONE).count();
         self.pairs.clear();
         self.pairs.extend((0..blocks as u32).map(|k| (k, k)));
@@ -365,6 +431,20 @@ impl NewtonSolver {
         // Sorted by column block, then row block: the CSC order.
         self.pairs.sort_unstable_by_key(|&(i, j)| (j, i));
         self.pairs.dedup();
+        let kept = self.symbolic.is_some() && self.symbolic_blocks == blocks && self.symbolic_ordering == ordering;
+        let reuse = match ordering {
+            Ordering::MinimumDegree => kept && self.symbolic_pairs == self.pairs,
+            Ordering::Dissection => kept && is_subset(&self.pairs, &self.symbolic_pairs),
+        };
+        if reuse {
+            // The kept pattern, its extra pairs stored as zeros.
+            self.pairs.clone_from(&self.symbolic_pairs);
+        } else if ordering == Ordering::Dissection && kept {
+            let union = sorted_union(&self.pairs, &self.symbolic_pairs);
+            if union.len() as f64 <= KEPT_PATTERN_SLACK * self.pairs.len() as f64 {
+                self.pairs = union;
+            }
+        }
         let find = |pairs: &[(u32, u32)], i: u32, j: u32| {
             pairs.binary_search_by_key(&(j, i), |&(r, c)| (c, r)).map(|k| k as u32).unwrap_or(NONE)
         };
@@ -402,11 +482,26 @@ impl NewtonSolver {
         self.values.resize(self.row_idx.len(), 0.0);
         self.block_values.clear();
         self.block_values.resize(self.pairs.len(), [0.0; 9]);
-        if self.symbolic.is_some() && self.symbolic_blocks == blocks && self.symbolic_pairs == self.pairs {
+        if reuse {
             return Ok(true);
         }
         let structure = SymbolicSparseColMatRef::new_checked(dofs, dofs, &self.col_ptr, None, &self.row_idx);
-        let symbolic = factorize_symbolic_cholesky(structure, Side::Upper, Default::default(), Default::default())
+        let order = match ordering {
+            Ordering::MinimumDegree => SymmetricOrdering::Amd,
+            Ordering::Dissection => {
+                self.dissection.order(blocks, &self.pairs, contacts, &self.block_of, &mut self.elimination);
+                // Block k-th eliminated -> dofs 3k, 3k + 1, 3k + 2 (forward: new index to old).
+                self.perm_fwd.clear();
+                self.perm_fwd.extend(self.elimination.iter().flat_map(|&b| (0..3).map(move |p| 3 * b as usize + p)));
+                self.perm_inv.clear();
+                self.perm_inv.resize(dofs, 0);
+                for (new, &old) in self.perm_fwd.iter().enumerate() {
+                    self.perm_inv[old] = new;
+                }
+                SymmetricOrdering::Custom(PermRef::new_checked(&self.perm_fwd, &self.perm_inv, dofs))
+            }
+        };
+        let symbolic = factorize_symbolic_cholesky(structure, Side::Upper, order, Default::default())
             .map_err(|e| NewtonError::Factorisation(format!("{e:?}")))?;
         let need = symbolic
             .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default())
@@ -421,6 +516,7 @@ impl NewtonSolver {
         self.symbolic = Some(symbolic);
         self.symbolic_pairs.clone_from(&self.pairs);
         self.symbolic_blocks = blocks;
+        self.symbolic_ordering = ordering;
         Ok(false)
     }
 
@@ -495,6 +591,7 @@ impl NewtonSolver {
     /// Assembles `M + sum w J^T J` (`w` from `weights`, per row part) and factorises it on the
     /// kept symbolic factorisation.
     fn factorise(&mut self) -> Result<(), NewtonError> {
+        let started = Instant::now();
         self.block_values.iter_mut().for_each(|b| *b = [0.0; 9]);
         for (&k, m) in self.block_of.iter().zip(&self.mass) {
             if k == NONE {
@@ -545,11 +642,13 @@ impl NewtonSolver {
                 Default::default(),
             )
             .map_err(|e| NewtonError::Factorisation(format!("{e:?}")))?;
+        self.numeric_seconds += started.elapsed().as_secs_f64();
         Ok(())
     }
 
     /// Solves the last factorisation for `rhs` (per dof) into `direction` (per body).
     fn solve_direction(&mut self) {
+        let started = Instant::now();
         let symbolic = self.symbolic.as_ref().expect("prepare_pattern made it");
         let stack = MemStack::new(self.stack.as_mut().expect("prepare_pattern made it"));
         LltRef::new(symbolic, &self.l_values).solve_in_place_with_conj(
@@ -558,6 +657,7 @@ impl NewtonSolver {
             Par::Seq,
             stack,
         );
+        self.numeric_seconds += started.elapsed().as_secs_f64();
         for (body, &k) in self.block_of.iter().enumerate() {
             self.direction[body] = if k == NONE {
                 [0.0; 3]
@@ -681,6 +781,8 @@ struct Interior {
 const MAX_BOUND_PASSES: u32 = 8;
 /// The fraction of the way to the boundary a step may go.
 const TO_BOUNDARY: f64 = 0.995;
+/// The speed scale of the centred start's target product (m/s).
+const CENTRING_SPEED: f64 = 0.1;
 
 impl NewtonSolver {
     /// The primal-dual interior-point method on the step's QP
@@ -729,7 +831,10 @@ impl NewtonSolver {
         {
             stats.outer += 1;
             if stats.outer == 1 {
-                self.interior_start();
+                match params.centred_start {
+                    Some(k) => self.interior_start_centred(k * tolerance * CENTRING_SPEED),
+                    None => self.interior_start(),
+                }
             } else {
                 self.interior_rebound();
             }
@@ -783,6 +888,53 @@ impl NewtonSolver {
                 ip.z_hi[k][part] = if part == 1 { (-u).max(0.0) + speed } else { 0.0 };
             }
         }
+    }
+
+    /// A pass's start centred on the warm start: the bounds as [`Self::interior_start`]'s; per
+    /// bound, the speed pushing the part onto it at the warm start (its slack at a solution) and
+    /// the gap that speed needs for the product `target`; the part moved inside just that far
+    /// (at most as far as the fixed start would), each slack `max(speed, target / gap)`.
+    fn interior_start_centred(&mut self, target: f64) {
+        let scale = self.lambda.iter().fold(0.0f64, |m, l| m.max(l[0])).max(1e-6);
+        let inside = 1e-2 * scale;
+        // A slack is never below this speed when it sets a gap (a part at rest on its bound).
+        let floor = 1e-3;
+        let ip = &mut self.interior;
+        for (k, (r, l)) in self.rows.iter().zip(self.lambda.iter_mut()).enumerate() {
+            let c = r.bound(l[0]);
+            ip.lo[k] = [0.0, -c];
+            ip.hi[k] = [f64::INFINITY, c];
+            ip.active[k] = [r.mass[0] > 0.0, r.mass[1] > 0.0 && c > 1e-12 * scale];
+            for part in 0..2 {
+                if !ip.active[k][part] {
+                    l[part] = 0.0;
+                }
+            }
+        }
+        self.velocities_of_lambda();
+        self.relative_velocities();
+        let ip = &mut self.interior;
+        for k in 0..self.rows.len() {
+            for part in 0..2 {
+                if !ip.active[k][part] {
+                    continue;
+                }
+                let u = self.u[k][part];
+                let (s_lo, s_hi) = (u.max(0.0), (-u).max(0.0));
+                let x = &mut self.lambda[k][part];
+                let (lo, hi) = (ip.lo[k][part], ip.hi[k][part]);
+                let room = if hi.is_finite() { 0.49 * (hi - lo) } else { f64::INFINITY };
+                let need = |s: f64| (target / s.max(floor)).min(inside).min(room);
+                *x = x.max(lo + need(s_lo));
+                if hi.is_finite() {
+                    *x = x.min(hi - need(s_hi));
+                }
+                let g_lo = *x - lo;
+                ip.z_lo[k][part] = s_lo.max(target / g_lo);
+                ip.z_hi[k][part] = if hi.is_finite() { s_hi.max(target / (hi - *x)) } else { 0.0 };
+            }
+        }
+        self.velocities_of_lambda();
     }
 
     /// A later pass's start: only the Box2D law's rows take new bounds (`mu` times their normal
@@ -1065,6 +1217,23 @@ fn add_outer(block: &mut [f64; 9], w: f64, a: &[f64; 3], b: &[f64; 3]) {
             block[p * 3 + q] += w * a[p] * b[q];
         }
     }
+}
+
+/// Whether every pair of `part` is in `whole` (both sorted alike).
+fn is_subset(part: &[(u32, u32)], whole: &[(u32, u32)]) -> bool {
+    let key = |&(i, j): &(u32, u32)| (j, i);
+    let mut rest = whole.iter();
+    part.iter().all(|p| rest.by_ref().any(|w| key(w) == key(p)))
+}
+
+/// The sorted union of two pattern lists sorted by column then row.
+fn sorted_union(a: &[(u32, u32)], b: &[(u32, u32)]) -> Vec<(u32, u32)> {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    out.extend_from_slice(a);
+    out.extend_from_slice(b);
+    out.sort_unstable_by_key(|&(i, j)| (j, i));
+    out.dedup();
+    out
 }
 
 /// Refuses a problem with a non-finite value or a row naming a missing body (every method

@@ -359,3 +359,156 @@ fn mprgp_refuses_nothing_silently_and_reports_where_it_stood() {
     let measured = natural_residual(&rows, &out, &l, 0.0).max as f64;
     assert!((measured - stats.natural_max).abs() <= 1e-5 * (1.0 + measured), "{measured} vs {stats:?}");
 }
+
+/// A `w` x `h` lattice of unit balls on the floor (body 0), each touching its right and upper
+/// neighbour, falling at different speeds (so the loads are not uniform), and the rows; friction
+/// under the per-step law (each step's problem a convex QP, one bound pass).
+fn lattice(w: usize, h: usize) -> (Vec<SolverBody>, Vec<ContactRow>) {
+    let mut bodies = vec![SolverBody::default()];
+    bodies.extend((0..w * h).map(|k| ball(Vec2::new(0.02 * (k % 7) as f32, -0.1 - 0.01 * (k % 5) as f32))));
+    let id = |x: usize, y: usize| (1 + y * w + x) as u32;
+    let mut rows = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            if y == 0 {
+                rows.push(ContactRow {
+                    ra: Vec2::new(x as f32, 0.0),
+                    friction_bound: Some(0.05),
+                    ..floor_row(id(x, 0))
+                });
+            }
+            for (dx, dy) in [(1usize, 0usize), (0, 1)] {
+                if x + dx < w && y + dy < h {
+                    let half = Vec2::new(0.5 * dx as f32, 0.5 * dy as f32);
+                    rows.push(ContactRow {
+                        body_a: id(x, y),
+                        body_b: id(x + dx, y + dy),
+                        ra: half,
+                        rb: -half,
+                        normal: Vec2::new(dx as f32, dy as f32),
+                        friction: 0.5,
+                        height: y as f32 + 0.5 * dy as f32,
+                        friction_bound: Some(0.02),
+                    });
+                }
+            }
+        }
+    }
+    (bodies, rows)
+}
+
+fn interior(ordering: Ordering) -> NewtonParams {
+    NewtonParams { method: SecondOrder::InteriorPoint, ordering, ..NewtonParams::default() }
+}
+
+#[test]
+fn nested_dissection_solves_a_pile_as_minimum_degree_does_with_little_fill() {
+    let (bodies, rows) = lattice(30, 20);
+    let warm = vec![Impulse::default(); rows.len()];
+    let problem = NewtonProblem { tolerance: 1e-5, ..exact(&rows, &bodies, &warm) };
+    let mut answers = Vec::new();
+    for ordering in [Ordering::MinimumDegree, Ordering::Dissection] {
+        let (mut l, mut out) = (Vec::new(), bodies.clone());
+        let stats = NewtonSolver::new().solve(&problem, &interior(ordering), &mut l, &mut out).unwrap();
+        assert!(stats.converged && stats.natural_max <= 1e-5, "{ordering:?}: {stats:?}");
+        assert!(natural_residual(&rows, &out, &l, 0.0).max <= 2e-5, "{ordering:?}");
+        assert!(stats.symbolic_seconds > 0.0 && stats.numeric_seconds > 0.0, "{stats:?}");
+        answers.push((stats, out));
+    }
+    let (amd, nd) = (&answers[0], &answers[1]);
+    // The same velocities (the solution's, unique); nested dissection's factor no larger than
+    // 1.5x minimum degree's (an inverted order would fill several times more).
+    for (a, b) in amd.1.iter().zip(&nd.1) {
+        assert!((a.v - b.v).length() < 1e-3 && (a.w - b.w).abs() < 1e-3, "{a:?} vs {b:?}");
+    }
+    assert!(
+        nd.0.factor_entries as f64 <= 1.5 * amd.0.factor_entries as f64,
+        "fill: nested dissection {} against minimum degree {}",
+        nd.0.factor_entries,
+        amd.0.factor_entries
+    );
+}
+
+#[test]
+fn nested_dissection_keeps_its_analysis_while_the_pairs_stay_among_the_kept_ones() {
+    let (bodies, rows) = lattice(12, 8);
+    let warm = vec![Impulse::default(); rows.len()];
+    let full = NewtonProblem { tolerance: 1e-5, ..exact(&rows, &bodies, &warm) };
+    // Contacts lost: every 5th row dropped (the body pairs a subset of the full lattice's).
+    let fewer: Vec<ContactRow> = rows.iter().enumerate().filter(|(k, _)| k % 5 != 2).map(|(_, r)| *r).collect();
+    let fewer_warm = vec![Impulse::default(); fewer.len()];
+    let subset = NewtonProblem { rows: &fewer, warm_start: &fewer_warm, ..full };
+    let solve = |solver: &mut NewtonSolver, problem: &NewtonProblem<'_>, ordering| {
+        let (mut l, mut out) = (Vec::new(), bodies.clone());
+        let stats = solver.solve(problem, &interior(ordering), &mut l, &mut out).unwrap();
+        (stats, l, out)
+    };
+    for ordering in [Ordering::Dissection, Ordering::MinimumDegree] {
+        let mut kept = NewtonSolver::new();
+        let (first, ..) = solve(&mut kept, &full, ordering);
+        let (second, l, out) = solve(&mut kept, &subset, ordering);
+        assert!(!first.symbolic_reused && first.converged);
+        // Only nested dissection keeps a superset pattern; minimum degree needs the same pairs.
+        assert_eq!(second.symbolic_reused, ordering == Ordering::Dissection, "{ordering:?}: {second:?}");
+        assert!(second.converged, "{ordering:?}: {second:?}");
+        if second.symbolic_reused {
+            assert_eq!(second.symbolic_seconds, 0.0);
+        }
+        // The kept pattern's zeros change nothing but round-off: a fresh solver's answer.
+        let (_, fresh_l, fresh_out) = solve(&mut NewtonSolver::new(), &subset, ordering);
+        assert!(close(&l, &fresh_l, 1e-3), "{ordering:?}");
+        for (a, b) in out.iter().zip(&fresh_out) {
+            assert!((a.v - b.v).length() < 1e-4, "{a:?} vs {b:?}");
+        }
+        // A pair the kept pattern lacks (a diagonal neighbour) needs a new analysis.
+        let mut more = rows.clone();
+        more.push(ContactRow { body_a: 1, body_b: 14, ..rows[1] });
+        let more_warm = vec![Impulse::default(); more.len()];
+        let grown = NewtonProblem { rows: &more, warm_start: &more_warm, ..full };
+        let (third, ..) = solve(&mut kept, &grown, ordering);
+        assert!(!third.symbolic_reused, "{ordering:?}: {third:?}");
+    }
+}
+
+#[test]
+fn the_contact_solver_spells_and_runs_nested_dissection_from_the_centred_start() {
+    let (mut bodies, rows) = lattice(10, 6);
+    let setting: SolverSetting = "ipm:nd+warm".parse().unwrap();
+    assert_eq!(setting, SolverSetting::INTERIOR_POINT_DISSECTION);
+    assert_eq!(setting.to_string(), "ipm:nd+warm");
+    let mut solver = ContactSolver::new();
+    let report = solver.solve(&rows, &mut bodies, &vec![Impulse::default(); rows.len()], &params(setting));
+    assert!(report.converged && report.factorisations > 0, "{report:?}");
+    let stats = solver.newton_stats().expect("it factorised");
+    assert!(stats.factor_entries > 0 && !stats.symbolic_reused, "{stats:?}");
+    // The sweeps factorise nothing.
+    solver.solve(&rows, &mut bodies, &vec![Impulse::default(); rows.len()], &params(SolverSetting::RECOMMENDED));
+    assert!(solver.newton_stats().is_none());
+}
+
+#[test]
+fn the_centred_start_reaches_the_same_solution_and_uses_a_good_warm_start() {
+    let (bodies, rows) = lattice(16, 10);
+    let zero = vec![Impulse::default(); rows.len()];
+    let solve = |warm: &[Impulse], centred: Option<f64>| {
+        let problem = NewtonProblem { tolerance: 1e-5, ..exact(&rows, &bodies, warm) };
+        let (mut l, mut out) = (Vec::new(), bodies.clone());
+        let params = NewtonParams { centred_start: centred, ..interior(Ordering::Dissection) };
+        let stats = NewtonSolver::new().solve(&problem, &params, &mut l, &mut out).unwrap();
+        assert!(stats.converged, "{centred:?}: {stats:?}");
+        (stats, l, out)
+    };
+    let (_, solution, reference) = solve(&zero, None);
+    let (cold, _, out) = solve(&zero, Some(crate::solver::CENTRED_START));
+    for (a, b) in out.iter().zip(&reference) {
+        assert!((a.v - b.v).length() < 1e-3, "{a:?} vs {b:?}");
+    }
+    // From a warm start near the solution (the solution, a little off), the centred start needs
+    // fewer iterations than from nothing, and no more than the fixed push inside.
+    let near: Vec<Impulse> =
+        solution.iter().map(|l| Impulse { normal: 1.01 * l.normal, tangent: 0.99 * l.tangent }).collect();
+    let (fixed, ..) = solve(&near, None);
+    let (centred, ..) = solve(&near, Some(crate::solver::CENTRED_START));
+    assert!(centred.iterations < cold.iterations, "warm {centred:?} cold {cold:?}");
+    assert!(centred.iterations <= fixed.iterations, "centred {centred:?} fixed {fixed:?}");
+}

@@ -26,21 +26,25 @@
 use super::colour::{self, ColouredSolve, Colouring, Layout, SweepThreads};
 use super::deadline::{deadline_after, past};
 use super::krylov::KrylovSolver;
-use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, SecondOrder};
+use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, Ordering, SecondOrder};
 use super::rows::{ContactRow, Impulse, SolverBody};
 use super::setting::AUTO_NEWTON_FROM;
-use super::setting::{Method, Momentum, RowOrder, StopRule};
+use super::setting::{InteriorVariant, Method, Momentum, RowOrder, StopRule};
 use super::sweep::{
     apply, momentum_row, natural_residual_rows, update_row, NaturalResidual, Prepared, SolveParams, SolveReport,
     SweepChange, TRAIL_SWEEPS,
 };
 use std::time::Instant;
 
+/// The centred interior-point start's target product, in units of the tolerance times 0.1 m/s
+/// ([`NewtonParams::centred_start`]).
+pub const CENTRED_START: f64 = 10.0;
+
 /// A method outside the sweeps, which hands its impulses to them short of the tolerance.
 #[derive(Debug, Clone, Copy)]
 enum Outside {
-    /// A sparse Cholesky per iteration ([`super::newton`]).
-    Newton(SecondOrder),
+    /// A sparse Cholesky per iteration ([`super::newton`]); the interior point in that variant.
+    Newton(SecondOrder, InteriorVariant),
     /// Conjugate gradients on the QP ([`super::krylov`]).
     Mprgp,
 }
@@ -63,6 +67,8 @@ pub struct ContactSolver {
     trail: Vec<[Impulse; TRAIL_SWEEPS]>,
     /// The Newton method's state (pattern, symbolic factorisation), kept across steps.
     newton: NewtonSolver,
+    /// What the last solve's sparse Cholesky did (none: the last solve factorised nothing).
+    newton_stats: Option<NewtonStats>,
     /// MPRGP's buffers.
     krylov: KrylovSolver,
     /// The impulses a second-order method hands the sweeps that finish its solve, and its
@@ -104,6 +110,7 @@ impl ContactSolver {
         params: &SolveParams,
     ) -> SolveReport {
         let deadline = deadline_after(params.time_budget_us);
+        self.newton_stats = None;
         self.solve_until(rows, bodies, warm_start, &params.for_start(warm_start), deadline)
     }
 
@@ -118,11 +125,11 @@ impl ContactSolver {
     ) -> SolveReport {
         assert_eq!(rows.len(), warm_start.len(), "one warm-start impulse per contact row");
         let outside = match params.method {
-            Method::Newton => Some(Outside::Newton(SecondOrder::Proximal)),
-            Method::InteriorPoint => Some(Outside::Newton(SecondOrder::InteriorPoint)),
+            Method::Newton => Some(Outside::Newton(SecondOrder::Proximal, InteriorVariant::default())),
+            Method::InteriorPoint(variant) => Some(Outside::Newton(SecondOrder::InteriorPoint, variant)),
             Method::Auto => AUTO_NEWTON_FROM
                 .is_some_and(|from| dynamic_bodies(bodies) >= from)
-                .then_some(Outside::Newton(SecondOrder::InteriorPoint)),
+                .then_some(Outside::Newton(SecondOrder::InteriorPoint, InteriorVariant::default())),
             Method::Mprgp => Some(Outside::Mprgp),
             Method::Sweeps => None,
         };
@@ -275,13 +282,16 @@ impl ContactSolver {
         self.solved.extend_from_slice(bodies);
         self.residuals.clear();
         let (iterations, factorisations) = match method {
-            Outside::Newton(method) => {
+            Outside::Newton(method, variant) => {
                 let newton = NewtonParams {
                     method,
+                    ordering: if variant.dissection { Ordering::Dissection } else { Ordering::MinimumDegree },
+                    centred_start: variant.centred_start.then_some(CENTRED_START),
                     max_iterations: params.max_sweeps.min(NewtonParams::default().max_iterations),
                     ..NewtonParams::default()
                 };
                 let stats = self.newton.solve(&problem, &newton, &mut self.impulses, &mut self.solved)?;
+                self.newton_stats = Some(stats);
                 self.residuals.extend_from_slice(self.newton.residuals());
                 (stats.iterations, stats.iterations)
             }
@@ -374,6 +384,12 @@ impl ContactSolver {
     /// The natural residual of the current impulses and velocities.
     fn natural_residual(&self, bodies: &[SolverBody], softness: f32) -> NaturalResidual {
         natural_residual_of(&self.prepared, &self.work, bodies, softness)
+    }
+
+    /// What the last solve's sparse Cholesky did: its fill and where its time went (none when
+    /// it factorised nothing).
+    pub fn newton_stats(&self) -> Option<&NewtonStats> {
+        self.newton_stats.as_ref()
     }
 
     /// The impulses of the last solve, one per row.

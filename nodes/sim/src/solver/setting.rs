@@ -33,13 +33,54 @@ pub enum Method {
     /// sparse Cholesky per iteration ([`super::newton`]).
     Newton,
     /// The primal-dual interior-point method on the step's QP, a sparse Cholesky per
-    /// iteration ([`super::newton`]).
-    InteriorPoint,
+    /// iteration ([`super::newton`]), in one of its variants.
+    InteriorPoint(InteriorVariant),
     /// MPRGP, conjugate gradients on the step's box-constrained QP ([`super::krylov`]).
     Mprgp,
     /// The fastest measured at the problem's size: the interior-point method from
     /// [`AUTO_NEWTON_FROM`] dynamic bodies on (if ever), the sweeps below.
     Auto,
+}
+
+/// The interior point's variant: `ipm` (neither), `ipm:nd`, `ipm:warm` or `ipm:nd+warm`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct InteriorVariant {
+    /// `nd`: the system ordered by nested dissection of the contact graph from the bodies'
+    /// positions, its symbolic analysis kept while the body pairs stay among the kept pattern's
+    /// ([`super::newton::Ordering::Dissection`]); else faer's minimum degree, the analysis kept
+    /// while the pairs are the same.
+    pub dissection: bool,
+    /// `warm`: the warm start centred in the interior ([`super::newton::NewtonParams::centred_start`])
+    /// rather than pushed a fixed way inside.
+    pub centred_start: bool,
+}
+
+impl InteriorVariant {
+    /// Every variant with its spelling.
+    pub const SPELLINGS: [(InteriorVariant, &'static str); 4] = [
+        (InteriorVariant { dissection: false, centred_start: false }, "ipm"),
+        (InteriorVariant { dissection: true, centred_start: false }, "ipm:nd"),
+        (InteriorVariant { dissection: false, centred_start: true }, "ipm:warm"),
+        (InteriorVariant { dissection: true, centred_start: true }, "ipm:nd+warm"),
+    ];
+
+    pub fn name(self) -> &'static str {
+        Self::SPELLINGS.iter().find(|(v, _)| *v == self).map(|(_, s)| *s).expect("every variant is spelled")
+    }
+
+    /// Its code in a recorded problem's header (`ipm` is 3, as before the variants).
+    pub fn code(self) -> u32 {
+        match (self.dissection, self.centred_start) {
+            (false, false) => 3,
+            (true, false) => 5,
+            (false, true) => 6,
+            (true, true) => 7,
+        }
+    }
+
+    pub fn of_code(code: u32) -> Option<InteriorVariant> {
+        Self::SPELLINGS.iter().map(|(v, _)| *v).find(|v| v.code() == code)
+    }
 }
 
 /// The problem size (dynamic bodies) from which `auto` solves with the interior-point method:
@@ -225,8 +266,17 @@ impl SolverSetting {
     pub const NEWTON: SolverSetting = SolverSetting { method: Method::Newton, ..SolverSetting::RECOMMENDED };
 
     /// The interior-point method ([`Method::InteriorPoint`]), the recommended sweeps behind it.
-    pub const INTERIOR_POINT: SolverSetting =
-        SolverSetting { method: Method::InteriorPoint, ..SolverSetting::RECOMMENDED };
+    pub const INTERIOR_POINT: SolverSetting = SolverSetting {
+        method: Method::InteriorPoint(InteriorVariant { dissection: false, centred_start: false }),
+        ..SolverSetting::RECOMMENDED
+    };
+
+    /// The interior-point method ordered by nested dissection, from the centred warm start
+    /// (`ipm:nd+warm`), the recommended sweeps behind it.
+    pub const INTERIOR_POINT_DISSECTION: SolverSetting = SolverSetting {
+        method: Method::InteriorPoint(InteriorVariant { dissection: true, centred_start: true }),
+        ..SolverSetting::RECOMMENDED
+    };
 
     /// The interior-point method from [`AUTO_NEWTON_FROM`] dynamic bodies (none measured yet),
     /// the recommended sweeps below.
@@ -235,7 +285,7 @@ impl SolverSetting {
     pub const MPRGP: SolverSetting = SolverSetting { method: Method::Mprgp, ..SolverSetting::RECOMMENDED };
 
     /// What `--solver` accepts, in words.
-    pub const SPELLING: &'static str = "ipm (interior point), newton (proximal Newton), mprgp (conjugate gradients on the QP), auto (the fastest measured at the size: nncg:1.2/down at every size so far), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down), /colour (rows coloured, swept on --threads threads) or /recorded";
+    pub const SPELLING: &'static str = "ipm (interior point), ipm:nd, ipm:warm, ipm:nd+warm (ordered by nested dissection, from the centred warm start, both), newton (proximal Newton), mprgp (conjugate gradients on the QP), auto (the fastest measured at the size: nncg:1.2/down at every size so far), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down), /colour (rows coloured, swept on --threads threads) or /recorded";
 
     /// The sweeps of this setting (what a second-order method falls back to and finishes with;
     /// itself for the sweeps).
@@ -258,7 +308,7 @@ impl fmt::Display for SolverSetting {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.method {
             Method::Newton => return f.write_str("newton"),
-            Method::InteriorPoint => return f.write_str("ipm"),
+            Method::InteriorPoint(variant) => return f.write_str(variant.name()),
             Method::Auto => return f.write_str("auto"),
             Method::Mprgp => return f.write_str("mprgp"),
             Method::Sweeps => {}
@@ -290,10 +340,12 @@ impl FromStr for SolverSetting {
         let bad = |why: String| format!("solver `{s}`: {why} (expected {})", Self::SPELLING);
         match s {
             "newton" => return Ok(SolverSetting::NEWTON),
-            "ipm" => return Ok(SolverSetting::INTERIOR_POINT),
             "auto" => return Ok(SolverSetting::AUTO),
             "mprgp" => return Ok(SolverSetting::MPRGP),
             _ => {}
+        }
+        if let Some((variant, _)) = InteriorVariant::SPELLINGS.iter().find(|(_, name)| *name == s) {
+            return Ok(SolverSetting { method: Method::InteriorPoint(*variant), ..SolverSetting::RECOMMENDED });
         }
         let (method, order) = match s.split_once('/') {
             Some((m, o)) => (m, o.parse::<RowOrder>().map_err(bad)?),
@@ -355,6 +407,9 @@ mod tests {
         for s in [
             "newton",
             "ipm",
+            "ipm:nd",
+            "ipm:warm",
+            "ipm:nd+warm",
             "mprgp",
             "auto",
             "pgs",

@@ -47,6 +47,9 @@ pub(crate) struct Instruments {
     problem: Problem,
     /// Solver settings each step is also solved with, from builtin's warm start.
     pub menu: Vec<SolveParams>,
+    /// One solver per menu setting, as a simulation keeps one: what a solver keeps from step to
+    /// step (the interior point's symbolic analysis) is its own setting's.
+    menu_solvers: Vec<ContactSolver>,
     menu_solves: Vec<MenuSolve>,
     /// Whether to split each step's warm-start error ([`Instruments::split_error`]).
     pub error_split: bool,
@@ -116,6 +119,11 @@ pub struct MenuSolve {
     /// The natural residual of its final impulses: max and RMS over the rows.
     pub natural_max: f32,
     pub natural_rms: f32,
+    /// Sparse Cholesky factorisations, and the microseconds of the symbolic analysis (0 when
+    /// the kept one served) and of the numeric factorisations with their solves (0 for sweeps).
+    pub factorisations: u32,
+    pub symbolic_us: f32,
+    pub numeric_us: f32,
 }
 
 impl Instruments {
@@ -158,17 +166,24 @@ impl Instruments {
     /// Solves the step with every setting of the menu, each from builtin's warm start.
     pub(crate) fn solve_menu(&mut self, step: StepView<'_>) {
         self.menu_solves.clear();
-        for i in 0..self.menu.len() {
-            let params = self.menu[i];
+        self.menu_solvers.resize_with(self.menu.len(), ContactSolver::default);
+        self.start.clear();
+        self.start.resize(step.contacts.len(), Impulse::default());
+        step.history.fill_previous(step.contacts, &mut self.start);
+        for (params, solver) in self.menu.iter().zip(self.menu_solvers.iter_mut()) {
             let started = std::time::Instant::now();
-            let report = self.solve_from_builtin(step, &params);
+            let report = solve_on_scratch(solver, &mut self.scratch_bodies, step, &self.start, params);
             let us = started.elapsed().as_secs_f32() * 1e6;
+            let factor = solver.newton_stats();
             self.menu_solves.push(MenuSolve {
                 sweeps: report.sweeps,
                 converged: report.converged,
                 us,
                 natural_max: report.natural.max,
                 natural_rms: report.natural.rms,
+                factorisations: report.factorisations,
+                symbolic_us: factor.map_or(0.0, |f| (f.symbolic_seconds * 1e6) as f32),
+                numeric_us: factor.map_or(0.0, |f| (f.numeric_seconds * 1e6) as f32),
             });
         }
     }
