@@ -28,7 +28,7 @@ struct Args {
     #[arg(long, default_value = "box")]
     friction: String,
     /// Tunings `rho/max_inner/inner_tolerance[/rho_start/rho_growth]` (the proximal method) or
-    /// `ipm` (the interior-point method), or `mprgp` (conjugate gradients on the QP), comma
+    /// `ipm` (the interior-point method; `ipm:warm=K` from the centred start, target K), or `mprgp` (conjugate gradients on the QP), comma
     /// separated.
     #[arg(long, default_value = "1e4/8/0.01")]
     tunings: String,
@@ -54,6 +54,11 @@ fn probe(args: Args) -> Result<()> {
         .split(',')
         .filter(|t| *t != "mprgp")
         .map(|t| {
+            // `ipm:warm=K`: the centred start with target K (NewtonParams::centred_start).
+            let (t, centred) = match t.split_once(":warm=") {
+                Some((head, k)) => (head, Some(k.parse::<f64>().expect("a number after warm="))),
+                None => (t, None),
+            };
             let p: Vec<f64> = t
                 .trim_start_matches("ipm")
                 .split('/')
@@ -69,6 +74,7 @@ fn probe(args: Args) -> Result<()> {
                 rho_start: p.get(3).copied().unwrap_or(p[0]),
                 rho_growth: p.get(4).copied().unwrap_or(1.0),
                 max_iterations: args.max_iterations,
+                centred_start: centred,
                 ..NewtonParams::default()
             }
         })

@@ -830,13 +830,13 @@ impl NewtonSolver {
             && !past(problem.deadline)
         {
             stats.outer += 1;
-            if stats.outer == 1 {
-                match params.centred_start {
-                    Some(k) => self.interior_start_centred(k * tolerance * CENTRING_SPEED),
-                    None => self.interior_start(),
-                }
-            } else {
-                self.interior_rebound();
+            match (params.centred_start, stats.outer) {
+                // Every pass re-centred from where the last one ended: a pass that ended at a
+                // tiny duality measure would otherwise restart the moved bounds' parts against
+                // slacks near zero, and crawl.
+                (Some(k), _) => self.interior_start_centred(k * tolerance * CENTRING_SPEED),
+                (None, 1) => self.interior_start(),
+                (None, _) => self.interior_rebound(),
             }
             loop {
                 // The law's residual, and the pass's own problem's (its fixed bounds).
