@@ -159,18 +159,7 @@ mod tests {
 
     #[test]
     fn a_recorded_header_gives_back_the_solver_it_was_solved_with() {
-        for setting in [
-            "pgs",
-            "nncg:1.2/down",
-            "nncg:1.2/colour",
-            "newton",
-            "ipm",
-            "ipm:nd",
-            "ipm:warm",
-            "ipm:nd+warm",
-            "mprgp",
-            "auto",
-        ] {
+        for setting in crate::solver::setting::SPELLED.into_iter().chain(["nncg:1.2/down"]) {
             let solve =
                 SolveParams { stop: StopRule::Relative, friction: FrictionModel::PerStep, ..SolveParams::default() }
                     .with_setting(setting.parse::<SolverSetting>().unwrap());

@@ -303,10 +303,17 @@ fn check(cli: &Cli) -> Result<()> {
 
 /// A progress bar over `len` seeds, titled `what`.
 fn seed_bar(len: usize, what: &str) -> indicatif::ProgressBar {
+    progress_bar(len, what, "seeds")
+}
+
+/// A bar over `len` units of work (`seeds`, `runs`).
+fn progress_bar(len: usize, what: &str, units: &str) -> indicatif::ProgressBar {
     let bar = indicatif::ProgressBar::new(len as u64);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} seeds, {elapsed}, ~{eta} left")
-            .expect("a valid template"),
+        indicatif::ProgressStyle::with_template(&format!(
+            "{{msg}} [{{bar:30}}] {{pos}}/{{len}} {units}, {{elapsed}}, ~{{eta}} left"
+        ))
+        .expect("a valid template"),
     );
     bar.set_message(what.to_string());
     bar
@@ -738,12 +745,7 @@ fn friction_study(args: &FrictionArgs) -> Result<()> {
         steps: args.scene.steps,
         late: args.late,
     };
-    let bar = indicatif::ProgressBar::new(2 * seeds.len() as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} runs, {elapsed}, ~{eta} left")
-            .expect("a valid template"),
-    );
-    bar.set_message("friction study");
+    let bar = progress_bar(2 * seeds.len(), "friction study", "runs");
     let mut runs = Vec::with_capacity(2 * seeds.len());
     for &seed in &seeds {
         for law in [sim::solver::FrictionModel::Box, sim::solver::FrictionModel::PerStep] {

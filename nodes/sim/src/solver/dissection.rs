@@ -175,28 +175,24 @@ impl Dissection {
             self.side[b as usize] = (k >= middle) as u8;
         }
         // Each half's boundary: its blocks with a neighbour in the other half of this set.
-        let (mut boundary, mut boundary_size) = ([false; 2], [0usize; 2]);
-        let touches = |this: &Dissection, b: u32| {
-            let side = this.side[b as usize];
-            this.neighbours(b).iter().any(|&n| this.set_of[n as usize] == id && this.side[n as usize] != side)
-        };
-        for &b in set.iter() {
-            if touches(self, b) {
-                boundary_size[self.side[b as usize] as usize] += 1;
-            }
+        let on_boundary: Vec<bool> = set
+            .iter()
+            .map(|&b| {
+                let side = self.side[b as usize];
+                self.neighbours(b).iter().any(|&n| self.set_of[n as usize] == id && self.side[n as usize] != side)
+            })
+            .collect();
+        let mut boundary_size = [0usize; 2];
+        for (&b, _) in set.iter().zip(&on_boundary).filter(|(_, &on)| on) {
+            boundary_size[self.side[b as usize] as usize] += 1;
         }
         // The shorter boundary separates (the left one on a tie).
         let separating_side = (boundary_size[1] < boundary_size[0]) as u8;
-        boundary[separating_side as usize] = true;
         // Partition into [left without separator | right without separator | separator].
         let mut parts: [Vec<u32>; 3] = Default::default();
-        for &b in set.iter() {
+        for (&b, &on) in set.iter().zip(&on_boundary) {
             let side = self.side[b as usize];
-            if boundary[side as usize] && touches(self, b) {
-                parts[2].push(b);
-            } else {
-                parts[side as usize].push(b);
-            }
+            parts[if on && side == separating_side { 2 } else { side as usize }].push(b);
         }
         // Stable within each part: sort by index so the order does not depend on the selection.
         for part in parts.iter_mut() {
@@ -211,9 +207,7 @@ impl Dissection {
         self.dissect(right, order);
         order.extend_from_slice(separator);
     }
-}
 
-impl Dissection {
     /// Appends `set`'s blocks to `order` in faer's approximate minimum degree order of the graph
     /// they induce (in `set`'s order if that fails, which it does only out of memory).
     fn minimum_degree(&mut self, set: &[u32], order: &mut Vec<u32>) {
@@ -267,46 +261,39 @@ impl Dissection {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rapier2d::math::Vec2;
+    use crate::solver::rows::fixtures::lattice;
 
-    /// A `w` x `h` grid of unit-spaced bodies, each joined to its right and upper neighbour by
-    /// one row.
-    fn grid(w: usize, h: usize) -> (Vec<ContactRow>, Vec<(u32, u32)>) {
-        let mut rows = Vec::new();
-        let mut pairs = Vec::new();
-        let id = |x: usize, y: usize| (y * w + x) as u32;
-        for y in 0..h {
-            for x in 0..w {
-                for (dx, dy) in [(1, 0), (0, 1)] {
-                    if x + dx < w && y + dy < h {
-                        let (a, b) = (id(x, y), id(x + dx, y + dy));
-                        let half = Vec2::new(0.5 * dx as f32, 0.5 * dy as f32);
-                        rows.push(ContactRow {
-                            body_a: a,
-                            body_b: b,
-                            ra: half,
-                            rb: -half,
-                            normal: Vec2::new(dx as f32, dy as f32),
-                            ..ContactRow::default()
-                        });
-                        pairs.push((a.min(b), a.max(b)));
-                    }
-                }
-            }
-        }
-        (rows, pairs)
+    /// A `w` x `h` lattice of balls on the floor ([`lattice`]): its rows, per body its block (the
+    /// floor none, ball `k` block `k - 1`) and the blocks' pairs.
+    fn grid(w: usize, h: usize) -> (Vec<ContactRow>, Vec<u32>, Vec<(u32, u32)>) {
+        let (_, rows) = lattice(w, h);
+        let block_of: Vec<u32> = std::iter::once(u32::MAX).chain(0..(w * h) as u32).collect();
+        let pairs = rows
+            .iter()
+            .filter(|r| r.body_a != 0)
+            .map(|r| {
+                let (a, b) = (block_of[r.body_a as usize], block_of[r.body_b as usize]);
+                (a.min(b), a.max(b))
+            })
+            .collect();
+        (rows, block_of, pairs)
+    }
+
+    /// The elimination order of `grid(w, h)`, checked to be a permutation of `blocks` blocks.
+    fn order_of(blocks: usize, rows: &[ContactRow], block_of: &[u32], pairs: &[(u32, u32)]) -> Vec<u32> {
+        let mut order = Vec::new();
+        Dissection::default().order(blocks, pairs, rows, block_of, &mut order);
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..blocks as u32).collect::<Vec<_>>());
+        order
     }
 
     #[test]
     fn the_order_is_a_permutation_ending_in_the_top_separator() {
-        let (rows, pairs) = grid(20, 12);
+        let (rows, block_of, pairs) = grid(20, 12);
         let blocks = 240;
-        let block_of: Vec<u32> = (0..blocks as u32).collect();
-        let mut order = Vec::new();
-        Dissection::default().order(blocks, &pairs, &rows, &block_of, &mut order);
-        let mut sorted = order.clone();
-        sorted.sort_unstable();
-        assert_eq!(sorted, (0..blocks as u32).collect::<Vec<_>>());
+        let order = order_of(blocks, &rows, &block_of, &pairs);
         // The first split is across the longer (x) extent: the last 12 eliminated are one column.
         let last: Vec<u32> = order[blocks - 12..].to_vec();
         let column = last[0] % 20;
@@ -316,8 +303,7 @@ mod tests {
 
     #[test]
     fn positions_are_read_off_the_rows_up_to_a_shift() {
-        let (rows, pairs) = grid(5, 4);
-        let block_of: Vec<u32> = (0..20).collect();
+        let (rows, block_of, pairs) = grid(5, 4);
         let mut d = Dissection::default();
         d.adjacency_of(20, &pairs);
         d.place(20, &rows, &block_of);
@@ -330,16 +316,16 @@ mod tests {
     #[test]
     fn parts_without_rows_between_them_and_lone_blocks_are_ordered() {
         // Two grids side by side with no row between them, and three blocks on no row at all.
-        let (mut rows, mut pairs) = grid(4, 4);
-        let (rows2, pairs2) = grid(4, 4);
-        rows.extend(rows2.into_iter().map(|r| ContactRow { body_a: r.body_a + 16, body_b: r.body_b + 16, ..r }));
+        let (mut rows, mut block_of, mut pairs) = grid(4, 4);
+        let (rows2, _, pairs2) = grid(4, 4);
+        rows.extend(rows2.into_iter().filter(|r| r.body_a != 0).map(|r| ContactRow {
+            body_a: r.body_a + 16,
+            body_b: r.body_b + 16,
+            ..r
+        }));
         pairs.extend(pairs2.into_iter().map(|(a, b)| (a + 16, b + 16)));
         let blocks = 35;
-        let block_of: Vec<u32> = (0..blocks as u32).collect();
-        let mut order = Vec::new();
-        Dissection::default().order(blocks, &pairs, &rows, &block_of, &mut order);
-        let mut sorted = order.clone();
-        sorted.sort_unstable();
-        assert_eq!(sorted, (0..blocks as u32).collect::<Vec<_>>());
+        block_of.extend(16..blocks as u32);
+        order_of(blocks, &rows, &block_of, &pairs);
     }
 }

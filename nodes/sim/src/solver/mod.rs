@@ -37,8 +37,10 @@ pub mod sweep;
 
 pub use colour::{machine_cores, process_threads, set_process_threads, SweepThreads, ThreadsError, MAX_THREADS};
 pub use krylov::{KrylovSolver, KrylovStats};
-pub use newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, Ordering, SecondOrder};
-pub use pgs::{convergence_rate, natural_residual, ContactSolver, CENTRED_START, RATE_WINDOW};
+pub use newton::{
+    NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, Ordering, SecondOrder, CENTRED_START,
+};
+pub use pgs::{convergence_rate, natural_residual, ContactSolver, RATE_WINDOW};
 pub use position::{correct_positions, measure, PoseBody, PositionGeometry, PositionParams, PositionRow};
 pub use rows::{relative_velocity, row_masses, tangent_of, ContactRow, Impulse, SolverBody};
 pub use setting::{

@@ -783,6 +783,9 @@ const MAX_BOUND_PASSES: u32 = 8;
 const TO_BOUNDARY: f64 = 0.995;
 /// The speed scale of the centred start's target product (m/s).
 const CENTRING_SPEED: f64 = 0.1;
+/// The centred start's target product in units of the tolerance times [`CENTRING_SPEED`], as
+/// `ipm:warm` uses it ([`NewtonParams::centred_start`]).
+pub const CENTRED_START: f64 = 10.0;
 
 impl NewtonSolver {
     /// The primal-dual interior-point method on the step's QP
@@ -862,21 +865,42 @@ impl NewtonSolver {
         Ok(())
     }
 
-    /// A pass's start: the bounds (the Box2D law's from the current normal impulses), the
-    /// impulses pushed strictly inside them and dual slacks from the relative velocities.
-    fn interior_start(&mut self) {
+    /// A pass's bounds (the Box2D law's from the current normal impulses) and which parts are
+    /// variables; the parts that are not are zeroed. Returns the largest normal impulse (the
+    /// impulses' scale, at least 1e-6).
+    fn interior_bounds(&mut self) -> f64 {
         let scale = self.lambda.iter().fold(0.0f64, |m, l| m.max(l[0])).max(1e-6);
-        // How far inside the bounds a start lies, in impulse and in velocity units.
-        let inside = 1e-2 * scale;
-        let speed = 1e-3;
         let ip = &mut self.interior;
         for (k, (r, l)) in self.rows.iter().zip(self.lambda.iter_mut()).enumerate() {
             let c = r.bound(l[0]);
             ip.lo[k] = [0.0, -c];
             ip.hi[k] = [f64::INFINITY, c];
             ip.active[k] = [r.mass[0] > 0.0, r.mass[1] > 0.0 && c > 1e-12 * scale];
-            l[0] = if ip.active[k][0] { l[0].max(inside) } else { 0.0 };
-            l[1] = if ip.active[k][1] { l[1].clamp(-0.99 * c, 0.99 * c) } else { 0.0 };
+            for part in 0..2 {
+                if !ip.active[k][part] {
+                    l[part] = 0.0;
+                }
+            }
+        }
+        scale
+    }
+
+    /// A pass's start: the bounds ([`Self::interior_bounds`]), the impulses pushed strictly
+    /// inside them and dual slacks from the relative velocities.
+    fn interior_start(&mut self) {
+        let scale = self.interior_bounds();
+        // How far inside the bounds a start lies, in impulse and in velocity units.
+        let inside = 1e-2 * scale;
+        let speed = 1e-3;
+        let ip = &self.interior;
+        for (k, l) in self.lambda.iter_mut().enumerate() {
+            let c = ip.hi[k][1];
+            if ip.active[k][0] {
+                l[0] = l[0].max(inside);
+            }
+            if ip.active[k][1] {
+                l[1] = l[1].clamp(-0.99 * c, 0.99 * c);
+            }
         }
         self.velocities_of_lambda();
         self.relative_velocities();
@@ -895,22 +919,9 @@ impl NewtonSolver {
     /// the gap that speed needs for the product `target`; the part moved inside just that far
     /// (at most as far as the fixed start would), each slack `max(speed, target / gap)`.
     fn interior_start_centred(&mut self, target: f64) {
-        let scale = self.lambda.iter().fold(0.0f64, |m, l| m.max(l[0])).max(1e-6);
-        let inside = 1e-2 * scale;
+        let inside = 1e-2 * self.interior_bounds();
         // A slack is never below this speed when it sets a gap (a part at rest on its bound).
         let floor = 1e-3;
-        let ip = &mut self.interior;
-        for (k, (r, l)) in self.rows.iter().zip(self.lambda.iter_mut()).enumerate() {
-            let c = r.bound(l[0]);
-            ip.lo[k] = [0.0, -c];
-            ip.hi[k] = [f64::INFINITY, c];
-            ip.active[k] = [r.mass[0] > 0.0, r.mass[1] > 0.0 && c > 1e-12 * scale];
-            for part in 0..2 {
-                if !ip.active[k][part] {
-                    l[part] = 0.0;
-                }
-            }
-        }
         self.velocities_of_lambda();
         self.relative_velocities();
         let ip = &mut self.interior;

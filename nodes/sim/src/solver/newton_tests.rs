@@ -4,10 +4,10 @@
 use super::newton::*;
 use super::rows::{ContactRow, Impulse, SolverBody};
 use crate::solver::pgs::{natural_residual, ContactSolver};
-use crate::solver::rows::fixtures::{ball, floor_row, stack};
+use crate::solver::rows::fixtures::{ball, floor_row, lattice, stack};
 use crate::solver::rows::relative_velocity;
 use crate::solver::sweep::SolveParams;
-use crate::solver::{SolverSetting, StopRule};
+use crate::solver::{InteriorVariant, Method, SolverSetting, StopRule};
 use rapier2d::math::Vec2;
 
 fn params(setting: SolverSetting) -> SolveParams {
@@ -360,43 +360,6 @@ fn mprgp_refuses_nothing_silently_and_reports_where_it_stood() {
     assert!((measured - stats.natural_max).abs() <= 1e-5 * (1.0 + measured), "{measured} vs {stats:?}");
 }
 
-/// A `w` x `h` lattice of unit balls on the floor (body 0), each touching its right and upper
-/// neighbour, falling at different speeds (so the loads are not uniform), and the rows; friction
-/// under the per-step law (each step's problem a convex QP, one bound pass).
-fn lattice(w: usize, h: usize) -> (Vec<SolverBody>, Vec<ContactRow>) {
-    let mut bodies = vec![SolverBody::default()];
-    bodies.extend((0..w * h).map(|k| ball(Vec2::new(0.02 * (k % 7) as f32, -0.1 - 0.01 * (k % 5) as f32))));
-    let id = |x: usize, y: usize| (1 + y * w + x) as u32;
-    let mut rows = Vec::new();
-    for y in 0..h {
-        for x in 0..w {
-            if y == 0 {
-                rows.push(ContactRow {
-                    ra: Vec2::new(x as f32, 0.0),
-                    friction_bound: Some(0.05),
-                    ..floor_row(id(x, 0))
-                });
-            }
-            for (dx, dy) in [(1usize, 0usize), (0, 1)] {
-                if x + dx < w && y + dy < h {
-                    let half = Vec2::new(0.5 * dx as f32, 0.5 * dy as f32);
-                    rows.push(ContactRow {
-                        body_a: id(x, y),
-                        body_b: id(x + dx, y + dy),
-                        ra: half,
-                        rb: -half,
-                        normal: Vec2::new(dx as f32, dy as f32),
-                        friction: 0.5,
-                        height: y as f32 + 0.5 * dy as f32,
-                        friction_bound: Some(0.02),
-                    });
-                }
-            }
-        }
-    }
-    (bodies, rows)
-}
-
 fn interior(ordering: Ordering) -> NewtonParams {
     NewtonParams { method: SecondOrder::InteriorPoint, ordering, ..NewtonParams::default() }
 }
@@ -474,7 +437,7 @@ fn nested_dissection_keeps_its_analysis_while_the_pairs_stay_among_the_kept_ones
 fn the_contact_solver_spells_and_runs_nested_dissection_from_the_centred_start() {
     let (mut bodies, rows) = lattice(10, 6);
     let setting: SolverSetting = "ipm:nd+warm".parse().unwrap();
-    assert_eq!(setting, SolverSetting::INTERIOR_POINT_DISSECTION);
+    assert_eq!(setting.method, Method::InteriorPoint(InteriorVariant { dissection: true, centred_start: true }));
     assert_eq!(setting.to_string(), "ipm:nd+warm");
     let mut solver = ContactSolver::new();
     let report = solver.solve(&rows, &mut bodies, &vec![Impulse::default(); rows.len()], &params(setting));

@@ -26,7 +26,9 @@
 use super::colour::{self, ColouredSolve, Colouring, Layout, SweepThreads};
 use super::deadline::{deadline_after, past};
 use super::krylov::KrylovSolver;
-use super::newton::{NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, Ordering, SecondOrder};
+use super::newton::{
+    NewtonError, NewtonParams, NewtonProblem, NewtonSolver, NewtonStats, Ordering, SecondOrder, CENTRED_START,
+};
 use super::rows::{ContactRow, Impulse, SolverBody};
 use super::setting::AUTO_NEWTON_FROM;
 use super::setting::{InteriorVariant, Method, Momentum, RowOrder, StopRule};
@@ -35,10 +37,6 @@ use super::sweep::{
     SweepChange, TRAIL_SWEEPS,
 };
 use std::time::Instant;
-
-/// The centred interior-point start's target product, in units of the tolerance times 0.1 m/s
-/// ([`NewtonParams::centred_start`]).
-pub const CENTRED_START: f64 = 10.0;
 
 /// A method outside the sweeps, which hands its impulses to them short of the tolerance.
 #[derive(Debug, Clone, Copy)]

@@ -196,4 +196,41 @@ pub(crate) mod fixtures {
             .collect();
         (bodies, rows)
     }
+
+    /// A `w` x `h` lattice of unit balls on the floor (body 0), each touching its right and upper
+    /// neighbour, falling at different speeds (so the loads are not uniform), and the rows; friction
+    /// under the per-step law (each step's problem a convex QP, one bound pass).
+    pub(crate) fn lattice(w: usize, h: usize) -> (Vec<SolverBody>, Vec<ContactRow>) {
+        let mut bodies = vec![SolverBody::default()];
+        bodies.extend((0..w * h).map(|k| ball(Vec2::new(0.02 * (k % 7) as f32, -0.1 - 0.01 * (k % 5) as f32))));
+        let id = |x: usize, y: usize| (1 + y * w + x) as u32;
+        let mut rows = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                if y == 0 {
+                    rows.push(ContactRow {
+                        ra: Vec2::new(x as f32, 0.0),
+                        friction_bound: Some(0.05),
+                        ..floor_row(id(x, 0))
+                    });
+                }
+                for (dx, dy) in [(1usize, 0usize), (0, 1)] {
+                    if x + dx < w && y + dy < h {
+                        let half = Vec2::new(0.5 * dx as f32, 0.5 * dy as f32);
+                        rows.push(ContactRow {
+                            body_a: id(x, y),
+                            body_b: id(x + dx, y + dy),
+                            ra: half,
+                            rb: -half,
+                            normal: Vec2::new(dx as f32, dy as f32),
+                            friction: 0.5,
+                            height: y as f32 + 0.5 * dy as f32,
+                            friction_bound: Some(0.02),
+                        });
+                    }
+                }
+            }
+        }
+        (bodies, rows)
+    }
 }

@@ -130,10 +130,15 @@ impl Instruments {
     /// Solves the step from builtin's warm start with `params` on scratch velocities; the
     /// impulses are in the solver.
     fn solve_from_builtin(&mut self, step: StepView<'_>, params: &SolveParams) -> SolveReport {
+        self.builtin_start(step);
+        solve_on_scratch(&mut self.solver, &mut self.scratch_bodies, step, &self.start, params)
+    }
+
+    /// builtin's warm start of the step (the previous step's impulses) into `start`.
+    fn builtin_start(&mut self, step: StepView<'_>) {
         self.start.clear();
         self.start.resize(step.contacts.len(), Impulse::default());
         step.history.fill_previous(step.contacts, &mut self.start);
-        solve_on_scratch(&mut self.solver, &mut self.scratch_bodies, step, &self.start, params)
     }
 
     /// The step's exact solution: solved from builtin's warm start to the oracle's stopping rule.
@@ -167,9 +172,7 @@ impl Instruments {
     pub(crate) fn solve_menu(&mut self, step: StepView<'_>) {
         self.menu_solves.clear();
         self.menu_solvers.resize_with(self.menu.len(), ContactSolver::default);
-        self.start.clear();
-        self.start.resize(step.contacts.len(), Impulse::default());
-        step.history.fill_previous(step.contacts, &mut self.start);
+        self.builtin_start(step);
         for (params, solver) in self.menu.iter().zip(self.menu_solvers.iter_mut()) {
             let started = std::time::Instant::now();
             let report = solve_on_scratch(solver, &mut self.scratch_bodies, step, &self.start, params);
