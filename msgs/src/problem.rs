@@ -105,6 +105,12 @@ pub struct ProblemHeader {
     /// older recordings: Box2D's).
     #[serde(default)]
     pub friction: u32,
+    /// The coarse correction between sweeps: the side of its cells in metres (0: none; absent
+    /// in older recordings: none) and the sweeps between corrections.
+    #[serde(default)]
+    pub coarse_cell: f32,
+    #[serde(default)]
+    pub coarse_every: u32,
 }
 
 /// A step's bodies of the problem.

@@ -4,8 +4,8 @@
 //! start trains on, and the solver it can be judged by in the loop.
 
 use crate::solver::{
-    ContactRow, ContactSolver, FrictionModel, Impulse, InteriorVariant, Method, Momentum, RowOrder, SolveParams,
-    SolveReport, SolverBody, StopRule,
+    CoarseCorrection, ContactRow, ContactSolver, FrictionModel, Impulse, InteriorVariant, Method, Momentum, RowOrder,
+    SolveParams, SolveReport, SolverBody, StopRule,
 };
 use msgs::{ProblemBody, ProblemContact, ProblemHeader, StepHeader};
 use rapier2d::math::Vec2;
@@ -100,6 +100,8 @@ pub fn header_of(step: StepHeader, bodies: u32, solve: &SolveParams) -> ProblemH
             Method::Mprgp => 4,
         },
         friction: (solve.friction == FrictionModel::PerStep) as u32,
+        coarse_cell: solve.coarse.map_or(0.0, |c| c.cell),
+        coarse_every: solve.coarse.map_or(0, |c| c.every),
         ..ProblemHeader::default()
     }
 }
@@ -134,6 +136,7 @@ impl Problem {
                 },
             },
             friction: if h.friction == 1 { FrictionModel::PerStep } else { FrictionModel::Box },
+            coarse: Some(CoarseCorrection { cell: h.coarse_cell, every: h.coarse_every }).filter(|c| c.is_valid()),
             // A recorded problem is re-solved to its tolerance, never against a clock.
             time_budget_us: None,
         }

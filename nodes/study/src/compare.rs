@@ -489,6 +489,34 @@ pub fn factorisation_markdown(menu: &[SolverSetting], steps: &[ComparedStep]) ->
     any.then_some(out)
 }
 
+/// For the settings with a coarse correction: per step, corrections kept and dropped, sweeps,
+/// and the correction's share of the solve's time. None when no setting has one.
+pub fn coarse_markdown(menu: &[SolverSetting], steps: &[ComparedStep]) -> Option<String> {
+    let mut out = String::from(
+        "| solver | steps | corrections kept / step | dropped / step | sweeps / step | correction ms / step | solve ms / step | correction's share |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    let mut any = false;
+    for (k, setting) in menu.iter().enumerate().filter(|(_, s)| s.coarse.is_some()) {
+        any = true;
+        let solves: Vec<&MenuSolve> = steps.iter().filter(|s| s.contacts > 0).map(|s| &s.solves[k]).collect();
+        let n = solves.len().max(1) as f64;
+        let sum = |f: fn(&MenuSolve) -> f64| solves.iter().map(|m| f(m)).sum::<f64>();
+        let (kept, dropped) = (sum(|m| m.corrections as f64), sum(|m| m.corrections_dropped as f64));
+        let (coarse, total) = (sum(|m| m.coarse_us as f64), sum(|m| m.us as f64));
+        out += &format!(
+            "| {setting} | {} | {:.2} | {:.2} | {:.1} | {:.3} | {:.3} | {:.0}% |\n",
+            solves.len(),
+            kept / n,
+            dropped / n,
+            sum(|m| m.sweeps as f64) / n,
+            coarse / n / 1e3,
+            total / n / 1e3,
+            100.0 * coarse / total.max(f64::MIN_POSITIVE),
+        );
+    }
+    any.then_some(out)
+}
+
 /// Whether the pile has settled by the end: the trajectory's mean and largest kinetic energy
 /// (J) over the compared steps among each seed's last 100, in words.
 pub fn settling(steps: &[ComparedStep], total_steps: u32) -> String {

@@ -446,6 +446,9 @@ fn solvers_report(
     if let Some(factor) = compare::factorisation_markdown(menu, steps) {
         report += &format!("\n## Where a factorising solver's time goes\n\n{factor}");
     }
+    if let Some(coarse) = compare::coarse_markdown(menu, steps) {
+        report += &format!("\n## What the coarse correction does\n\n{coarse}");
+    }
     report += &format!("\nSettling: {}.\n", compare::settling(steps, args.scene.steps));
     if args.whole_runs {
         report += &format!(

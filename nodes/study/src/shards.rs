@@ -52,6 +52,10 @@ pub struct SolverStep {
     /// before they were).
     #[serde(default)]
     pub factor: Vec<(u32, f32, f32)>,
+    /// Per setting: coarse corrections kept and dropped, and their microseconds (empty in a
+    /// study kept before they were).
+    #[serde(default)]
+    pub coarse: Vec<(u32, u32, f32)>,
 }
 
 /// [`RunTotals`] as kept.
@@ -92,6 +96,7 @@ impl SolverStep {
             kinetic_energy: s.kinetic_energy,
             solves: s.solves.iter().map(|m| (m.sweeps, m.converged, m.us, m.natural_max, m.natural_rms)).collect(),
             factor: s.solves.iter().map(|m| (m.factorisations, m.symbolic_us, m.numeric_us)).collect(),
+            coarse: s.solves.iter().map(|m| (m.corrections, m.corrections_dropped, m.coarse_us)).collect(),
         }
     }
 
@@ -109,6 +114,7 @@ impl SolverStep {
                 .enumerate()
                 .map(|(k, &(sweeps, converged, us, natural_max, natural_rms))| {
                     let (factorisations, symbolic_us, numeric_us) = self.factor.get(k).copied().unwrap_or_default();
+                    let (corrections, corrections_dropped, coarse_us) = self.coarse.get(k).copied().unwrap_or_default();
                     MenuSolve {
                         sweeps,
                         converged,
@@ -118,6 +124,9 @@ impl SolverStep {
                         factorisations,
                         symbolic_us,
                         numeric_us,
+                        corrections,
+                        corrections_dropped,
+                        coarse_us,
                     }
                 })
                 .collect(),

@@ -15,11 +15,14 @@
 //!   one row's update, the natural residual of some rows;
 //! - [`colour`]: the colour order: rows coloured so that a colour's rows share no moving body,
 //!   each colour swept on all threads (`--threads`), the same bits on any thread count;
+//! - `coarse`: the coarse correction between sweeps (`/coarse:S:K`): the step's problem on its
+//!   active set solved within uniform stress fields over cells, kept when it lowers the energy;
 //! - [`setting`]: which member of the family ([`SolverSetting`]) and which stopping rule, spelled
 //!   as the command lines spell them;
 //! - [`position`]: Box2D 2.3's position pass after integration ([`correct_positions`]);
 //! - [`deadline`]: a solve's wall-time budget, checked by every method.
 
+mod coarse;
 pub mod colour;
 #[cfg(test)]
 mod colour_tests;
@@ -44,7 +47,7 @@ pub use pgs::{convergence_rate, natural_residual, ContactSolver, RATE_WINDOW};
 pub use position::{correct_positions, measure, PoseBody, PositionGeometry, PositionParams, PositionRow};
 pub use rows::{relative_velocity, row_masses, tangent_of, ContactRow, Impulse, SolverBody};
 pub use setting::{
-    parse_settings, FrictionModel, InteriorVariant, Method, Momentum, RowOrder, SolverSetting, StopRule,
-    AUTO_NEWTON_FROM,
+    parse_settings, CoarseCorrection, FrictionModel, InteriorVariant, Method, Momentum, RowOrder, SolverSetting,
+    StopRule, AUTO_NEWTON_FROM,
 };
 pub use sweep::{NaturalResidual, SolveParams, SolveReport, TRAIL_SWEEPS};

@@ -144,6 +144,71 @@ pub enum RowOrder {
     Colour,
 }
 
+/// A coarse correction between the sweeps ([`super::coarse`]): every `every` sweeps, the step's
+/// problem restricted to its active set is solved exactly within uniform stress fields over
+/// square cells of side `cell` metres, and the impulses move by that solution if it lowers the
+/// problem's energy. Spelled `/coarse`, `/coarse:S` or `/coarse:S:K` after the method (and order).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoarseCorrection {
+    /// Side of a cell, metres.
+    pub cell: f32,
+    /// Sweeps between corrections (the first after this many).
+    pub every: u32,
+}
+
+impl CoarseCorrection {
+    /// `/coarse`: cells of 8 m, every 64 sweeps: the least time lost of the spellings tried on
+    /// the validation seeds (docs/solvers.md); no spelling saved time against plain NNCG.
+    pub const DEFAULT: CoarseCorrection = CoarseCorrection { cell: 8.0, every: 64 };
+    /// The range a cell's side may take, metres.
+    pub const CELLS: std::ops::RangeInclusive<f32> = 0.25..=1000.0;
+
+    pub fn is_valid(&self) -> bool {
+        Self::CELLS.contains(&self.cell) && self.every >= 1
+    }
+}
+
+impl fmt::Display for CoarseCorrection {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let default = Self::DEFAULT;
+        if *self == default {
+            f.write_str("coarse")
+        } else if self.every == default.every {
+            write!(f, "coarse:{}", self.cell)
+        } else {
+            write!(f, "coarse:{}:{}", self.cell, self.every)
+        }
+    }
+}
+
+impl FromStr for CoarseCorrection {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let mut parts = s.split(':');
+        if parts.next() != Some("coarse") {
+            return Err(format!("unknown correction `{s}`"));
+        }
+        let mut correction = Self::DEFAULT;
+        if let Some(cell) = parts.next() {
+            correction.cell = cell.parse().map_err(|e| format!("coarse cell `{cell}`: {e}"))?;
+        }
+        if let Some(every) = parts.next() {
+            correction.every = every.parse().map_err(|e| format!("coarse every `{every}`: {e}"))?;
+        }
+        if parts.next().is_some() {
+            return Err(format!("`{s}`: at most a cell and a sweep count (coarse:S:K)"));
+        }
+        if !correction.is_valid() {
+            return Err(format!(
+                "`{s}`: a cell in [{}, {}] m and at least 1 sweep between corrections",
+                Self::CELLS.start(),
+                Self::CELLS.end()
+            ));
+        }
+        Ok(correction)
+    }
+}
+
 /// When a solve has converged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum StopRule {
@@ -239,6 +304,8 @@ pub struct SolverSetting {
     pub relaxation: f32,
     pub momentum: Momentum,
     pub order: RowOrder,
+    /// A coarse correction between the sweeps (one-thread orders only), or none.
+    pub coarse: Option<CoarseCorrection>,
 }
 
 impl Default for SolverSetting {
@@ -249,8 +316,13 @@ impl Default for SolverSetting {
 
 impl SolverSetting {
     /// The thesis's solver: projected Gauss-Seidel in the recorded order.
-    pub const PGS: SolverSetting =
-        SolverSetting { method: Method::Sweeps, relaxation: 1.0, momentum: Momentum::None, order: RowOrder::Recorded };
+    pub const PGS: SolverSetting = SolverSetting {
+        method: Method::Sweeps,
+        relaxation: 1.0,
+        momentum: Momentum::None,
+        order: RowOrder::Recorded,
+        coarse: None,
+    };
 
     /// The solver `dc-sim` uses unless told otherwise: NNCG restarting above 1.2, rows top-down
     /// (0.34x PGS's sweeps and 0.36x its time to the same natural residual on the evaluation
@@ -260,6 +332,7 @@ impl SolverSetting {
         relaxation: 1.0,
         momentum: Momentum::Nncg { restart: 1.2 },
         order: RowOrder::Down,
+        coarse: None,
     };
 
     /// Newton ([`Method::Newton`]), the recommended sweeps behind it.
@@ -278,7 +351,7 @@ impl SolverSetting {
     pub const MPRGP: SolverSetting = SolverSetting { method: Method::Mprgp, ..SolverSetting::RECOMMENDED };
 
     /// What `--solver` accepts, in words.
-    pub const SPELLING: &'static str = "ipm (interior point), ipm:nd, ipm:warm, ipm:nd+warm (ordered by nested dissection, from the centred warm start, both), newton (proximal Newton), mprgp (conjugate gradients on the QP), auto (the fastest measured at the size: nncg:1.2/down at every size so far), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down), /colour (rows coloured, swept on --threads threads) or /recorded";
+    pub const SPELLING: &'static str = "ipm (interior point), ipm:nd, ipm:warm, ipm:nd+warm (ordered by nested dissection, from the centred warm start, both), newton (proximal Newton), mprgp (conjugate gradients on the QP), auto (the fastest measured at the size: nncg:1.2/down at every size so far), pgs, sor:W (W in (0, 2)), nncg or nncg:R (restart above R >= 0; nncg = nncg:1), each optionally with /down (rows top-down), /colour (rows coloured, swept on --threads threads) or /recorded, then optionally /coarse, /coarse:S or /coarse:S:K (a coarse correction over cells of S m every K sweeps; one-thread orders)";
 
     /// The sweeps of this setting (what a second-order method falls back to and finishes with;
     /// itself for the sweeps).
@@ -290,6 +363,7 @@ impl SolverSetting {
     /// threshold >= 0).
     pub fn is_valid(&self) -> bool {
         valid_relaxation(self.relaxation)
+            && self.coarse.is_none_or(|c| c.is_valid() && self.order != RowOrder::Colour)
             && match self.momentum {
                 Momentum::None => true,
                 Momentum::Nncg { restart } => restart.is_finite() && restart >= 0.0,
@@ -323,6 +397,9 @@ impl fmt::Display for SolverSetting {
         if self.order != RowOrder::Recorded {
             write!(f, "/{}", self.order.name())?
         }
+        if let Some(coarse) = self.coarse {
+            write!(f, "/{coarse}")?
+        }
         Ok(())
     }
 }
@@ -340,10 +417,25 @@ impl FromStr for SolverSetting {
         if let Some((variant, _)) = InteriorVariant::SPELLINGS.iter().find(|(_, name)| *name == s) {
             return Ok(SolverSetting { method: Method::InteriorPoint(*variant), ..SolverSetting::RECOMMENDED });
         }
-        let (method, order) = match s.split_once('/') {
-            Some((m, o)) => (m, o.parse::<RowOrder>().map_err(bad)?),
-            None => (s, RowOrder::Recorded),
-        };
+        let mut parts = s.split('/');
+        let method = parts.next().unwrap_or_default();
+        let (mut order, mut coarse) = (None, None);
+        for part in parts {
+            if part.starts_with("coarse") {
+                if coarse.replace(part.parse::<CoarseCorrection>().map_err(bad)?).is_some() {
+                    return Err(bad("two coarse corrections".to_string()));
+                }
+            } else if order.replace(part.parse::<RowOrder>().map_err(bad)?).is_some() || coarse.is_some() {
+                return Err(bad(format!("the row order `{part}` comes once, before /coarse")));
+            }
+        }
+        let order = order.unwrap_or(RowOrder::Recorded);
+        if coarse.is_some() && order == RowOrder::Colour {
+            return Err(bad(
+                "the coarse correction runs between one-thread sweeps (recorded or down order), not /colour"
+                    .to_string(),
+            ));
+        }
         let number = |v: &str| v.parse::<f32>().map_err(|e| bad(format!("`{v}`: {e}")));
         // `nncg+sor:W`: the momentum over relaxed sweeps (the scratch study saw it diverge or
         // stall; kept spellable so that it can be measured).
@@ -367,7 +459,7 @@ impl FromStr for SolverSetting {
                 None => return Err(bad(format!("unknown method `{r}`"))),
             },
         };
-        let setting = SolverSetting { method: Method::Sweeps, relaxation, momentum, order };
+        let setting = SolverSetting { method: Method::Sweeps, relaxation, momentum, order, coarse };
         if !setting.is_valid() {
             return Err(bad("out of range".to_string()));
         }
@@ -393,7 +485,7 @@ pub fn parse_settings(list: &str) -> Result<Vec<SolverSetting>, String> {
 
 /// One spelling of every kind of setting, as the settings print themselves (the tests' list).
 #[cfg(test)]
-pub(crate) const SPELLED: [&str; 18] = [
+pub(crate) const SPELLED: [&str; 21] = [
     "newton",
     "ipm",
     "ipm:nd",
@@ -412,6 +504,9 @@ pub(crate) const SPELLED: [&str; 18] = [
     "nncg:1.2/colour",
     "pgs/colour",
     "nncg+sor:1.3",
+    "nncg:1.2/down/coarse",
+    "pgs/coarse:2",
+    "nncg/down/coarse:3:8",
 ];
 
 #[cfg(test)]
@@ -439,6 +534,13 @@ mod tests {
             ("sor:x", "`x`"),
             ("jacobi", "unknown method `jacobi`"),
             ("pgs/up", "unknown row order `up`"),
+            ("nncg/colour/coarse", "not /colour"),
+            ("nncg/down/coarse:0.1", "a cell in [0.25, 1000]"),
+            ("nncg/down/coarse:2:0", "at least 1 sweep"),
+            ("nncg/down/coarse:x", "coarse cell `x`"),
+            ("nncg/down/coarse:2:8:1", "at most a cell"),
+            ("nncg/coarse/down", "before /coarse"),
+            ("nncg/coarse/coarse", "two coarse"),
         ] {
             let e = s.parse::<SolverSetting>().unwrap_err();
             assert!(e.contains(s) && e.contains(says) && e.contains("expected"), "{s}: {e}");

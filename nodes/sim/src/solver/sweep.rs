@@ -5,7 +5,8 @@
 
 use super::rows::{cross, cross_sv, effective_mass, tangent_of, ContactRow, Impulse, SolverBody};
 use super::setting::{
-    valid_relaxation, FrictionModel, Method, Momentum, RowOrder, SolverSetting, StopRule, RELAXATION_LIMIT,
+    valid_relaxation, CoarseCorrection, FrictionModel, Method, Momentum, RowOrder, SolverSetting, StopRule,
+    RELAXATION_LIMIT,
 };
 use rapier2d::math::Vec2;
 
@@ -30,6 +31,8 @@ pub struct SolveParams {
     pub momentum: Momentum,
     /// The order the rows are visited in.
     pub order: RowOrder,
+    /// A coarse correction between sweeps ([`super::coarse`]), or none.
+    pub coarse: Option<CoarseCorrection>,
     /// What "converged" means.
     pub stop: StopRule,
     /// Sweeps or Newton ([`Method`]).
@@ -53,6 +56,7 @@ impl Default for SolveParams {
             relaxation: 1.0,
             momentum: Momentum::None,
             order: RowOrder::Recorded,
+            coarse: None,
             stop: StopRule::Change,
             method: Method::Sweeps,
             friction: FrictionModel::Box,
@@ -84,7 +88,13 @@ impl SolveParams {
 
     /// The solver these parameters pick.
     pub fn setting(&self) -> SolverSetting {
-        SolverSetting { method: self.method, relaxation: self.relaxation, momentum: self.momentum, order: self.order }
+        SolverSetting {
+            method: self.method,
+            relaxation: self.relaxation,
+            momentum: self.momentum,
+            order: self.order,
+            coarse: self.coarse,
+        }
     }
 
     /// These parameters with `setting`'s iteration and row order.
@@ -94,6 +104,7 @@ impl SolveParams {
             relaxation: setting.relaxation,
             momentum: setting.momentum,
             order: setting.order,
+            coarse: setting.coarse,
             ..self
         }
     }
@@ -155,6 +166,9 @@ pub struct SolveReport {
     pub natural: NaturalResidual,
     /// Sparse Cholesky factorisations (Newton: one per iteration, counted in `sweeps` too).
     pub factorisations: u32,
+    /// Coarse corrections kept, and tried but dropped (they would have raised the energy).
+    pub corrections: u32,
+    pub corrections_dropped: u32,
 }
 
 /// A row with its precomputed effective masses.
@@ -170,8 +184,8 @@ pub(super) struct Prepared {
     /// per-step model's fixed bound (`mu` 0), without a branch in the sweep.
     mu: f32,
     fixed_bound: f32,
-    normal_mass: f32,
-    tangent_mass: f32,
+    pub(super) normal_mass: f32,
+    pub(super) tangent_mass: f32,
     /// Whether body a and body b move under impulses (the coloured sweeps never write a static
     /// body, which rows of one colour may share).
     pub(super) moves: [bool; 2],

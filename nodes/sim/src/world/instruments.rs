@@ -124,6 +124,10 @@ pub struct MenuSolve {
     pub factorisations: u32,
     pub symbolic_us: f32,
     pub numeric_us: f32,
+    /// Coarse corrections kept and dropped, and the microseconds spent in them (0 without).
+    pub corrections: u32,
+    pub corrections_dropped: u32,
+    pub coarse_us: f32,
 }
 
 impl Instruments {
@@ -187,6 +191,9 @@ impl Instruments {
                 factorisations: report.factorisations,
                 symbolic_us: factor.map_or(0.0, |f| (f.symbolic_seconds * 1e6) as f32),
                 numeric_us: factor.map_or(0.0, |f| (f.numeric_seconds * 1e6) as f32),
+                corrections: report.corrections,
+                corrections_dropped: report.corrections_dropped,
+                coarse_us: (solver.coarse_seconds() * 1e6) as f32,
             });
         }
     }
