@@ -379,6 +379,8 @@ struct Envelope {
     first: Vec<usize>,
     start: Vec<usize>,
     values: Vec<f64>,
+    /// Per row: pinned to zero by the last factorisation (nothing touches it).
+    pinned: Vec<bool>,
 }
 
 impl Envelope {
@@ -414,12 +416,15 @@ impl Envelope {
     /// direction out of the correction rather than blowing it up.
     fn factorise(&mut self) {
         let n = self.first.len();
+        self.pinned.clear();
+        self.pinned.resize(n, false);
         for i in 0..n {
             let (fi, si) = (self.first[i], self.start[i]);
             let diagonal = self.values[si + i - fi];
             if diagonal <= 0.0 {
                 self.values[si..si + i - fi].fill(0.0);
                 self.values[si + i - fi] = 1.0;
+                self.pinned[i] = true;
                 continue;
             }
             for j in fi..i {
@@ -443,6 +448,10 @@ impl Envelope {
     fn solve(&self, b: &mut [f64]) {
         let n = self.first.len();
         for i in 0..n {
+            if self.pinned[i] {
+                b[i] = 0.0;
+                continue;
+            }
             let (fi, si) = (self.first[i], self.start[i]);
             let mut s = b[i];
             for k in fi..i {
@@ -531,10 +540,11 @@ mod tests {
 
     #[test]
     fn a_problem_with_no_active_row_has_nothing_to_correct() {
-        // Every ball moving away from the floor, no impulse: no row is in the space.
-        let (mut bodies, rows) = stack(4, 1.0);
+        // A ball moving away from the floor, no impulse: its row is not in the space. (Balls of
+        // a stack moving together would be: their rows close at zero speed.)
+        let (mut bodies, rows) = stack(1, 1.0);
         let (prepared, mut space) = space(&rows, &bodies, 2.0);
-        let mut work = vec![Impulse::default(); 4];
+        let mut work = vec![Impulse::default(); 1];
         assert_eq!(space.correct(&prepared, &mut work, &mut bodies, 1.0), Outcome::Empty);
     }
 
