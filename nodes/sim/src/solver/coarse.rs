@@ -279,13 +279,13 @@ impl CoarseSpace {
                 for t in slots.start..=s {
                     let (fs, ft) = (&self.forces[s], &self.forces[t]);
                     let (cs, ct) = (self.slot_cell[s] as usize, self.slot_cell[t] as usize);
-                    for k in 0..PER_CELL {
-                        for j in 0..PER_CELL {
+                    for (k, force_k) in fs.iter().enumerate() {
+                        for (j, force_j) in ft.iter().enumerate() {
                             let (row, col) = (PER_CELL * cs + k, PER_CELL * ct + j);
                             if col > row {
                                 continue;
                             }
-                            let v: f64 = (0..3).map(|d| fs[k][d] * inverse[d] * ft[j][d]).sum();
+                            let v: f64 = (0..3).map(|d| force_k[d] * inverse[d] * force_j[d]).sum();
                             if v != 0.0 {
                                 self.system.add(row, col, v);
                             }
@@ -454,8 +454,8 @@ impl Envelope {
             }
             let (fi, si) = (self.first[i], self.start[i]);
             let mut s = b[i];
-            for k in fi..i {
-                s -= self.values[si + k - fi] * b[k];
+            for (l, x) in self.values[si..si + i - fi].iter().zip(&b[fi..i]) {
+                s -= l * x;
             }
             b[i] = s / self.values[si + i - fi];
         }
@@ -463,8 +463,8 @@ impl Envelope {
             let (fi, si) = (self.first[i], self.start[i]);
             b[i] /= self.values[si + i - fi];
             let x = b[i];
-            for k in fi..i {
-                b[k] -= self.values[si + k - fi] * x;
+            for (bk, l) in b[fi..i].iter_mut().zip(&self.values[si..si + i - fi]) {
+                *bk -= l * x;
             }
         }
     }
@@ -472,9 +472,9 @@ impl Envelope {
 
 #[cfg(test)]
 mod tests {
-    use super::super::pgs::natural_residual;
     use super::super::rows::fixtures::{lattice, stack};
     use super::super::rows::ContactRow;
+    use super::super::sweep::natural_residual_rows;
     use super::*;
 
     /// The rows prepared in their order, and a space of cells of side `cell` on them.
@@ -499,12 +499,12 @@ mod tests {
         for (c, l) in prepared.iter().zip(&work) {
             apply(&mut bodies, c, c.n * l.normal + c.t * l.tangent);
         }
-        let start = natural_residual(&rows, &bodies, &work, 0.0);
+        let (start, _) = natural_residual_rows(&prepared, &work, &bodies[..], 1.0);
         let before = energy(&prepared, &work, &bodies, 0.0);
         assert_eq!(space.correct(&prepared, &mut work, &mut bodies, 1.0), Outcome::Kept);
         assert!(energy(&prepared, &work, &bodies, 0.0) < 1e-6 * before);
-        let after = natural_residual(&rows, &bodies, &work, 0.0);
-        assert!(start.max > 0.01 && after.max < 1e-4, "{start:?} -> {after:?}");
+        let (after, _) = natural_residual_rows(&prepared, &work, &bodies[..], 1.0);
+        assert!(start > 0.01 && after < 1e-4, "{start} -> {after}");
         for (i, (l, s)) in work.iter().zip(&solution).enumerate() {
             assert!((l.normal - s.normal).abs() < 1e-4 && l.tangent == 0.0, "row {i}: {l:?} against {s:?}");
         }
