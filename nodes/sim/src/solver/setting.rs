@@ -419,6 +419,11 @@ impl FromStr for SolverSetting {
         }
         let mut parts = s.split('/');
         let method = parts.next().unwrap_or_default();
+        let mut whole =
+            ["newton", "auto", "mprgp"].into_iter().chain(InteriorVariant::SPELLINGS.iter().map(|(_, n)| *n));
+        if whole.any(|m| m == method) {
+            return Err(bad(format!("`{method}` is not a sweep method: it takes no /order or /coarse")));
+        }
         let (mut order, mut coarse) = (None, None);
         for part in parts {
             if part.starts_with("coarse") {
@@ -541,6 +546,8 @@ mod tests {
             ("nncg/down/coarse:2:8:1", "at most a cell"),
             ("nncg/coarse/down", "before /coarse"),
             ("nncg/coarse/coarse", "two coarse"),
+            ("ipm/coarse", "`ipm` is not a sweep method"),
+            ("mprgp/down", "`mprgp` is not a sweep method"),
         ] {
             let e = s.parse::<SolverSetting>().unwrap_err();
             assert!(e.contains(s) && e.contains(says) && e.contains("expected"), "{s}: {e}");
