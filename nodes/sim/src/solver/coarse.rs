@@ -19,6 +19,7 @@
 //! drop is counted. Cells are ordered column by column, so the system is banded and factorised
 //! in its envelope (a few hundred unknowns at 1,000 bodies; no dense solve, no library call).
 
+use super::placement::Placement;
 use super::rows::{Impulse, SolverBody};
 use super::sweep::{apply, relative_of, Prepared};
 use rapier2d::math::Vec2;
@@ -65,12 +66,8 @@ pub(super) struct CoarseSpace {
     /// The state before a correction, restored if it is dropped.
     saved_work: Vec<Impulse>,
     saved_bodies: Vec<SolverBody>,
-    /// Placement scratch.
-    position: Vec<[f64; 2]>,
-    placed: Vec<bool>,
-    queue: Vec<u32>,
-    adjacency_start: Vec<u32>,
-    adjacency: Vec<u32>,
+    /// The bodies' centres, read off the rows.
+    placement: Placement,
     keys: Vec<(i32, i32)>,
 }
 
@@ -79,13 +76,15 @@ impl CoarseSpace {
     /// `cell` metres, the slots and the system's envelope. The rows' geometry is fixed within a
     /// solve; only the active set changes between corrections.
     pub(super) fn prepare(&mut self, prepared: &[Prepared], bodies: &[SolverBody], cell: f32) {
-        self.place(prepared, bodies.len());
+        let joints =
+            prepared.iter().map(|c| (c.a as u32, c.b as u32, [(c.ra.x - c.rb.x) as f64, (c.ra.y - c.rb.y) as f64]));
+        let position = self.placement.place(bodies.len(), joints);
         // Cells numbered column by column (x, then y): neighbours are near in the numbering, so
         // the system's envelope stays narrow.
         let side = cell as f64;
         self.keys.clear();
         self.keys.extend(prepared.iter().map(|c| {
-            let p = self.position[c.a];
+            let p = position[c.a];
             let (x, y) = (p[0] + c.ra.x as f64, p[1] + c.ra.y as f64);
             ((x / side).floor() as i32, (y / side).floor() as i32)
         }));
@@ -149,58 +148,6 @@ impl CoarseSpace {
         self.system.shape(first.iter().flat_map(|&f| [PER_CELL * f as usize; PER_CELL]));
     }
 
-    /// Every body's centre relative to the first placed body of its connected part
-    /// (`c_b = c_a + r_a - r_b` along the rows, a breadth-first walk).
-    fn place(&mut self, prepared: &[Prepared], bodies: usize) {
-        self.adjacency_start.clear();
-        self.adjacency_start.resize(bodies + 1, 0);
-        for c in prepared {
-            self.adjacency_start[c.a + 1] += 1;
-            self.adjacency_start[c.b + 1] += 1;
-        }
-        for b in 0..bodies {
-            self.adjacency_start[b + 1] += self.adjacency_start[b];
-        }
-        self.adjacency.clear();
-        self.adjacency.resize(2 * prepared.len(), 0);
-        let mut fill: Vec<u32> = self.adjacency_start[..bodies].to_vec();
-        for (i, c) in prepared.iter().enumerate() {
-            for body in [c.a, c.b] {
-                self.adjacency[fill[body] as usize] = i as u32;
-                fill[body] += 1;
-            }
-        }
-        self.position.clear();
-        self.position.resize(bodies, [0.0; 2]);
-        self.placed.clear();
-        self.placed.resize(bodies, false);
-        for root in 0..bodies {
-            if self.placed[root] {
-                continue;
-            }
-            self.placed[root] = true;
-            self.queue.clear();
-            self.queue.push(root as u32);
-            let mut next = 0;
-            while next < self.queue.len() {
-                let body = self.queue[next] as usize;
-                next += 1;
-                let rows = self.adjacency_start[body] as usize..self.adjacency_start[body + 1] as usize;
-                for &row in &self.adjacency[rows] {
-                    let c = &prepared[row as usize];
-                    let d = [(c.ra.x - c.rb.x) as f64, (c.ra.y - c.rb.y) as f64];
-                    let (other, offset) = if c.a == body { (c.b, d) } else { (c.a, [-d[0], -d[1]]) };
-                    if !self.placed[other] {
-                        self.placed[other] = true;
-                        let p = self.position[body];
-                        self.position[other] = [p[0] + offset[0], p[1] + offset[1]];
-                        self.queue.push(other as u32);
-                    }
-                }
-            }
-        }
-    }
-
     /// Cells of the prepared space.
     #[cfg(test)]
     pub(super) fn cells(&self) -> usize {
@@ -235,7 +182,7 @@ impl CoarseSpace {
                 continue;
             }
             active = true;
-            let values = stress_parts(c.n, c.t, tangent_active);
+            let values = stress_parts(c.n, c.t, [true, tangent_active]);
             self.basis.push(values);
             let cell = self.cell_of[i] as usize;
             // The energy's gradient along the row's parts: its velocity, plus the compliance's pull.
@@ -339,12 +286,13 @@ impl CoarseSpace {
     }
 }
 
-/// A row's parts of the three uniform stresses `xx`, `yy`, `xy`: `[n^T S n, t^T S n]` (the
-/// tangent part zero for a sliding row).
-fn stress_parts(n: Vec2, t: Vec2, sticking: bool) -> [[f64; 2]; PER_CELL] {
+/// A row's `[normal, tangent]` parts of the three uniform stresses `xx`, `yy`, `xy`:
+/// `[n^T S n, t^T S n]`, the normal part zero on an open row and the tangent part on a row that
+/// is not sticking (shared with the `coarse:S` warm start, which applies them once).
+pub(crate) fn stress_parts(n: Vec2, t: Vec2, [closed, sticking]: [bool; 2]) -> [[f64; 2]; PER_CELL] {
     let (nx, ny, tx, ty) = (n.x as f64, n.y as f64, t.x as f64, t.y as f64);
-    let keep = if sticking { 1.0 } else { 0.0 };
-    [[nx * nx, keep * tx * nx], [ny * ny, keep * ty * ny], [2.0 * nx * ny, keep * (tx * ny + ty * nx)]]
+    let mask = |[vn, vt]: [f64; 2]| [if closed { vn } else { 0.0 }, if sticking { vt } else { 0.0 }];
+    [mask([nx * nx, tx * nx]), mask([ny * ny, ty * ny]), mask([2.0 * nx * ny, tx * ny + ty * nx])]
 }
 
 /// The step's energy at `work`: the bodies' kinetic energy plus the compliance's
@@ -595,9 +543,9 @@ mod tests {
     #[test]
     fn a_uniform_stress_has_a_rows_normal_and_tangent_parts() {
         // A floor contact (normal +y, tangent +x... Box2D's tangent is (n.y, -n.x) = (1, 0)).
-        let [xx, yy, xy] = stress_parts(Vec2::Y, Vec2::X, true);
+        let [xx, yy, xy] = stress_parts(Vec2::Y, Vec2::X, [true, true]);
         assert_eq!((xx, yy, xy), ([0.0, 0.0], [1.0, 0.0], [0.0, 1.0]));
         // Sliding: the tangent part is not in the space.
-        assert_eq!(stress_parts(Vec2::Y, Vec2::X, false)[2], [0.0, 0.0]);
+        assert_eq!(stress_parts(Vec2::Y, Vec2::X, [true, false])[2], [0.0, 0.0]);
     }
 }

@@ -15,11 +15,10 @@
 //! fast or faster; dissection's gain is a cheaper analysis, and it is kept as `ipm:nd` for that
 //! measurement, not as a default.
 //!
-//! The bodies' positions are not part of a solve's input: they are read off the rows, whose
-//! lever arms fix every body's centre relative to its neighbours' (`c_b = c_a + r_a - r_b`). A
-//! breadth-first walk from one body of each connected part places the others; parts not joined
-//! by a row need no separator between them.
+//! The bodies' positions are not part of a solve's input: they are read off the rows' lever arms
+//! ([`super::placement`]); parts not joined by a row need no separator between them.
 
+use super::placement::Placement;
 use super::rows::ContactRow;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::sparse::linalg::amd;
@@ -34,9 +33,7 @@ const LEAF: usize = 64;
 pub(super) struct Dissection {
     adjacency_start: Vec<u32>,
     adjacency: Vec<u32>,
-    position: Vec<[f64; 2]>,
-    placed: Vec<bool>,
-    queue: Vec<u32>,
+    placement: Placement,
     /// Per block: the id of the set it belongs to now, and its side in that set's split.
     set_of: Vec<u32>,
     side: Vec<u8>,
@@ -104,45 +101,14 @@ impl Dissection {
         &self.adjacency[self.adjacency_start[b] as usize..self.adjacency_start[b + 1] as usize]
     }
 
-    /// Every block's centre, relative to the first placed block of its connected part.
+    /// Every block's centre, relative to the first placed block of its connected part: `r_a - r_b`
+    /// of every row joining two blocks.
     fn place(&mut self, blocks: usize, rows: &[ContactRow], block_of: &[u32]) {
-        // Per block pair, the offset of b's centre from a's: `r_a - r_b` of any row joining them.
-        let mut offsets: Vec<Vec<(u32, [f64; 2])>> = vec![Vec::new(); blocks];
-        for r in rows {
-            let (Some(&ka), Some(&kb)) = (block_of.get(r.body_a as usize), block_of.get(r.body_b as usize)) else {
-                continue;
-            };
-            if ka == u32::MAX || kb == u32::MAX || ka == kb {
-                continue;
-            }
-            let d = [(r.ra.x - r.rb.x) as f64, (r.ra.y - r.rb.y) as f64];
-            offsets[ka as usize].push((kb, d));
-            offsets[kb as usize].push((ka, [-d[0], -d[1]]));
-        }
-        self.position.clear();
-        self.position.resize(blocks, [0.0; 2]);
-        self.placed.clear();
-        self.placed.resize(blocks, false);
-        for root in 0..blocks {
-            if self.placed[root] {
-                continue;
-            }
-            self.placed[root] = true;
-            self.queue.clear();
-            self.queue.push(root as u32);
-            let mut head = 0;
-            while head < self.queue.len() {
-                let a = self.queue[head] as usize;
-                head += 1;
-                for &(b, d) in &offsets[a] {
-                    if !self.placed[b as usize] {
-                        self.placed[b as usize] = true;
-                        self.position[b as usize] = [self.position[a][0] + d[0], self.position[a][1] + d[1]];
-                        self.queue.push(b);
-                    }
-                }
-            }
-        }
+        let block = |body: u32| block_of.get(body as usize).copied().filter(|&k| k != u32::MAX);
+        let joints = rows.iter().filter_map(move |r| {
+            Some((block(r.body_a)?, block(r.body_b)?, [(r.ra.x - r.rb.x) as f64, (r.ra.y - r.rb.y) as f64]))
+        });
+        self.placement.place(blocks, joints);
     }
 
     /// Appends the elimination order of `set` to `order`: its two halves' (recursively), then its
@@ -157,7 +123,7 @@ impl Dissection {
         // The longer extent's axis, split at its median.
         let (mut low, mut high) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for &b in set.iter() {
-            let p = self.position[b as usize];
+            let p = self.placement.positions()[b as usize];
             for k in 0..2 {
                 low[k] = low[k].min(p[k]);
                 high[k] = high[k].max(p[k]);
@@ -165,7 +131,7 @@ impl Dissection {
         }
         let axis = if high[0] - low[0] >= high[1] - low[1] { 0 } else { 1 };
         let middle = set.len() / 2;
-        let position = &self.position;
+        let position = self.placement.positions();
         // Ties broken by block index: the order is a function of the input alone.
         set.select_nth_unstable_by(middle, |&a, &b| {
             position[a as usize][axis].total_cmp(&position[b as usize][axis]).then(a.cmp(&b))
@@ -309,7 +275,8 @@ mod tests {
         d.place(20, &rows, &block_of);
         for b in 0..20 {
             let expected = [(b % 5) as f64, (b / 5) as f64];
-            assert!((d.position[b][0] - expected[0]).abs() < 1e-6 && (d.position[b][1] - expected[1]).abs() < 1e-6);
+            let p = d.placement.positions()[b];
+            assert!((p[0] - expected[0]).abs() < 1e-6 && (p[1] - expected[1]).abs() < 1e-6);
         }
     }
 

@@ -33,11 +33,13 @@ pub mod newton;
 #[cfg(test)]
 mod newton_tests;
 pub mod pgs;
+mod placement;
 pub mod position;
 pub mod rows;
 pub mod setting;
 pub mod sweep;
 
+pub(crate) use coarse::stress_parts;
 pub use colour::{machine_cores, process_threads, set_process_threads, SweepThreads, ThreadsError, MAX_THREADS};
 pub use krylov::{KrylovSolver, KrylovStats};
 pub use newton::{

@@ -114,6 +114,7 @@ impl ContactSolver {
     ) -> SolveReport {
         let deadline = deadline_after(params.time_budget_us);
         self.newton_stats = None;
+        self.coarse_seconds = 0.0;
         self.solve_until(rows, bodies, warm_start, &params.for_start(warm_start), deadline)
     }
 
@@ -224,9 +225,8 @@ impl ContactSolver {
             self.finish(&report);
             return report;
         }
-        // The colour order has no correction (its sweeps run on every thread; the spelling refuses it).
-        let coarse = params.coarse.filter(|_| params.order != RowOrder::Colour);
-        self.coarse_seconds = 0.0;
+        // The colour order, which has no correction (the spelling refuses it), returned above.
+        let coarse = params.coarse;
         if let Some(correction) = coarse {
             let started = Instant::now();
             self.coarse.prepare(&self.prepared, bodies, correction.cell);

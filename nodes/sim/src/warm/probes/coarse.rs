@@ -16,7 +16,8 @@
 use std::collections::HashMap;
 
 use super::galerkin::{builtin_step, BuiltinStep};
-use crate::solver::rows::{body_impulses, tangent_of, ContactRow, Impulse};
+use crate::solver::rows::{body_impulses, tangent_of, Impulse};
+use crate::solver::stress_parts;
 use crate::warm::model::{Needs, Unavailable, WarmStartInput, WarmStartModel};
 
 /// Basis vectors per cell: the stress components xx, yy, xy.
@@ -83,7 +84,7 @@ impl WarmStartModel for Coarse {
             let at = ((contact.point.x / self.cell).floor() as i32, (contact.point.y / self.cell).floor() as i32);
             let next = cells.len();
             self.row_cells.push(*cells.entry(at).or_insert(next));
-            self.row_basis.push(stress_basis(row, *act));
+            self.row_basis.push(stress_parts(row.normal, tangent_of(row.normal), *act));
         }
         let unknowns = cells.len() * PER_CELL;
 
@@ -150,15 +151,6 @@ impl WarmStartModel for Coarse {
         }
         Ok(())
     }
-}
-
-/// A row's `[normal, tangent]` force under unit stresses xx, yy and xy: `[n^T S n, t^T S n]`,
-/// zero on inactive rows.
-fn stress_basis(row: &ContactRow, [closed, sticking]: [bool; 2]) -> [[f64; 2]; PER_CELL] {
-    let (n, t) = (row.normal, tangent_of(row.normal));
-    let (nx, ny, tx, ty) = (n.x as f64, n.y as f64, t.x as f64, t.y as f64);
-    let mask = |[vn, vt]: [f64; 2]| [if closed { vn } else { 0.0 }, if sticking { vt } else { 0.0 }];
-    [mask([nx * nx, tx * nx]), mask([ny * ny, ty * ny]), mask([2.0 * nx * ny, tx * ny + ty * nx])]
 }
 
 /// Solves the symmetric positive semi-definite `n x n` system `a x = b` (row-major, overwritten)
